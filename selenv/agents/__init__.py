@@ -1,0 +1,12 @@
+"""Classic heuristics behind one agent protocol; importing registers them by name.
+
+``selenv.agents.make(name, env_id)`` builds one; ``AGENTS`` lists them; the solvers in
+:mod:`selenv.agents.fim_solvers` work on raw arrays without any env.
+"""
+
+from __future__ import annotations
+
+from selenv.agents import fim as _fim  # noqa: F401  (registers the FIM agents)
+from selenv.agents.base import AGENTS, Agent, AgentSpec, PlanAgent, agents_for, make, register_agent
+
+__all__ = ["AGENTS", "Agent", "AgentSpec", "PlanAgent", "agents_for", "make", "register_agent"]

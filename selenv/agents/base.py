@@ -1,0 +1,128 @@
+"""The agent protocol shared by classic heuristics and learned policies, and the agent registry.
+
+An agent acts in a Gymnasium env exactly like a policy would::
+
+    agent = selenv.agents.make("greedy", "selenv/FIMSelection-v0")
+    obs, info = env.reset(seed=0)
+    agent.reset(env, seed=0)
+    while not done:
+        obs, r, terminated, truncated, info = env.step(agent.act(obs, info))
+
+Heuristics may read the scenario's oracle view (``env.unwrapped``) in :meth:`Agent.reset` or
+:meth:`Agent.act`; learned policies use only ``obs`` and ``info``. Agents never re-implement
+the objective: they call the solvers and the scenario.
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+
+__all__ = [
+    "AGENTS",
+    "Agent",
+    "AgentSpec",
+    "PlanAgent",
+    "agents_for",
+    "make",
+    "register_agent",
+]
+
+
+class Agent(ABC):
+    """Base class of every agent: ``reset`` once per episode, then ``act`` each step."""
+
+    #: registry name (as used by ``selenv bench --agents``)
+    name: ClassVar[str] = "agent"
+
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
+        """Start an episode in ``env`` (already reset); ``seed`` seeds any internal randomness."""
+        self.env = env
+        self.rng = np.random.default_rng(seed)
+
+    @abstractmethod
+    def act(self, obs: Any, info: dict[str, Any]) -> Any:
+        """Return the action for the current observation."""
+
+
+class PlanAgent(Agent):
+    """An agent that computes a plan (a sequence of actions) and then plays it.
+
+    Subclasses implement :meth:`plan`, which is called lazily at the first :meth:`act` of an
+    episode (so the plan's compute time is counted as decision time) and again whenever the
+    plan runs out before the episode ends.
+    """
+
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
+        super().reset(env, seed)
+        self._plan: list[Any] = []
+
+    @abstractmethod
+    def plan(self, obs: Any, info: dict[str, Any]) -> list[Any]:
+        """Return the actions to play from the current state on."""
+
+    def act(self, obs: Any, info: dict[str, Any]) -> Any:  # noqa: D102
+        if not self._plan:
+            self._plan = list(self.plan(obs, info))
+            if not self._plan:
+                raise RuntimeError(f"agent {self.name!r} produced an empty plan")
+        return self._plan.pop(0)
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """Registry entry: ``factory(**kwargs)`` builds the agent for the env ids in ``env_ids``.
+
+    ``factory`` may be a callable or an ``"module:attr"`` string imported lazily (so that the
+    learned agents living above this layer can register without an upward import).
+    """
+
+    name: str
+    env_ids: tuple[str, ...]
+    factory: Callable[..., Agent] | str
+    description: str = ""
+    kwargs: dict[str, Any] = field(default_factory=dict)
+
+    def build(self, **kwargs: Any) -> Agent:
+        """Instantiate the agent."""
+        fac = self.factory
+        if isinstance(fac, str):
+            module, attr = fac.split(":")
+            fac = getattr(importlib.import_module(module), attr)
+        return fac(**{**self.kwargs, **kwargs})
+
+
+#: name -> env id -> spec
+AGENTS: dict[str, dict[str, AgentSpec]] = {}
+
+
+def register_agent(spec: AgentSpec) -> None:
+    """Register ``spec`` under its name for each of its env ids (re-registering replaces)."""
+    for env_id in spec.env_ids:
+        AGENTS.setdefault(spec.name, {})[env_id] = spec
+
+
+def agents_for(env_id: str) -> list[str]:
+    """Names of the agents that apply to ``env_id``, in registration order."""
+    return [name for name, by_env in AGENTS.items() if env_id in by_env]
+
+
+def make(name: str, env_id: str, **kwargs: Any) -> Agent:
+    """Build agent ``name`` for ``env_id``.
+
+    Raises:
+        ValueError: unknown agent, or an agent that does not apply to ``env_id``.
+    """
+    if name not in AGENTS:
+        raise ValueError(f"unknown agent {name!r}; known agents: {sorted(AGENTS)}")
+    if env_id not in AGENTS[name]:
+        raise ValueError(
+            f"agent {name!r} does not apply to {env_id!r}; it applies to {sorted(AGENTS[name])}"
+        )
+    return AGENTS[name][env_id].build(**kwargs)

@@ -1,0 +1,110 @@
+"""Agents for ``selenv/FIMSelection-v0``: the classic selection heuristics as env agents.
+
+Each agent plans on the env's oracle view (the current information and the whitened pool) with
+the plain solvers of :mod:`selenv.agents.fim_solvers`, then plays the plan one pick per step.
+Picks already made in the episode become part of the prior (``Q0 <- FIM(selected)``), so an
+agent can also take over in the middle of an episode.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from selenv.agents.base import AgentSpec, PlanAgent, register_agent
+from selenv.agents.fim_solvers import (
+    MAX_BRUTE_FORCE_SUBSETS,
+    Selection,
+    brute_force_whitened,
+    greedy_whitened,
+    lazy_greedy_whitened,
+    swap_whitened,
+)
+
+__all__ = ["FIM_ENV_ID", "FIMSolverAgent", "RandomMaskedAgent"]
+
+FIM_ENV_ID = "selenv/FIMSelection-v0"
+
+
+class FIMSolverAgent(PlanAgent):
+    """Plays the selection a solver computes on the remaining pool and the remaining budget.
+
+    Args:
+        solver: ``(Q0, G, budget, **solver_kwargs) -> Selection`` on a whitened pool.
+        name: registry name.
+        solver_kwargs: extra keyword arguments of the solver.
+    """
+
+    def __init__(
+        self,
+        solver: Callable[..., Selection],
+        name: str,
+        **solver_kwargs: Any,
+    ) -> None:
+        self.solver = solver
+        self.name = name  # type: ignore[misc]
+        self.solver_kwargs = solver_kwargs
+
+    def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
+        """Solve on the candidates not yet selected, with the current FIM as the prior."""
+        env = self.env.unwrapped
+        state = env.state  # type: ignore[attr-defined]
+        remaining = np.flatnonzero(~state.selected)
+        prior = state.information  # Q0 + FIM of the picks so far
+        sel = self.solver(prior, state.G[remaining], env.budget_left, **self.solver_kwargs)  # type: ignore[attr-defined]
+        return [int(remaining[k]) for k in sel.indices]
+
+
+class RandomMaskedAgent(PlanAgent):
+    """Uniformly random allowed action, drawn from the agent's seeded generator."""
+
+    name = "random"
+
+    def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
+        """One random allowed action (re-planned every step, so it follows the mask)."""
+        mask = np.asarray(info["action_mask"], dtype=bool)
+        return [int(self.rng.choice(np.flatnonzero(mask)))]
+
+
+def _solver_agent(solver: Callable[..., Selection], name: str) -> Callable[..., FIMSolverAgent]:
+    def factory(**kwargs: Any) -> FIMSolverAgent:
+        return FIMSolverAgent(solver, name, **kwargs)
+
+    return factory
+
+
+register_agent(AgentSpec("random", (FIM_ENV_ID,), RandomMaskedAgent, "uniform random pick"))
+register_agent(
+    AgentSpec(
+        "greedy",
+        (FIM_ENV_ID,),
+        _solver_agent(greedy_whitened, "greedy"),
+        "Algorithm 1 with rank-one/block updates, >= (1-1/e) OPT",
+    )
+)
+register_agent(
+    AgentSpec(
+        "lazy_greedy",
+        (FIM_ENV_ID,),
+        _solver_agent(lazy_greedy_whitened, "lazy_greedy"),
+        "greedy with lazy (Minoux) evaluations; same picks",
+    )
+)
+register_agent(
+    AgentSpec(
+        "swap",
+        (FIM_ENV_ID,),
+        _solver_agent(swap_whitened, "swap"),
+        "greedy + best-improvement swap local search",
+    )
+)
+register_agent(
+    AgentSpec(
+        "brute_force",
+        (FIM_ENV_ID,),
+        _solver_agent(brute_force_whitened, "brute_force"),
+        f"exhaustive optimum (refuses > {MAX_BRUTE_FORCE_SUBSETS:,} subsets)",
+    )
+)

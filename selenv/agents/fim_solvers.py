@@ -1,0 +1,309 @@
+"""Plain solvers for log-det measurement selection on raw arrays (Kirchner et al. 2020).
+
+Every solver maximises ``f(S) = log det(Q0 + sum_{k in S} H_k^T R_k^-1 H_k) - log det Q0``
+(eq. 9) subject to ``|S| <= budget`` (eq. 8), and returns a :class:`Selection`.
+
+Public solvers take ``(Q0, H, R, budget)`` with ``Q0`` ``(d, d)`` SPD, and either ``H (N, m, d)``
+with ``R (N, m, m)`` / ``(m, m)``, or scalar candidates ``H (N, d)`` with variances ``R (N,)``.
+The ``*_whitened`` variants take the whitened pool ``G (N, m, d)`` (see
+:func:`selenv.core.information.whiten`) and are what the env agents call.
+
+============== ====================================================== ==================
+solver         method                                                 guarantee
+============== ====================================================== ==================
+greedy         Algorithm 1 with rank-one (scalar) / block updates     >= (1 - 1/e) OPT
+lazy_greedy    Minoux's lazy evaluations of the same greedy           same set as greedy
+swap           greedy, then best-improvement 1-swap local search      >= greedy
+brute_force    exhaustive over all C(N, B) subsets (size-guarded)     optimal
+random         uniform subset                                         baseline
+============== ====================================================== ==================
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from selenv.core.information import (
+    LogDetGainState,
+    as_candidates,
+    information_matrix,
+    logdet_objective,
+)
+from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd
+
+__all__ = [
+    "MAX_BRUTE_FORCE_SUBSETS",
+    "CooperativeSelection",
+    "Selection",
+    "brute_force",
+    "brute_force_whitened",
+    "cooperative_greedy",
+    "greedy",
+    "greedy_whitened",
+    "lazy_greedy",
+    "lazy_greedy_whitened",
+    "random_selection",
+    "swap",
+    "swap_whitened",
+]
+
+#: default size guard of :func:`brute_force` (number of subsets evaluated)
+MAX_BRUTE_FORCE_SUBSETS = 2_000_000
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Result of a selection solver.
+
+    Attributes:
+        indices: selected candidate indices, in the order they were picked.
+        objective: ``f(S)`` of eq. (9) (nats), recomputed exactly from the selection.
+        evaluations: number of marginal-gain or subset evaluations the solver made.
+    """
+
+    indices: tuple[int, ...]
+    objective: float
+    evaluations: int
+
+
+def _check_budget(budget: object, N: int) -> int:
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer):
+        raise TypeError(f"budget must be an int, got {type(budget).__name__}")
+    if budget < 0:
+        raise ValueError(f"budget must be >= 0, got {budget}")
+    if budget > N:
+        raise ValueError(f"budget ({budget}) is larger than the pool of {N} candidates")
+    return int(budget)
+
+
+def _finish(Q0: FloatArray, G: FloatArray, indices: Sequence[int], evals: int) -> Selection:
+    idx = tuple(int(k) for k in indices)
+    return Selection(idx, logdet_objective(Q0, G, list(idx)), evals)
+
+
+def greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selection:
+    """Algorithm 1 with rank-one / block gain updates: ``O(N d^2 + B N m d)``."""
+    budget = _check_budget(budget, G.shape[0])
+    state = LogDetGainState(Q0, G, track_gains=True)
+    for _ in range(budget):
+        state.add(int(np.argmax(state.masked_gains())))  # line 4: best marginal gain
+    return _finish(Q0, G, state.order, budget * G.shape[0])
+
+
+def lazy_greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selection:
+    """Greedy with lazy evaluations (Minoux 1978): stale gains are upper bounds by submodularity.
+
+    Only ``P = A^-1`` is updated per pick; a candidate's gain is recomputed (``O(m d^2)``) when
+    it reaches the top of the heap. Ties break towards the lower index, as in :func:`greedy`.
+    """
+    budget = _check_budget(budget, G.shape[0])
+    state = LogDetGainState(Q0, G, track_gains=True)
+    assert state.gains is not None  # internal invariant, not user input
+    heap = [(-float(g), k, 0) for k, g in enumerate(state.gains)]
+    heapq.heapify(heap)
+    state.S = state.gains = None
+    state.track_gains = False  # from now on only P is updated
+    evals = G.shape[0]
+    for step in range(budget):
+        while True:
+            _, k, stamp = heapq.heappop(heap)
+            if stamp == step:  # fresh bound for this step: it is the exact max
+                state.add(k)
+                break
+            gain = state.gain_of(k)
+            evals += 1
+            heapq.heappush(heap, (-gain, k, step))
+    return _finish(Q0, G, state.order, evals)
+
+
+def _subset_logdets(Qk: FloatArray, Q0: FloatArray, combos: np.ndarray) -> FloatArray:
+    A = Q0 + Qk[combos].sum(axis=1)  # (C, d, d) FIM of each subset, eq. (2)
+    L = np.linalg.cholesky(A)
+    return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+
+
+def brute_force_whitened(
+    Q0: FloatArray, G: FloatArray, budget: int, *, max_subsets: int = MAX_BRUTE_FORCE_SUBSETS
+) -> Selection:
+    """Exhaustive optimum over all subsets of size ``budget`` (f is monotone, so ``|S| = B``).
+
+    Raises:
+        ValueError: if ``C(N, budget) > max_subsets`` (the size guard).
+    """
+    N = G.shape[0]
+    budget = _check_budget(budget, N)
+    n_sub = math.comb(N, budget)
+    if n_sub > max_subsets:
+        raise ValueError(
+            f"brute_force refuses C({N}, {budget}) = {n_sub:,} subsets (max_subsets="
+            f"{max_subsets:,}); use greedy or swap, or raise max_subsets"
+        )
+    if budget == 0:
+        return Selection((), 0.0, 1)
+    Qk = np.einsum("kmi,kmj->kij", G, G)  # Q_k = G_k^T G_k
+    best_val, best = -np.inf, None
+    it = itertools.combinations(range(N), budget)
+    chunk = max(1, 200_000 // (budget * G.shape[2] ** 2))
+    while True:
+        block = np.array(list(itertools.islice(it, chunk)), dtype=np.intp)
+        if block.size == 0:
+            break
+        vals = _subset_logdets(Qk, Q0, block)
+        i = int(np.argmax(vals))
+        if vals[i] > best_val:
+            best_val, best = float(vals[i]), block[i]
+    assert best is not None
+    return _finish(Q0, G, best.tolist(), n_sub)
+
+
+def _swap_deltas(G: FloatArray, P: FloatArray, sel: np.ndarray, uns: np.ndarray) -> FloatArray:
+    """``log det(A - Q_i + Q_j) - log det A`` for every selected i and unselected j, ``(K, U)``.
+
+    Matrix determinant lemma with ``U = [G_i; G_j]`` and ``D = diag(-I, I)``:
+    ``det(A + U^T D U) / det A = det(I + D U P U^T)``.
+    """
+    m = G.shape[1]
+    Gi, Gj = G[sel], G[uns]  # (K, m, d), (U, m, d)
+    Sii = np.einsum("kad,de,kbe->kab", Gi, P, Gi)  # G_i P G_i^T
+    Sjj = np.einsum("uad,de,ube->uab", Gj, P, Gj)  # G_j P G_j^T
+    Cij = np.einsum("kad,de,ube->kuab", Gi, P, Gj)  # G_i P G_j^T
+    K, U = len(sel), len(uns)
+    M = np.empty((K, U, 2 * m, 2 * m))
+    eye = np.eye(m)
+    M[:, :, :m, :m] = (eye - Sii)[:, None]
+    M[:, :, :m, m:] = -Cij
+    M[:, :, m:, :m] = np.swapaxes(Cij, -1, -2)
+    M[:, :, m:, m:] = (eye + Sjj)[None]
+    sign, logdet = np.linalg.slogdet(M)
+    return np.where(sign > 0, logdet, -np.inf)
+
+
+def swap_whitened(
+    Q0: FloatArray,
+    G: FloatArray,
+    budget: int,
+    *,
+    initial: Sequence[int] | None = None,
+    max_rounds: int = 200,
+    tol: float = 1e-9,
+) -> Selection:
+    """Greedy (or ``initial``) followed by best-improvement swap local search.
+
+    Each round evaluates every (selected, unselected) swap in one batched determinant-lemma
+    pass (``O(K N m^2 d)``) and applies the best if it gains more than ``tol`` nats. The
+    objective never decreases, so the result is at least as good as greedy.
+    """
+    N = G.shape[0]
+    budget = _check_budget(budget, N)
+    start = greedy_whitened(Q0, G, budget) if initial is None else None
+    sel = np.array(start.indices if start else list(initial or []), dtype=np.intp)
+    if len(set(sel.tolist())) != budget:
+        raise ValueError(f"initial must hold {budget} distinct indices, got {list(sel)}")
+    evals = start.evaluations if start else 0
+    for _ in range(max_rounds):
+        if budget in (0, N):
+            break
+        A = information_matrix(Q0, G, sel)
+        L = cholesky_spd(A, "FIM")
+        P = np.linalg.solve(L.T, np.linalg.solve(L, np.eye(A.shape[0])))  # A^-1 by two solves
+        uns = np.setdiff1d(np.arange(N), sel)
+        delta = _swap_deltas(G, P, sel, uns)
+        evals += delta.size
+        i, j = np.unravel_index(int(np.argmax(delta)), delta.shape)
+        if delta[i, j] <= tol:
+            break
+        sel[i] = uns[j]
+    return _finish(Q0, G, sel.tolist(), evals)
+
+
+def greedy(Q0: object, H: object, R: object, budget: int) -> Selection:
+    """Greedy selection (Algorithm 1) on raw arrays; see the module docstring for shapes."""
+    Q0_a, G = as_candidates(Q0, H, R)
+    return greedy_whitened(Q0_a, G, budget)
+
+
+def lazy_greedy(Q0: object, H: object, R: object, budget: int) -> Selection:
+    """Lazy greedy on raw arrays; returns the same set as :func:`greedy` with fewer evaluations."""
+    Q0_a, G = as_candidates(Q0, H, R)
+    return lazy_greedy_whitened(Q0_a, G, budget)
+
+
+def brute_force(
+    Q0: object, H: object, R: object, budget: int, *, max_subsets: int = MAX_BRUTE_FORCE_SUBSETS
+) -> Selection:
+    """Exhaustive optimum on raw arrays; refuses more than ``max_subsets`` subsets."""
+    Q0_a, G = as_candidates(Q0, H, R)
+    return brute_force_whitened(Q0_a, G, budget, max_subsets=max_subsets)
+
+
+def swap(Q0: object, H: object, R: object, budget: int, *, max_rounds: int = 200) -> Selection:
+    """Greedy plus swap local search on raw arrays."""
+    Q0_a, G = as_candidates(Q0, H, R)
+    return swap_whitened(Q0_a, G, budget, max_rounds=max_rounds)
+
+
+def random_selection(
+    Q0: object, H: object, R: object, budget: int, *, rng: np.random.Generator
+) -> Selection:
+    """Uniformly random subset of size ``budget`` drawn from ``rng`` (the baseline)."""
+    Q0_a, G = as_candidates(Q0, H, R)
+    budget = _check_budget(budget, G.shape[0])
+    idx = rng.choice(G.shape[0], size=budget, replace=False)
+    return _finish(Q0_a, G, idx.tolist(), 0)
+
+
+@dataclass(frozen=True)
+class CooperativeSelection:
+    """Per-agent selections and the fusion centre's objective ``f(F_1 u ... u F_n)``."""
+
+    selections: tuple[Selection, ...]
+    objective: float
+
+
+def cooperative_greedy(
+    Q0: object,
+    pools: Sequence[tuple[object, object]],
+    budgets: Sequence[int],
+    *,
+    mode: str = "cooperative",
+) -> CooperativeSelection:
+    """Multi-agent greedy selection (Kirchner et al. 2020, Sec. 6, "Cooperative Selection").
+
+    ``mode="independent"``: every agent runs Algorithm 1 on its own pool with prior ``Q0``.
+    ``mode="cooperative"``: agents select in turn; agent ``i`` replaces ``Q0`` with the FIM of
+    the prior and of agents ``1..i-1``'s picks.
+
+    Args:
+        Q0: ``(d, d)`` SPD prior information shared by all agents.
+        pools: one ``(H_i, R_i)`` pool per agent, shapes as in :func:`greedy`.
+        budgets: ``B_i`` per agent.
+        mode: ``"independent"`` or ``"cooperative"``.
+
+    Returns:
+        Each agent's :class:`Selection` (its ``objective`` is the agent's own gain on top of its
+        prior) and the centre's ``f`` of the union.
+    """
+    if mode not in ("independent", "cooperative"):
+        raise ValueError(f"mode must be 'independent' or 'cooperative', got {mode!r}")
+    if len(pools) != len(budgets):
+        raise ValueError(f"pools ({len(pools)}) and budgets ({len(budgets)}) must match")
+    Q0_a = as_candidates(Q0, np.zeros((0, np.shape(Q0)[0])), np.zeros(0))[0]
+    Gs = [as_candidates(Q0_a, H, R)[1] for H, R in pools]
+    prior = Q0_a
+    picks: list[Selection] = []
+    centre = Q0_a.copy()
+    for G, B in zip(Gs, budgets, strict=True):
+        s = greedy_whitened(prior, G, B)
+        picks.append(s)
+        Gs_sel = G[list(s.indices)].reshape(-1, G.shape[2])
+        centre = centre + Gs_sel.T @ Gs_sel
+        if mode == "cooperative":
+            prior = centre
+    obj = float(logdet_spd(centre, "FIM")) - float(logdet_spd(Q0_a, "Q0"))
+    return CooperativeSelection(tuple(picks), obj)

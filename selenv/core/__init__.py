@@ -1,0 +1,1 @@
+"""Pure numpy/scipy estimation math: linear algebra, Kalman/EKF, information and log-det gains."""

@@ -1,0 +1,18 @@
+"""Gymnasium environments; importing this module registers every ``selenv/...`` id."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+__all__ = ["ENV_IDS"]
+
+#: every Gymnasium id this package registers, in the order ``selenv list`` shows them
+ENV_IDS: tuple[str, ...] = ("selenv/FIMSelection-v0",)
+
+_ENTRY_POINTS = {
+    "selenv/FIMSelection-v0": "selenv.envs.fim_selection:FIMSelectionEnv",
+}
+
+for _id, _entry in _ENTRY_POINTS.items():
+    if _id not in gym.registry:
+        gym.register(id=_id, entry_point=_entry, disable_env_checker=False)
