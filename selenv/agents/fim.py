@@ -23,7 +23,7 @@ from selenv.agents.fim_solvers import (
     swap_whitened,
 )
 
-__all__ = ["FIM_ENV_ID", "FIMSolverAgent", "RandomMaskedAgent"]
+__all__ = ["FIM_ENV_ID", "CooperativeGreedyPolicy", "FIMSolverAgent", "RandomMaskedAgent"]
 
 FIM_ENV_ID = "selenv/FIMSelection-v0"
 
@@ -108,3 +108,22 @@ register_agent(
         f"exhaustive optimum (refuses > {MAX_BRUTE_FORCE_SUBSETS:,} subsets)",
     )
 )
+
+
+class CooperativeGreedyPolicy:
+    """Greedy for ``selenv.multiagent.fim_selection_v0``: each agent takes its largest gain.
+
+    The observation's gains are computed against the information the env's ``mode`` gives the
+    agent, so this policy is the paper's independent Algorithm 1 in ``mode="independent"`` and
+    cooperative greedy (the shared FIM replacing ``Q0``) in ``mode="cooperative"``.
+    """
+
+    name = "cooperative_greedy"
+
+    def act(self, observations: dict[str, dict[str, np.ndarray]]) -> dict[str, int]:
+        """Map every agent's observation to its action."""
+        out = {}
+        for agent, obs in observations.items():
+            gain = np.where(obs["action_mask"].astype(bool), obs["gain"], -np.inf)
+            out[agent] = int(np.argmax(gain))
+        return out
