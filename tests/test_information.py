@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import random_pool, random_spd
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import random_pool, random_spd
 from selenv.core.information import (
     LogDetGainState,
     as_candidates,
@@ -133,7 +133,7 @@ def test_as_candidates_bad_input(rng):
         as_candidates(Q0, H, np.ones(4))
     with pytest.raises(ValueError, match="R"):
         as_candidates(Q0, H, -np.ones(5))
-    with pytest.raises(ValueError, match="columns|shape"):
+    with pytest.raises(ValueError, match=r"columns|shape"):
         as_candidates(Q0, rng.normal(size=(5, 1, 4)), np.eye(1))
     R_bad = np.stack([np.eye(2)] * 5)
     R_bad[3] = [[1.0, 2.0], [2.0, 1.0]]
@@ -150,5 +150,5 @@ def test_state_rejects_double_pick_and_out_of_range(rng):
     s.add(1)
     with pytest.raises(ValueError, match="already selected"):
         s.add(1)
-    with pytest.raises(ValueError, match="range|lie in"):
+    with pytest.raises(ValueError, match=r"range|lie in"):
         s.add(4)

@@ -35,7 +35,7 @@ from selenv.core.information import (
     information_matrix,
     logdet_objective,
 )
-from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd
+from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd, validate_spd
 
 __all__ = [
     "MAX_BRUTE_FORCE_SUBSETS",
@@ -293,7 +293,7 @@ def cooperative_greedy(
         raise ValueError(f"mode must be 'independent' or 'cooperative', got {mode!r}")
     if len(pools) != len(budgets):
         raise ValueError(f"pools ({len(pools)}) and budgets ({len(budgets)}) must match")
-    Q0_a = as_candidates(Q0, np.zeros((0, np.shape(Q0)[0])), np.zeros(0))[0]
+    Q0_a = validate_spd(Q0, "Q0")
     Gs = [as_candidates(Q0_a, H, R)[1] for H, R in pools]
     prior = Q0_a
     picks: list[Selection] = []

@@ -71,7 +71,9 @@ def symmetrize(A: FloatArray) -> FloatArray:
     return 0.5 * (A + np.swapaxes(A, -1, -2))
 
 
-def validate_spd(value: Any, name: str, n: int | None = None, *, batch: bool = False) -> FloatArray:
+def validate_spd(
+    value: Any, name: str, n: int | None = None, *, batch: bool = False, semidefinite: bool = False
+) -> FloatArray:
     """Validate a symmetric positive-definite matrix (or a batch of them).
 
     Args:
@@ -79,6 +81,8 @@ def validate_spd(value: Any, name: str, n: int | None = None, *, batch: bool = F
         name: argument name used in error messages.
         n: required matrix size, or ``None`` for any.
         batch: accept one leading batch axis.
+        semidefinite: accept positive semi-definite matrices (e.g. a rank-deficient process
+            noise ``Q``); eigenvalues down to ``-SYM_RTOL * max|A|`` are accepted as zero.
 
     Returns:
         The matrix as float64, exactly symmetrized (round-off only; asymmetry above
@@ -101,6 +105,13 @@ def validate_spd(value: Any, name: str, n: int | None = None, *, batch: bool = F
             f"{SYM_RTOL:g} x max|A| = {SYM_RTOL * scale:.3g}"
         )
     A = symmetrize(A)
+    if semidefinite:
+        lo = float(np.min(np.linalg.eigvalsh(A))) if A.size else 0.0
+        if lo < -SYM_RTOL * scale:
+            raise ValueError(
+                f"{name} must be positive semi-definite, but its smallest eigenvalue is {lo:.3g}"
+            )
+        return A
     try:
         np.linalg.cholesky(A)
     except np.linalg.LinAlgError:
@@ -118,9 +129,10 @@ def cholesky_spd(A: FloatArray, name: str = "matrix") -> FloatArray:
         ValueError: if ``A`` is not positive definite (names ``name``).
     """
     try:
-        return np.linalg.cholesky(A)
+        L: FloatArray = np.linalg.cholesky(A)
     except np.linalg.LinAlgError:
         raise ValueError(f"{name} is not positive definite (Cholesky failed)") from None
+    return L
 
 
 def logdet_spd(A: FloatArray, name: str = "matrix") -> FloatArray | float:

@@ -12,7 +12,7 @@ own pool; all picks go to the fusion centre, whose information is
 | API | ``fim_selection_v0.parallel_env(...)`` (native), ``fim_selection_v0.env(...)`` (AEC) |
 | Agents | ``agent_0 ... agent_{n-1}`` (``n`` from the preset, 2 for ``example3``) |
 | Action | ``Discrete(N_i)``: index into the agent's own pool (masked once selected) |
-| Observation | ``Dict`` as in ``selenv/FIMSelection-v0``, restricted to the agent's pool, with ``action_mask`` |
+| Observation | ``Dict`` as in ``selenv/FIMSelection-v0`` over the agent's own pool |
 | Reward | shared: the fusion centre's log-det gain over the step (nats) |
 
 Modes (the information an agent's observation is computed against):
@@ -49,7 +49,7 @@ __all__ = ["env", "parallel_env", "raw_env"]
 MODES = ("independent", "cooperative")
 
 
-class raw_env(ParallelEnv):  # noqa: N801  (PettingZoo naming convention)
+class raw_env(ParallelEnv):
     """Parallel multi-agent FIM selection; see the module docstring for the manual.
 
     Args:
@@ -209,9 +209,7 @@ class raw_env(ParallelEnv):  # noqa: N801  (PettingZoo naming convention)
             "whitened": view.Z[idx].reshape(len(pool), -1).astype(np.float32),
             "features": self._features[pool],
             "selected": sel.astype(np.int8),
-            "budget_left": np.array(
-                [1.0 - self._count[agent] / self.budgets[agent]], np.float32
-            ),
+            "budget_left": np.array([1.0 - self._count[agent] / self.budgets[agent]], np.float32),
             "action_mask": (~sel).astype(np.int8),
         }
 
