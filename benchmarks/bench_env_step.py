@@ -45,7 +45,7 @@ def main() -> None:
             while not done:
                 act = int(rng.choice(np.flatnonzero(info["action_mask"])))
                 t = time.perf_counter()
-                obs, r, done, _, info = target.step(act)
+                _obs, _r, done, _, info = target.step(act)
                 times.append(time.perf_counter() - t)
         results[label] = np.median(times)
         n = env.unwrapped.n

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-
 from conftest import random_spd
+
 from selenv.core.estimation import gauss_newton_map
 
 

@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import random_pool, random_spd
+
 from selenv.agents.fim_solvers import (
     brute_force,
     cooperative_greedy,

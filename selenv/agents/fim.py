@@ -8,7 +8,7 @@ agent can also take over in the middle of an episode.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -120,10 +120,20 @@ class CooperativeGreedyPolicy:
 
     name = "cooperative_greedy"
 
-    def act(self, observations: dict[str, dict[str, np.ndarray]]) -> dict[str, int]:
-        """Map every agent's observation to its action."""
+    def act(
+        self,
+        observations: dict[str, dict[str, np.ndarray]],
+        agents: Sequence[str] | None = None,
+    ) -> dict[str, int]:
+        """Map each live agent's observation to its action.
+
+        Args:
+            observations: the env's observations (may include agents that just terminated).
+            agents: the live agents (``env.agents``); default: every key of ``observations``.
+        """
         out = {}
-        for agent, obs in observations.items():
+        for agent in observations if agents is None else agents:
+            obs = observations[agent]
             gain = np.where(obs["action_mask"].astype(bool), obs["gain"], -np.inf)
             out[agent] = int(np.argmax(gain))
         return out

@@ -7,13 +7,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+
+from selenv.core.information import LogDetGainState
 from selenv.scenarios.fim_selection import (
     FIMProblem,
     config_from,
     make_problem,
 )
-
-from selenv.core.information import LogDetGainState
 
 __all__ = ["FIMSelectionEnv", "parse_action"]
 
@@ -178,9 +178,7 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         self._features = feats
         return self._obs(), self._info()
 
-    def step(
-        self, action: Any
-    ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """Select candidate ``action``; reward is its log-det gain (nats)."""
         state = self.state
         if self.budget_left == 0:
@@ -197,7 +195,7 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         return {
             "gain": np.where(sel, 0.0, s.gains).astype(np.float32),
             "whitened": s.Z.reshape(self.n, -1).astype(np.float32),
-            "features": self._features,
+            "features": self._features.copy(),
             "selected": sel.astype(np.int8),
             "budget_left": np.array([self.budget_left / self.budget], np.float32),
             "action_mask": (~sel).astype(np.int8),

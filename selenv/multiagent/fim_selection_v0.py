@@ -15,13 +15,15 @@ own pool; all picks go to the fusion centre, whose information is
 | Observation | ``Dict`` as in ``selenv/FIMSelection-v0`` over the agent's own pool |
 | Reward | shared: the fusion centre's log-det gain over the step (nats) |
 
-Modes (the information an agent's observation is computed against):
+Modes (``mode=``):
 
-* ``"independent"``: the agent's own ``Q0 + FIM(F_i)`` (no communication; Algorithm 1 per agent).
-* ``"cooperative"``: the centre's FIM of every pick made in earlier steps by every agent (one
-  exchange of the FIM per step). With one agent per step this is the paper's cooperative
-  selection, where ``FIM(F_1*)`` replaces ``Q0`` for agent 2; the exact sequential scheme of
-  the paper is :func:`selenv.agents.fim_solvers.cooperative_greedy`.
+* ``"independent"``: every agent with budget left picks each step, against its own
+  ``Q0 + FIM(F_i)`` (no communication; Algorithm 1 run by every agent at once).
+* ``"cooperative"``: the paper's cooperative selection. Agents take turns: ``agent_0`` spends
+  its whole budget, then ``agent_1`` joins ``env.agents`` with the centre's FIM of every earlier
+  pick as its prior (``FIM(F_1*)`` replaces ``Q0``), and so on. Only the agent whose turn it is
+  is live; the others are not in ``env.agents`` yet (PettingZoo allows agents to join).
+  :func:`selenv.agents.fim_solvers.cooperative_greedy` is the same scheme as a plain solver.
 
 An agent whose budget is spent terminates and leaves ``env.agents``; the episode ends when all
 have. ``infos[agent]`` holds ``objective`` (the centre's ``f``) and ``action_mask``.
@@ -161,7 +163,7 @@ class raw_env(ParallelEnv):
         feats[:, 3] = (t - t.min()) / span
         self._features = feats
         self._count = dict.fromkeys(self.possible_agents, 0)
-        self.agents = list(self.possible_agents)
+        self.agents = self.possible_agents[:1] if coop else list(self.possible_agents)
         return (
             {a: self._obs(a) for a in self.agents},
             {a: self._info(a) for a in self.agents},
@@ -191,11 +193,17 @@ class raw_env(ParallelEnv):
         gain = self._centre.objective - before
         live = list(self.agents)
         terms = {a: self._count[a] >= self.budgets[a] for a in live}
+        self.agents = [a for a in live if not terms[a]]
+        if self.mode == "cooperative" and not self.agents:  # next agent's turn
+            nxt = self.possible_agents.index(live[-1]) + 1
+            if nxt < len(self.possible_agents):
+                self.agents = [self.possible_agents[nxt]]
+                live.append(self.agents[0])
+                terms[self.agents[0]] = False
         obs = {a: self._obs(a) for a in live}
         rewards = dict.fromkeys(live, float(gain))
         truncs = dict.fromkeys(live, False)
         infos = {a: self._info(a) for a in live}
-        self.agents = [a for a in live if not terms[a]]
         return obs, rewards, terms, truncs, infos
 
     def _obs(self, agent: str) -> dict[str, np.ndarray]:

@@ -1,0 +1,399 @@
+"""Heterogeneous measurement selection by Fisher information (Kirchner et al. 2020, Sec. 6).
+
+Agents fly curved approaches around a ground vehicle and collect pools of candidate camera
+(eq. 23), time-of-arrival (eq. 20) and Doppler (eq. 22) measurements; selecting ``F`` scores
+eq. (9), ``log det(Q0 + sum_{k in F} Q_k) - log det Q0`` (see :mod:`selenv.core.information`).
+Parameters ``theta``: ``[x, y, vx, vy, ax, ay]`` (eq. 18, at the window start), then per agent
+``cT[i], cT0[i]`` (TOA receiver) and ``lambdaDf[i]`` (Doppler receiver).
+
+Modelling choices (documented defaults of :class:`FIMScenarioConfig`):
+
+* Prior ``p(theta)``: Gaussian, diagonal, centred on the nominal target (position (0, 0),
+  velocity (3, 1) m/s, curvature (0.05, -0.02) m/s^2; zeros when ``stationary``). Standard
+  deviations: position 25 m, velocity 0.5 m/s, curvature 0.01 m/s^2 (the paper's values are
+  not given; these keep the prior 1-sigma position error below ~45 m over a 60 s window, so the
+  linearisation at the prior mean stays meaningful and the target stays in front of every
+  camera), ``cT`` 1 m, ``cT0`` 1000 m, ``lambdaDf`` 300 m/s (1 ppm of the carrier).
+* ``Q0 = P0^-1`` (eq. 3 for a Gaussian prior). ``theta_true`` is a draw from the prior
+  (velocity and curvature exactly 0 when ``stationary``), redrawn in the rare case that it puts
+  the target behind a camera; ``H`` is evaluated at the prior mean (the selector never sees the
+  truth).
+* TOA: symbols are sent once per candidate period ``window_s / n_candidates`` and the receiver
+  removes the nominal schedule ``k c T_nom``, so ``cT`` is the period *error* (nominal 0) and
+  eq. (20) holds as written; Jacobians and ``Q_k`` are unaffected by that constant shift.
+  ``cT0`` and ``lambdaDf`` have nominal 0.
+* Agent ``i`` spirals in on the nominal target trajectory (``spiral_path``: range
+  ``start_radius_m -> end_radius_m``, bearing sweeping ``sweep_deg`` to ``90 + 360 i / n`` deg,
+  at ``altitude_m``; closest at the end, Fig. 2). Cameras are gimballed onto the nominal target.
+* ``randomize``: one uniform rotation of all paths about the target, a ``U(0.8, 1.2)`` range
+  scale per agent, camera/Doppler times jittered within their grid cells and a random phase of
+  the TOA symbol grid. Otherwise the geometry is fixed (times at cell midpoints).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from selenv.core.information import whiten
+from selenv.core.linalg import FloatArray, as_float_array, check_finite, check_shape
+from selenv.scenarios import kirchner_models as km
+
+__all__ = [
+    "PRESETS",
+    "SENSOR_NAMES",
+    "FIMProblem",
+    "FIMScenarioConfig",
+    "config_from",
+    "make_problem",
+]
+
+#: sensor codes used in :attr:`FIMProblem.sensor` (index into this tuple)
+SENSOR_NAMES: tuple[str, ...] = ("camera", "toa", "doppler")
+CAMERA, TOA, DOPPLER = 0, 1, 2
+
+_POSITIVE = (
+    "window_s", "camera_sigma_px", "focal_px", "toa_sigma_m", "doppler_sigma_mps",
+    "prior_position_m", "prior_velocity_mps", "prior_curvature_mps2", "prior_cT_m",
+    "prior_cT0_m", "prior_lambda_mps", "start_radius_m", "end_radius_m", "altitude_m",
+)  # fmt: skip
+
+
+@dataclass(frozen=True, kw_only=True)
+class FIMScenarioConfig:
+    """Scenario parameters; every field is validated (``ValueError`` naming the field).
+
+    Attributes:
+        preset: name of the preset this config came from (informational).
+        n_agents: number of sensing agents.
+        sensors: subset of ``SENSOR_NAMES`` carried by every agent (stored in canonical order).
+        n_candidates: candidates per sensor per agent.
+        window_s: estimation window length (s).
+        camera_sigma_px, focal_px: image noise std and focal length (pixels).
+        toa_sigma_m: std of ``c T`` (m).
+        doppler_sigma_mps: std of ``lambda F`` (m/s); default 33 ppb of the carrier times ``c``.
+        prior_*: prior standard deviations (see the module docstring).
+        start_radius_m, end_radius_m, altitude_m, sweep_deg: agent path geometry.
+        stationary: target velocity and curvature are 0 (Example 1).
+        randomize: draw a new geometry per problem.
+    """
+
+    preset: str = "custom"
+    n_agents: int = 1
+    sensors: tuple[str, ...] = ("camera", "doppler")
+    n_candidates: int = 1000
+    window_s: float = 60.0
+    camera_sigma_px: float = 0.8
+    focal_px: float = 50.0
+    toa_sigma_m: float = 3.0
+    doppler_sigma_mps: float = 33e-9 * km.C_LIGHT
+    prior_position_m: float = 25.0
+    prior_velocity_mps: float = 0.5
+    prior_curvature_mps2: float = 0.01
+    prior_cT_m: float = 1.0
+    prior_cT0_m: float = 1000.0
+    prior_lambda_mps: float = 300.0
+    start_radius_m: float = 400.0
+    end_radius_m: float = 60.0
+    altitude_m: float = 50.0
+    sweep_deg: float = 180.0
+    stationary: bool = False
+    randomize: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.preset, str):
+            raise ValueError(f"preset must be a str, got {self.preset!r}")
+        for name in ("n_agents", "n_candidates"):
+            val = getattr(self, name)
+            if isinstance(val, bool) or not isinstance(val, int | np.integer) or val < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {val!r}")
+            object.__setattr__(self, name, int(val))
+        sensors = self.sensors
+        bad = isinstance(sensors, str) or not isinstance(sensors, tuple | list) or not sensors
+        if bad or any(x not in SENSOR_NAMES for x in sensors) or len(set(sensors)) < len(sensors):
+            raise ValueError(f"sensors must be distinct names from {SENSOR_NAMES}, got {sensors!r}")
+        object.__setattr__(self, "sensors", tuple(s for s in SENSOR_NAMES if s in self.sensors))
+        for name in (*_POSITIVE, "sweep_deg"):
+            val = getattr(self, name)
+            real = isinstance(val, int | float | np.floating | np.integer)
+            if (
+                isinstance(val, bool)
+                or not real
+                or not np.isfinite(val)
+                or (val <= 0 and name != "sweep_deg")
+            ):
+                kind = "a finite number" if name == "sweep_deg" else "a finite number > 0"
+                raise ValueError(f"{name} must be {kind}, got {val!r}")
+            object.__setattr__(self, name, float(val))
+        for name in ("stationary", "randomize"):
+            if not isinstance(getattr(self, name), bool | np.bool_):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
+
+
+PRESETS: dict[str, FIMScenarioConfig] = {
+    "example1": FIMScenarioConfig(preset="example1", sensors=("camera",), stationary=True),
+    "example2": FIMScenarioConfig(preset="example2", sensors=("camera", "doppler")),
+    "example3": FIMScenarioConfig(preset="example3", n_agents=2, sensors=("camera", "doppler")),
+}
+
+
+def config_from(preset: str = "example2", **overrides: Any) -> FIMScenarioConfig:
+    """A preset with fields overridden, validated.
+
+    Raises:
+        ValueError: unknown preset or override key (lists the valid ones), or a bad value.
+    """
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; valid presets: {sorted(PRESETS)}")
+    valid = [f.name for f in dataclasses.fields(FIMScenarioConfig) if f.name != "preset"]
+    bad = sorted(set(overrides) - set(valid))
+    if bad:
+        raise ValueError(f"unknown config keys {bad}; valid keys: {valid}")
+    return dataclasses.replace(PRESETS[preset], **overrides)
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, kw_only=True)
+class FIMProblem:
+    """One drawn instance: prior, truth, candidate pool and its geometry (arrays read-only).
+
+    Attributes:
+        config: the scenario config.
+        theta_true, theta_prior_mean: ``(d,)``.
+        P0, Q0: ``(d, d)`` prior covariance and information ``Q0 = P0^-1`` (eq. 3).
+        H: ``(N, m, d)`` Jacobians at the prior mean; ``m = 2`` with cameras else 1; scalar
+            candidates are zero-padded (identity in ``R``).
+        R: ``(N, m, m)`` noise covariances; ``G``: ``(N, m, d)`` whitened, ``G_k^T G_k = Q_k``.
+        agent, sensor, rows: ``(N,)`` ints (``sensor`` indexes ``SENSOR_NAMES``; rows 1 or 2).
+        times: ``(N,)`` time since the window start (s).
+        positions, velocities: ``(N, 3)`` agent state at each candidate.
+        camera_rotation: ``(N, 3, 3)`` world-to-camera rotations (identity for non-cameras).
+        symbol: ``(N,)`` TOA symbol index ``k`` (-1 for non-TOA candidates).
+        nuisance: ``(N, 2)`` columns of the candidate's nuisance parameters (-1 if none).
+        intrinsics: ``(3, 3)`` camera matrix ``A``.
+        param_names: ``d`` names.
+
+    Candidates are ordered agent-major, then by sensor code, then by time.
+    """
+
+    config: FIMScenarioConfig
+    theta_true: FloatArray
+    theta_prior_mean: FloatArray
+    P0: FloatArray
+    Q0: FloatArray
+    H: FloatArray
+    R: FloatArray
+    G: FloatArray
+    agent: np.ndarray
+    sensor: np.ndarray
+    rows: np.ndarray
+    times: FloatArray
+    positions: FloatArray
+    velocities: FloatArray
+    camera_rotation: FloatArray
+    symbol: np.ndarray
+    nuisance: np.ndarray
+    intrinsics: FloatArray
+    param_names: tuple[str, ...]
+
+    @property
+    def N(self) -> int:
+        """Number of candidates."""
+        return int(self.H.shape[0])
+
+    @property
+    def m(self) -> int:
+        """Rows per (padded) candidate."""
+        return int(self.H.shape[1])
+
+    @property
+    def d(self) -> int:
+        """Number of parameters."""
+        return int(self.H.shape[2])
+
+    def _theta(self, theta: ArrayLike) -> FloatArray:
+        th = check_finite(as_float_array(theta, "theta"), "theta")
+        return check_shape(th, (self.d,), "theta")
+
+    def _idx(self, idx: ArrayLike | None) -> np.ndarray:
+        if idx is None:
+            return np.arange(self.N)
+        ix = np.asarray(idx)
+        if ix.ndim != 1 or (ix.size and not np.issubdtype(ix.dtype, np.integer)):
+            raise ValueError(f"idx must be a 1-D array of integer indices, got {ix!r}")
+        ix = ix.astype(np.intp)
+        if ix.size and (ix.min() < 0 or ix.max() >= self.N):
+            raise ValueError(f"idx must lie in [0, {self.N}), got {ix.min()}..{ix.max()}")
+        return ix
+
+    def _groups(self, ix: np.ndarray) -> Iterator[tuple[Any, ...]]:
+        """Per sensor in ``ix``: code, positions in ``ix``, candidates, times, p, nuisance."""
+        for code in (CAMERA, TOA, DOPPLER):
+            sel = np.flatnonzero(self.sensor[ix] == code)
+            if sel.size:
+                c = ix[sel]
+                yield code, sel, c, self.times[c], self.positions[c], self.nuisance[c]
+
+    def measurement_mean(self, theta: ArrayLike, idx: ArrayLike | None = None) -> FloatArray:
+        """Means ``mu_k(theta)`` of candidates ``idx`` (all if ``None``), ``(len(idx), m)``.
+
+        Camera rows are eq. (23), TOA eq. (20), Doppler eq. (22); scalar means are zero-padded.
+        """
+        th, ix = self._theta(theta), self._idx(idx)
+        out = np.zeros((ix.size, self.m))
+        for code, sel, c, t, p, nu in self._groups(ix):
+            if code == CAMERA:
+                out[sel, :2] = km.camera_mean(th, t, p, self.camera_rotation[c], self.intrinsics)
+            elif code == TOA:
+                out[sel, 0] = km.toa_mean(th, t, p, self.symbol[c], th[nu[:, 0]], th[nu[:, 1]])
+            else:
+                out[sel, 0] = km.doppler_mean(th, t, p, self.velocities[c], th[nu[:, 0]])
+        return out
+
+    def measurement_jacobian(self, theta: ArrayLike, idx: ArrayLike | None = None) -> FloatArray:
+        """Jacobians ``d mu_k / d theta`` of candidates ``idx``, ``(len(idx), m, d)``."""
+        th, ix = self._theta(theta), self._idx(idx)
+        J = np.zeros((ix.size, self.m, self.d))
+        for code, sel, c, t, p, nu in self._groups(ix):
+            if code == CAMERA:
+                Jc = km.camera_jacobian(th, t, p, self.camera_rotation[c], self.intrinsics)
+                J[sel, :2, : km.N_MOTION] = Jc
+                continue
+            if code == TOA:
+                Jl = km.toa_jacobian(th, t, p, self.symbol[c])
+            else:
+                Jl = km.doppler_jacobian(th, t, p, self.velocities[c])
+            J[sel, 0, : km.N_MOTION] = Jl[:, : km.N_MOTION]
+            for j in range(Jl.shape[1] - km.N_MOTION):  # scatter the nuisance columns
+                J[sel, 0, nu[:, j]] = Jl[:, km.N_MOTION + j]
+        return J
+
+    def sample_measurements(
+        self, rng: np.random.Generator, idx: ArrayLike | None = None
+    ) -> FloatArray:
+        """Noisy measurements ``mu_k(theta_true) + L_k z`` (``R_k = L_k L_k^T``), ``(n, m)``."""
+        ix = self._idx(idx)
+        L = np.linalg.cholesky(self.R[ix])
+        z = rng.standard_normal((ix.size, self.m))
+        return self.measurement_mean(self.theta_true, ix) + np.einsum("kij,kj->ki", L, z)
+
+    def pool(self, agent_index: int) -> np.ndarray:
+        """Indices (increasing) of the candidates of agent ``agent_index``."""
+        n = self.config.n_agents
+        if not 0 <= agent_index < n:
+            raise ValueError(f"agent_index must lie in [0, {n}), got {agent_index}")
+        return np.flatnonzero(self.agent == agent_index)
+
+
+# -- construction -------------------------------------------------------------------------------
+def _nominal(cfg: FIMScenarioConfig) -> tuple[FloatArray, FloatArray, list[str], np.ndarray]:
+    """Prior mean, prior std devs, parameter names and per-agent nuisance columns ``(n, 3)``."""
+    mean = [0.0] * 6 if cfg.stationary else [0.0, 0.0, 3.0, 1.0, 0.05, -0.02]
+    std = [cfg.prior_position_m, cfg.prior_velocity_mps, cfg.prior_curvature_mps2]
+    std, names = [v for v in std for _ in range(2)], ["x", "y", "vx", "vy", "ax", "ay"]
+    cols = -np.ones((cfg.n_agents, 3), dtype=np.intp)  # cT, cT0, lambdaDf
+    for i in range(cfg.n_agents):
+        for j, name, sd, on in (
+            (0, "cT", cfg.prior_cT_m, "toa"), (1, "cT0", cfg.prior_cT0_m, "toa"),
+            (2, "lambdaDf", cfg.prior_lambda_mps, "doppler"),
+        ):  # fmt: skip
+            if on in cfg.sensors:
+                cols[i, j] = len(names)
+                names.append(f"{name}[{i}]")
+                mean.append(0.0)  # nominal 0 (see the module docstring)
+                std.append(sd)
+    return np.array(mean), np.array(std), names, cols
+
+
+def _candidates(
+    cfg: FIMScenarioConfig, mean: FloatArray, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
+    """Candidate geometry, agent-major then sensor then time (geometry draws from ``rng``)."""
+    n, cell = cfg.n_candidates, cfg.window_s / cfg.n_candidates
+    rot = rng.uniform(0.0, 2.0 * np.pi) if cfg.randomize else 0.0
+    scales = rng.uniform(0.8, 1.2, cfg.n_agents) if cfg.randomize else np.ones(cfg.n_agents)
+    keys = ("agent", "sensor", "times", "positions", "velocities", "camera_rotation", "symbol")
+    parts: dict[str, list[np.ndarray]] = {key: [] for key in keys}
+    for i in range(cfg.n_agents):
+        end_bearing = rot + np.pi / 2 + 2.0 * np.pi * i / cfg.n_agents
+        for code in (SENSOR_NAMES.index(name) for name in cfg.sensors):
+            if not cfg.randomize:
+                off = np.full(n, 0.5)  # cell midpoints
+            elif code == TOA:  # regular symbol grid, random phase
+                off = np.full(n, rng.uniform(0.0, 1.0))
+            else:
+                off = rng.uniform(0.0, 1.0, n)  # jitter within each cell
+            s = (np.arange(n) + off) * cell
+            q, qdot = km.target_state(mean, s)
+            pos, vel = km.spiral_path(
+                s, q, qdot, window_s=cfg.window_s, start_radius=scales[i] * cfg.start_radius_m,
+                end_radius=scales[i] * cfg.end_radius_m, sweep_rad=np.deg2rad(cfg.sweep_deg),
+                end_bearing=end_bearing, altitude=cfg.altitude_m,
+            )  # fmt: skip
+            aim = np.column_stack([q, np.zeros(n)])
+            eye = np.broadcast_to(np.eye(3), (n, 3, 3))
+            parts["agent"].append(np.full(n, i))
+            parts["sensor"].append(np.full(n, code))
+            parts["times"].append(s)
+            parts["positions"].append(pos)
+            parts["velocities"].append(vel)
+            parts["camera_rotation"].append(
+                km.look_at_rotation(pos, aim) if code == CAMERA else eye
+            )
+            parts["symbol"].append(np.arange(n) if code == TOA else np.full(n, -1))
+    return {key: np.concatenate(val) for key, val in parts.items()}
+
+
+def make_problem(config: FIMScenarioConfig, rng: np.random.Generator) -> FIMProblem:
+    """Draw one problem: geometry (if ``randomize``), truth from the prior; build ``H, R, G``.
+
+    All randomness comes from ``rng`` (geometry first, then the truth).
+
+    Raises:
+        ValueError: if no truth in 100 prior draws keeps the target in front of every camera.
+    """
+    cfg = config
+    mean, std, names, cols = _nominal(cfg)
+    geo = _candidates(cfg, mean, rng)
+    agent, sensor = geo["agent"], geo["sensor"]
+    N, m, A = agent.size, 2 if "camera" in cfg.sensors else 1, km.intrinsics(cfg.focal_px)
+    nuisance = -np.ones((N, 2), dtype=np.intp)
+    nuisance[sensor == TOA] = cols[agent[sensor == TOA], :2]
+    nuisance[sensor == DOPPLER, 0] = cols[agent[sensor == DOPPLER], 2]
+    sigma = np.array([cfg.camera_sigma_px, cfg.toa_sigma_m, cfg.doppler_sigma_mps])[sensor]
+    R = np.broadcast_to(np.eye(m), (N, m, m)).copy()  # identity on padding rows
+    R[:, 0, 0] = sigma**2
+    if m == 2:
+        R[sensor == CAMERA, 1, 1] = cfg.camera_sigma_px**2
+    cam = sensor == CAMERA
+    for _ in range(100):
+        theta_true = mean + std * rng.standard_normal(mean.size)
+        if cfg.stationary:
+            theta_true[2:6] = 0.0
+        depth = km.camera_depth(
+            theta_true, geo["times"][cam], geo["positions"][cam], geo["camera_rotation"][cam], A
+        )
+        if np.all(depth > 0.0):
+            break
+    else:
+        raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
+    arrays: dict[str, np.ndarray] = {
+        **geo, "rows": np.where(cam, 2, 1), "nuisance": nuisance, "intrinsics": A, "R": R,
+        "theta_true": theta_true, "theta_prior_mean": mean, "P0": np.diag(std**2),
+        "Q0": np.diag(1.0 / std**2), "H": np.zeros((N, m, mean.size)),
+    }  # fmt: skip
+    ro: dict[str, Any] = {key: _readonly(val) for key, val in arrays.items()}
+    draft = FIMProblem(config=cfg, param_names=tuple(names), G=ro["H"], **ro)
+    H = draft.measurement_jacobian(mean)
+    return dataclasses.replace(draft, H=_readonly(H), G=_readonly(whiten(H, R)))
