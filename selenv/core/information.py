@@ -33,7 +33,9 @@ from selenv.core.linalg import (
     as_float_array,
     check_finite,
     check_shape,
+    cholesky_small,
     cholesky_spd,
+    inv_lower_small,
     logdet_spd,
     symmetrize,
     validate_spd,
@@ -174,7 +176,8 @@ class LogDetGainState:
 
     Maintains, for the information ``A = Q0 + sum_{k in S} G_k^T G_k``:
 
-    * ``P`` ``(d, d)``: ``A^-1`` (the CRLB of the selection), rank-one updated;
+    * ``P`` ``(d, d)``: ``A^-1`` (the CRLB of the selection), rank-one updated (or, when
+      ``track_whitened``, kept as ``L^-1`` with ``P = L^-T L^-1``);
     * ``S`` ``(N, m, m)``: ``G_k P G_k^T`` and ``gains`` ``(N,)``: ``log det(I + S_k)``
       (only when ``track_gains``; lazy greedy turns it off and calls :meth:`gain_of`);
     * ``Z`` ``(N, m, d)``: ``G_k L^-T`` with ``A = L L^T``, each candidate whitened in the
@@ -203,7 +206,13 @@ class LogDetGainState:
         self.N, self.m, self.d = G.shape
         self._Gflat = G.reshape(self.N * self.m, self.d)
         L0 = cholesky_spd(self.Q0, "Q0")
-        self.P: FloatArray = cho_solve((L0, True), np.eye(self.d))  # P = Q0^-1
+        # rank-one mode keeps P = A^-1; whitened mode keeps L^-1 (A = L L^T) and P = L^-T L^-1
+        self._P: FloatArray | None = None
+        self._Linv: FloatArray | None = None
+        if track_whitened:
+            self._Linv = solve_triangular(L0, np.eye(self.d), lower=True)
+        else:
+            self._P = cho_solve((L0, True), np.eye(self.d))  # P = Q0^-1
         self.selected = np.zeros(self.N, dtype=bool)
         self.order: list[int] = []
         self.objective = 0.0
@@ -217,6 +226,14 @@ class LogDetGainState:
             Wb = W.reshape(G.shape)
             self.S = np.einsum("kid,kjd->kij", Wb, Wb)  # S_k = G_k Q0^-1 G_k^T
             self.gains = block_logdet_gains(self.S)
+
+    @property
+    def P(self) -> FloatArray:
+        """``A^-1`` ``(d, d)``: the CRLB of the current selection."""
+        if self._P is not None:
+            return self._P
+        assert self._Linv is not None
+        return self._Linv.T @ self._Linv
 
     @property
     def information(self) -> FloatArray:
@@ -245,28 +262,57 @@ class LogDetGainState:
         if self.selected[j]:
             raise ValueError(f"candidate {j} is already selected")
         before = self.objective
-        Gj = self.G[j]
         if self.Z is not None:
-            Zj = self.Z[j]
-            C = cholesky_spd(np.eye(self.d) + Zj.T @ Zj, "I + Z_j^T Z_j")  # A' = L C C^T L^T
-            Zf = self.Z.reshape(self.N * self.m, self.d)
-            self.Z = solve_triangular(C, Zf.T, lower=True).T.reshape(self.G.shape)  # Z C^-T
-        for g in Gj:
-            if not np.any(g):
-                continue  # zero padding row: no information
-            u = self.P @ g  # u = P g
-            q = float(g @ u)  # q = g^T P g
-            self.P = self.P - np.outer(u, u) / (1.0 + q)  # Sherman-Morrison
-            self.objective += float(np.log1p(q))  # matrix determinant lemma
-            if self.S is not None:
-                c = (self._Gflat @ u).reshape(self.N, self.m)  # c = G u
-                self.S -= c[:, :, None] * c[:, None, :] / (1.0 + q)
-        self.P = symmetrize(self.P)
-        if self.S is not None:
-            self.gains = block_logdet_gains(self.S)
+            self._add_whitened(j)
+        else:
+            self._add_rank_one(self.G[j])
         self.selected[j] = True
         self.order.append(j)
         return self.objective - before
+
+    def _add_rank_one(self, Gj: FloatArray) -> None:
+        """One Sherman-Morrison update of ``P`` (and ``S``) per non-zero row of ``G_j``."""
+        assert self._P is not None
+        pairs = [(a, b) for a in range(self.m) for b in range(a, self.m)]
+        for g in Gj:
+            if not np.any(g):
+                continue  # zero padding row: no information
+            u = self._P @ g  # u = P g
+            q = float(g @ u)  # q = g^T P g
+            self._P = symmetrize(self._P - np.outer(u, u) / (1.0 + q))  # Sherman-Morrison
+            self.objective += float(np.log1p(q))  # matrix determinant lemma
+            if self.S is not None:
+                c = (self._Gflat @ u).reshape(self.N, self.m)  # c = G u
+                c *= 1.0 / np.sqrt(1.0 + q)
+                for a, b in pairs:  # S <- S - c c^T / (1 + q), unique entries only
+                    v = c[:, a] * c[:, b]
+                    self.S[:, a, b] -= v
+                    if a != b:
+                        self.S[:, b, a] -= v
+        if self.S is not None:
+            self.gains = block_logdet_gains(self.S)
+
+    def _add_whitened(self, j: int) -> None:
+        """Block update through the whitened rows: ``Z <- Z C^-T``, then ``S = Z Z^T``.
+
+        With ``A = L L^T`` and ``Z_j = G_j L^-T``: ``A + G_j^T G_j = L (I + Z_j^T Z_j) L^T``,
+        so ``L' = L C`` with ``C = chol(I + Z_j^T Z_j)`` (d x d), ``Z' = Z C^-T``,
+        ``L'^-1 = C^-1 L^-1`` and the gain is ``log det(I + Z_j^T Z_j) = 2 sum log diag C``.
+        """
+        assert self.Z is not None and self._Linv is not None
+        Zj = self.Z[j]
+        C = cholesky_small(np.eye(self.d) + Zj.T @ Zj, "I + Z_j^T Z_j")
+        self.objective += float(2.0 * np.sum(np.log(np.diag(C))))  # log det(I + S_j)
+        Cinv = inv_lower_small(C)
+        self._Linv = Cinv @ self._Linv  # L'^-1 = C^-1 L^-1
+        self.Z = (self.Z.reshape(self.N * self.m, self.d) @ Cinv.T).reshape(self.G.shape)
+        if self.S is not None:
+            for a in range(self.m):  # S_k = Z_k Z_k^T, unique entries by row-wise dots
+                for b in range(a, self.m):
+                    v = np.einsum("kd,kd->k", self.Z[:, a], self.Z[:, b])
+                    self.S[:, a, b] = v
+                    self.S[:, b, a] = v
+            self.gains = block_logdet_gains(self.S)
 
 
 def naive_greedy_logdet(Q0: FloatArray, G: FloatArray, budget: int) -> list[int]:

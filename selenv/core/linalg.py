@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
+from scipy.linalg.lapack import dpotrf, dtrtri
 
 FloatArray = NDArray[np.float64]
 
@@ -26,7 +27,9 @@ __all__ = [
     "as_float_array",
     "check_finite",
     "check_shape",
+    "cholesky_small",
     "cholesky_spd",
+    "inv_lower_small",
     "logdet_spd",
     "solve_spd",
     "symmetrize",
@@ -147,3 +150,30 @@ def solve_spd(A: FloatArray, B: FloatArray, name: str = "matrix") -> FloatArray:
     L = cholesky_spd(A, name)
     Y = solve_triangular(L, B, lower=True, check_finite=False)
     return solve_triangular(L.T, Y, lower=False, check_finite=False)
+
+
+def cholesky_small(A: FloatArray, name: str = "matrix") -> FloatArray:
+    """Lower Cholesky factor of one small SPD matrix straight from LAPACK ``dpotrf``.
+
+    Same result as :func:`cholesky_spd` without NumPy's per-call overhead (about 1 us instead
+    of 4 us at d = 7); for the hot path of the env step.
+
+    Raises:
+        ValueError: if ``A`` is not positive definite (names ``name``).
+    """
+    L, info = dpotrf(A, lower=1, clean=1)
+    if info != 0:
+        raise ValueError(f"{name} is not positive definite (Cholesky failed, info={info})")
+    return L  # type: ignore[no-any-return]
+
+
+def inv_lower_small(L: FloatArray) -> FloatArray:
+    """``L^-1`` of a small non-singular lower-triangular factor (LAPACK ``dtrtri``).
+
+    A triangular solve against the identity; used where the inverse factor itself is the
+    object being propagated (``L'^-1 = C^-1 L^-1``), never to solve a linear system.
+    """
+    Linv, info = dtrtri(L, lower=1)
+    if info != 0:
+        raise ValueError(f"triangular factor is singular (dtrtri info={info})")
+    return Linv  # type: ignore[no-any-return]
