@@ -132,7 +132,7 @@ def cholesky_spd(A: FloatArray, name: str = "matrix") -> FloatArray:
         ValueError: if ``A`` is not positive definite (names ``name``).
     """
     try:
-        L: FloatArray = np.linalg.cholesky(A)
+        L: FloatArray = np.linalg.cholesky(A).astype(np.float64, copy=False)
     except np.linalg.LinAlgError:
         raise ValueError(f"{name} is not positive definite (Cholesky failed)") from None
     return L
@@ -164,7 +164,7 @@ def cholesky_small(A: FloatArray, name: str = "matrix") -> FloatArray:
     L, info = dpotrf(A, lower=1, clean=1)
     if info != 0:
         raise ValueError(f"{name} is not positive definite (Cholesky failed, info={info})")
-    return L  # type: ignore[no-any-return]
+    return L
 
 
 def inv_lower_small(L: FloatArray) -> FloatArray:
@@ -176,4 +176,4 @@ def inv_lower_small(L: FloatArray) -> FloatArray:
     Linv, info = dtrtri(L, lower=1)
     if info != 0:
         raise ValueError(f"triangular factor is singular (dtrtri info={info})")
-    return Linv  # type: ignore[no-any-return]
+    return Linv
