@@ -1,0 +1,207 @@
+r"""The ``selenv`` command line: ``selenv list`` and ``selenv bench``.
+
+Examples::
+
+    selenv list
+    selenv bench selenv/FIMSelection-v0 --agents greedy,random --episodes 5 \
+        --env-kwargs '{"n_candidates": 20, "budget": 4}' --json out.json --plot figs/
+
+Exit codes: 0 on success, 2 on a usage error (bad arguments, unknown env or agent, an agent
+that does not apply to the env, invalid ``--env-kwargs``); the message goes to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+
+from selenv import __version__
+from selenv.agents import AGENTS, agents_for
+from selenv.envs import ENV_IDS
+
+__all__ = ["build_parser", "main"]
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def _env_kwargs(text: str) -> dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON ({exc}): {text!r}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``selenv`` (subcommands ``list`` and ``bench``)."""
+    parser = argparse.ArgumentParser(
+        prog="selenv",
+        description="State-estimation selection problems as Gymnasium envs, with baselines.",
+    )
+    parser.add_argument("--version", action="version", version=f"selenv {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub.add_parser("list", help="list the envs and the agents that apply to each")
+    bench = sub.add_parser(
+        "bench",
+        help="run agents on the same seeded episodes and compare them",
+        description="Run every agent on the same seeded episodes (episode e uses seed + e) "
+        "and print a table of returns, final objectives and decision times.",
+    )
+    bench.add_argument(
+        "env_ids", nargs="*", metavar="ENV_ID", help="env ids (default: every selenv env)"
+    )
+    bench.add_argument(
+        "--agents",
+        help="comma-separated agent names (default: every agent that applies to the env)",
+    )
+    bench.add_argument(
+        "--episodes", type=_positive_int, default=10, help="episodes per agent (default 10)"
+    )
+    bench.add_argument(
+        "--seed", type=_non_negative_int, default=0, help="seed of episode 0 (default 0)"
+    )
+    bench.add_argument(
+        "--env-kwargs",
+        type=_env_kwargs,
+        default={},
+        metavar="JSON",
+        help="JSON object of gymnasium.make keywords, e.g. '{\"budget\": 4}'",
+    )
+    bench.add_argument("--json", metavar="PATH", help="write the results as JSON to PATH")
+    bench.add_argument("--plot", metavar="DIR", help="write one PNG per env into DIR")
+    bench.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    return parser
+
+
+def _listed_env_ids() -> list[str]:
+    """``ENV_IDS`` first, then any other registered env some agent applies to."""
+    extra = {e for by_env in AGENTS.values() for e in by_env if e in gym.registry}
+    return [*ENV_IDS, *sorted(extra - set(ENV_IDS))]
+
+
+def cmd_list() -> int:
+    """Print every env id with the agents that apply to it and their descriptions."""
+    for env_id in _listed_env_ids():
+        print(env_id)
+        names = agents_for(env_id)
+        if not names:
+            print("  (no agents registered)")
+        width = max((len(n) for n in names), default=0)
+        for name in names:
+            desc = AGENTS[name][env_id].description
+            print(f"  {name.ljust(width)}  {desc}".rstrip())
+    return 0
+
+
+def _note(message: str) -> None:
+    print(f"selenv: note: {message}", file=sys.stderr)
+
+
+def _error(message: str) -> int:
+    print(f"selenv: error: {message}", file=sys.stderr)
+    return 2
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    """Run the benchmark described by the parsed ``args``; print tables, write JSON/plots."""
+    from selenv.bench import (
+        BenchError,
+        EnvKwargsError,
+        format_table,
+        plot_result,
+        run_bench,
+        write_json,
+    )
+
+    env_ids = list(dict.fromkeys(args.env_ids)) or list(ENV_IDS)
+    unknown = [e for e in env_ids if e not in gym.registry]
+    if unknown:
+        return _error(f"unknown env id(s) {unknown}; known ids: {', '.join(ENV_IDS)}")
+    names = None
+    if args.agents is not None:
+        names = [n.strip() for n in args.agents.split(",") if n.strip()]
+        if not names:
+            return _error("--agents is empty")
+        bad = [n for n in names if n not in AGENTS]
+        if bad:
+            return _error(f"unknown agent(s) {bad}; known agents: {', '.join(sorted(AGENTS))}")
+    several = len(env_ids) > 1
+    results = []
+    for env_id in env_ids:
+        if several and names is None and not agents_for(env_id):
+            _note(f"skipping {env_id}: no registered agent applies to it")
+            continue
+        if several and names is not None:
+            skip = [n for n in names if env_id not in AGENTS[n]]
+            if skip:
+                _note(f"skipping {', '.join(skip)} on {env_id}: does not apply to it")
+        try:
+            result = run_bench(
+                env_id,
+                names,
+                episodes=args.episodes,
+                seed=args.seed,
+                env_kwargs=args.env_kwargs,
+                progress=not args.no_progress,
+                skip_inapplicable=several,
+            )
+        except EnvKwargsError as exc:
+            return _error(f"--env-kwargs: {exc}")
+        except BenchError as exc:
+            return _error(str(exc))
+        if results:
+            print()
+        results.append(result)
+        print(format_table(result), flush=True)
+        if args.plot:
+            path = plot_result(result, args.plot)
+            print(f"plot: {path}", file=sys.stderr)
+    if args.json and results:
+        path = write_json(results, args.json)
+        print(f"json: {path}", file=sys.stderr)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``selenv`` console script; returns the exit code.
+
+    Args:
+        argv: arguments without the program name (default: ``sys.argv[1:]``).
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(None if argv is None else list(argv))
+    except SystemExit as exc:  # argparse exits on --help, --version and usage errors
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    if args.command == "list":
+        return cmd_list()
+    return cmd_bench(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
