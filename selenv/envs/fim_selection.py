@@ -15,7 +15,13 @@ from selenv.scenarios.fim_selection import (
     make_problem,
 )
 
-__all__ = ["FIMSelectionEnv", "parse_action"]
+__all__ = [
+    "FIMSelectionEnv",
+    "candidate_features",
+    "fim_observation",
+    "fim_observation_space",
+    "parse_action",
+]
 
 
 def parse_action(action: Any, n: int, mask: np.ndarray, name: str = "action") -> int:
@@ -34,6 +40,48 @@ def parse_action(action: Any, n: int, mask: np.ndarray, name: str = "action") ->
     if not mask[k]:
         raise ValueError(f"{name} {k} is masked: candidate {k} is already selected")
     return k
+
+
+def fim_observation_space(n: int, m: int, d: int) -> spaces.Dict:
+    """The ``Dict`` observation space over a pool of ``n`` candidates (``m`` rows, ``d`` params)."""
+    return spaces.Dict(
+        {
+            "gain": spaces.Box(0.0, np.inf, (n,), np.float32),
+            "whitened": spaces.Box(-np.inf, np.inf, (n, m * d), np.float32),
+            "features": spaces.Box(0.0, 1.0, (n, 4), np.float32),
+            "selected": spaces.MultiBinary(n),
+            "budget_left": spaces.Box(0.0, 1.0, (1,), np.float32),
+            "action_mask": spaces.MultiBinary(n),
+        }
+    )
+
+
+def candidate_features(problem: FIMProblem) -> np.ndarray:
+    """Static per-candidate features ``(N, 4)``: one-hot sensor, time in the window in [0, 1]."""
+    t = problem.times
+    span = float(np.ptp(t)) or 1.0
+    feats = np.zeros((len(t), 4), np.float32)
+    feats[np.arange(len(t)), problem.sensor] = 1.0
+    feats[:, 3] = (t - t.min()) / span
+    return feats
+
+
+def fim_observation(
+    gains: np.ndarray,
+    Z: np.ndarray,
+    selected: np.ndarray,
+    features: np.ndarray,
+    budget_fraction: float,
+) -> dict[str, np.ndarray]:
+    """Assemble one observation from a gain state's ``gains (n,)`` and ``Z (n, m, d)``."""
+    return {
+        "gain": np.where(selected, 0.0, gains).astype(np.float32),
+        "whitened": Z.reshape(len(gains), -1).astype(np.float32),
+        "features": features.copy(),
+        "selected": selected.astype(np.int8),
+        "budget_left": np.array([budget_fraction], np.float32),
+        "action_mask": (~selected).astype(np.int8),
+    }
 
 
 class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
@@ -128,18 +176,8 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         if not 1 <= budget <= self.n:
             raise ValueError(f"budget must lie in [1, {self.n}] (the pool size), got {budget}")
         self.budget = int(budget)
-        n, md = self.n, self.m * self.d
-        self.action_space = spaces.Discrete(n)
-        self.observation_space = spaces.Dict(
-            {
-                "gain": spaces.Box(0.0, np.inf, (n,), np.float32),
-                "whitened": spaces.Box(-np.inf, np.inf, (n, md), np.float32),
-                "features": spaces.Box(0.0, 1.0, (n, 4), np.float32),
-                "selected": spaces.MultiBinary(n),
-                "budget_left": spaces.Box(0.0, 1.0, (1,), np.float32),
-                "action_mask": spaces.MultiBinary(n),
-            }
-        )
+        self.action_space = spaces.Discrete(self.n)
+        self.observation_space = fim_observation_space(self.n, self.m, self.d)
         self.problem: FIMProblem | None = None
         self._state: LogDetGainState | None = None
 
@@ -170,12 +208,7 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         self._state = LogDetGainState(
             self.problem.Q0, self.problem.G, track_gains=True, track_whitened=True
         )
-        t = self.problem.times
-        span = float(np.ptp(t)) or 1.0
-        feats = np.zeros((self.n, 4), np.float32)
-        feats[np.arange(self.n), self.problem.sensor] = 1.0
-        feats[:, 3] = (t - t.min()) / span
-        self._features = feats
+        self._features = candidate_features(self.problem)
         return self._obs(), self._info()
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
@@ -191,15 +224,8 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     def _obs(self) -> dict[str, np.ndarray]:
         s = self.state
         assert s.gains is not None and s.Z is not None
-        sel = s.selected
-        return {
-            "gain": np.where(sel, 0.0, s.gains).astype(np.float32),
-            "whitened": s.Z.reshape(self.n, -1).astype(np.float32),
-            "features": self._features.copy(),
-            "selected": sel.astype(np.int8),
-            "budget_left": np.array([self.budget_left / self.budget], np.float32),
-            "action_mask": (~sel).astype(np.int8),
-        }
+        frac = self.budget_left / self.budget
+        return fim_observation(s.gains, s.Z, s.selected, self._features, frac)
 
     def _info(self) -> dict[str, Any]:
         s = self.state

@@ -43,7 +43,12 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from selenv.core.information import LogDetGainState
-from selenv.envs.fim_selection import parse_action
+from selenv.envs.fim_selection import (
+    candidate_features,
+    fim_observation,
+    fim_observation_space,
+    parse_action,
+)
 from selenv.scenarios.fim_selection import config_from, make_problem
 
 __all__ = ["env", "parallel_env", "raw_env"]
@@ -111,17 +116,7 @@ class raw_env(ParallelEnv):
         _, m, d = probe.G.shape
         self._action_spaces = {a: spaces.Discrete(len(p)) for a, p in self._pools.items()}
         self._observation_spaces = {
-            a: spaces.Dict(
-                {
-                    "gain": spaces.Box(0.0, np.inf, (len(p),), np.float32),
-                    "whitened": spaces.Box(-np.inf, np.inf, (len(p), m * d), np.float32),
-                    "features": spaces.Box(0.0, 1.0, (len(p), 4), np.float32),
-                    "selected": spaces.MultiBinary(len(p)),
-                    "budget_left": spaces.Box(0.0, 1.0, (1,), np.float32),
-                    "action_mask": spaces.MultiBinary(len(p)),
-                }
-            )
-            for a, p in self._pools.items()
+            a: fim_observation_space(len(p), m, d) for a, p in self._pools.items()
         }
         self.agents: list[str] = []
         self._np_random: np.random.Generator | None = None
@@ -156,12 +151,7 @@ class raw_env(ParallelEnv):
                 for a, p in self._pools.items()
             }
         )
-        t = P.times
-        span = float(np.ptp(t)) or 1.0
-        feats = np.zeros((P.G.shape[0], 4), np.float32)
-        feats[np.arange(P.G.shape[0]), P.sensor] = 1.0
-        feats[:, 3] = (t - t.min()) / span
-        self._features = feats
+        self._features = candidate_features(P)
         self._count = dict.fromkeys(self.possible_agents, 0)
         self.agents = self.possible_agents[:1] if coop else list(self.possible_agents)
         return (
@@ -211,15 +201,9 @@ class raw_env(ParallelEnv):
         view = self._centre if self.mode == "cooperative" else self._own[agent]
         idx = pool if self.mode == "cooperative" else slice(None)
         assert view.gains is not None and view.Z is not None
+        frac = 1.0 - self._count[agent] / self.budgets[agent]
         sel = self._centre.selected[pool]
-        return {
-            "gain": np.where(sel, 0.0, view.gains[idx]).astype(np.float32),
-            "whitened": view.Z[idx].reshape(len(pool), -1).astype(np.float32),
-            "features": self._features[pool],
-            "selected": sel.astype(np.int8),
-            "budget_left": np.array([1.0 - self._count[agent] / self.budgets[agent]], np.float32),
-            "action_mask": (~sel).astype(np.int8),
-        }
+        return fim_observation(view.gains[idx], view.Z[idx], sel, self._features[pool], frac)
 
     def _info(self, agent: str) -> dict[str, Any]:
         return {"objective": float(self._centre.objective), "action_mask": self.action_mask(agent)}
