@@ -239,7 +239,7 @@ def test_same_seed_same_problem_and_seeds_differ() -> None:
 
 def test_presets() -> None:
     assert set(PRESETS) == {"example1", "example2", "example3"}
-    expect = {"example1": (1, ("camera",), 6), "example2": (1, ("camera", "doppler"), 7),
+    expect = {"example1": (1, ("camera",), 2), "example2": (1, ("camera", "doppler"), 7),
               "example3": (2, ("camera", "doppler"), 8)}  # fmt: skip
     for name, (n_agents, sensors, d) in expect.items():
         cfg = PRESETS[name]
@@ -255,7 +255,8 @@ def test_presets() -> None:
         assert P.positions.shape == (P.N, 3)
     assert PRESETS["example1"].stationary
     P1 = make_problem(PRESETS["example1"], np.random.default_rng(3))
-    np.testing.assert_array_equal(P1.theta_true[2:], 0.0)
+    assert P1.param_names == ("x", "y")  # stationary: theta_2 = theta_3 = 0, not estimated
+    np.testing.assert_array_equal(P1.full_theta(P1.theta_true)[2:6], 0.0)
     assert small("example3").param_names == (
         "x", "y", "vx", "vy", "ax", "ay", "lambdaDf[0]", "lambdaDf[1]"
     )  # fmt: skip
@@ -298,8 +299,8 @@ def test_camera_points_in_front(preset: str, randomize: bool) -> None:
         cam = np.flatnonzero(P.sensor == 0)
         assert cam.size == 1000 * P.config.n_agents
         args = (P.times[cam], P.positions[cam], P.camera_rotation[cam], P.intrinsics)
-        assert np.all(km.camera_depth(P.theta_prior_mean, *args) > 0)
-        assert np.all(km.camera_depth(P.theta_true, *args) > 0)
+        assert np.all(km.camera_depth(P.full_theta(P.theta_prior_mean), *args) > 0)
+        assert np.all(km.camera_depth(P.full_theta(P.theta_true), *args) > 0)
 
 
 def test_truth_redrawn_until_in_front_of_cameras() -> None:

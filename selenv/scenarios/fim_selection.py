@@ -79,7 +79,7 @@ class FIMScenarioConfig:
         doppler_sigma_mps: std of ``lambda F`` (m/s); default 33 ppb of the carrier times ``c``.
         prior_*: prior standard deviations (see the module docstring).
         start_radius_m, end_radius_m, altitude_m, sweep_deg: agent path geometry.
-        stationary: target velocity and curvature are 0 (Example 1).
+        stationary: target velocity and curvature are 0 and not estimated (Example 1, d = 2).
         randomize: draw a new geometry per problem.
     """
 
@@ -180,9 +180,14 @@ class FIMProblem:
         positions, velocities: ``(N, 3)`` agent state at each candidate.
         camera_rotation: ``(N, 3, 3)`` world-to-camera rotations (identity for non-cameras).
         symbol: ``(N,)`` TOA symbol index ``k`` (-1 for non-TOA candidates).
-        nuisance: ``(N, 2)`` columns of the candidate's nuisance parameters (-1 if none).
+        nuisance: ``(N, 2)`` columns of the candidate's nuisance parameters (-1 if none), in
+            the full parameter vector.
         intrinsics: ``(3, 3)`` camera matrix ``A``.
         param_names: ``d`` names.
+        free: ``(d,)`` indices of the estimated parameters in the full vector
+            ``[x, y, vx, vy, ax, ay, nuisance...]``; a stationary target (Example 1) estimates
+            only the position, ``theta_2 = theta_3 = 0`` (paper, after eq. 18).
+        theta_fixed: full vector holding the values of the parameters not estimated.
 
     Candidates are ordered agent-major, then by sensor code, then by time.
     """
@@ -206,6 +211,8 @@ class FIMProblem:
     nuisance: np.ndarray
     intrinsics: FloatArray
     param_names: tuple[str, ...]
+    free: np.ndarray
+    theta_fixed: FloatArray
 
     @property
     def N(self) -> int:
@@ -222,9 +229,16 @@ class FIMProblem:
         """Number of parameters."""
         return int(self.H.shape[2])
 
+    def full_theta(self, theta: ArrayLike) -> FloatArray:
+        """Embed estimated parameters ``(d,)`` in the full vector (fixed entries filled in)."""
+        return self._theta(theta)
+
     def _theta(self, theta: ArrayLike) -> FloatArray:
-        th = check_finite(as_float_array(theta, "theta"), "theta")
-        return check_shape(th, (self.d,), "theta")
+        """Validate the estimated parameters ``(d,)`` and embed them in the full vector."""
+        th = check_shape(check_finite(as_float_array(theta, "theta"), "theta"), (self.d,), "theta")
+        full = np.array(self.theta_fixed, dtype=np.float64)
+        full[self.free] = th
+        return full
 
     def _idx(self, idx: ArrayLike | None) -> np.ndarray:
         if idx is None:
@@ -264,7 +278,7 @@ class FIMProblem:
     def measurement_jacobian(self, theta: ArrayLike, idx: ArrayLike | None = None) -> FloatArray:
         """Jacobians ``d mu_k / d theta`` of candidates ``idx``, ``(len(idx), m, d)``."""
         th, ix = self._theta(theta), self._idx(idx)
-        J = np.zeros((ix.size, self.m, self.d))
+        J = np.zeros((ix.size, self.m, th.size))
         for code, sel, c, t, p, nu in self._groups(ix):
             if code == CAMERA:
                 Jc = km.camera_jacobian(th, t, p, self.camera_rotation[c], self.intrinsics)
@@ -277,7 +291,7 @@ class FIMProblem:
             J[sel, 0, : km.N_MOTION] = Jl[:, : km.N_MOTION]
             for j in range(Jl.shape[1] - km.N_MOTION):  # scatter the nuisance columns
                 J[sel, 0, nu[:, j]] = Jl[:, km.N_MOTION + j]
-        return J
+        return J[:, :, self.free]
 
     def sample_measurements(
         self, rng: np.random.Generator, idx: ArrayLike | None = None
@@ -388,12 +402,19 @@ def make_problem(config: FIMScenarioConfig, rng: np.random.Generator) -> FIMProb
             break
     else:
         raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
+    free = (
+        np.setdiff1d(np.arange(mean.size), np.arange(2, 6))
+        if cfg.stationary
+        else np.arange(mean.size)
+    )
+    sf = std[free]
     arrays: dict[str, np.ndarray] = {
         **geo, "rows": np.where(cam, 2, 1), "nuisance": nuisance, "intrinsics": A, "R": R,
-        "theta_true": theta_true, "theta_prior_mean": mean, "P0": np.diag(std**2),
-        "Q0": np.diag(1.0 / std**2), "H": np.zeros((N, m, mean.size)),
+        "theta_true": theta_true[free], "theta_prior_mean": mean[free], "P0": np.diag(sf**2),
+        "Q0": np.diag(1.0 / sf**2), "H": np.zeros((N, m, free.size)), "free": free,
+        "theta_fixed": mean,
     }  # fmt: skip
     ro: dict[str, Any] = {key: _readonly(val) for key, val in arrays.items()}
-    draft = FIMProblem(config=cfg, param_names=tuple(names), G=ro["H"], **ro)
-    H = draft.measurement_jacobian(mean)
+    draft = FIMProblem(config=cfg, param_names=tuple(names[i] for i in free), G=ro["H"], **ro)
+    H = draft.measurement_jacobian(mean[free])
     return dataclasses.replace(draft, H=_readonly(H), G=_readonly(whiten(H, R)))
