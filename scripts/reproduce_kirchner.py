@@ -9,7 +9,8 @@ Jacobians at the prior mean (``problem.G``); measurements of the selected candid
 at the truth and ``theta`` is estimated by MAP (Gauss-Newton, prior ``N(mu0, P0)``). The metric is
 the position error ``||theta_hat[:2] - theta_true[:2]||`` (m) at the window start. Example 1 is
 the paper's stationary target (position only); the same camera pool with a moving target
-(``MOVING_VARIANT``, theta_1..theta_3 estimated) is the second panel of Fig. 3. Results and the comparison with the paper: ``docs/REPRODUCTION.md``.
+(``MOVING_VARIANT``, theta_1..theta_3 estimated) is the second panel of Fig. 3. Results and
+the comparison with the paper: ``docs/REPRODUCTION.md``.
 
 Usage::
 
