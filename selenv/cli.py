@@ -16,13 +16,16 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
 from selenv import __version__
 from selenv.agents import AGENTS, agents_for
 from selenv.envs import ENV_IDS
+
+if TYPE_CHECKING:
+    from selenv.bench.runner import EnvBenchResult
 
 __all__ = ["build_parser", "main"]
 
@@ -151,7 +154,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if bad:
             return _error(f"unknown agent(s) {bad}; known agents: {', '.join(sorted(AGENTS))}")
     several = len(env_ids) > 1
-    results = []
+    results: list[EnvBenchResult] = []
     for env_id in env_ids:
         if several and names is None and not agents_for(env_id):
             _note(f"skipping {env_id}: no registered agent applies to it")

@@ -108,6 +108,15 @@ register_agent(
         f"exhaustive optimum (refuses > {MAX_BRUTE_FORCE_SUBSETS:,} subsets)",
     )
 )
+# the learned policy lives above this layer: a lazy "module:attr" factory, imported on use
+register_agent(
+    AgentSpec(
+        "ppo",
+        (FIM_ENV_ID,),
+        "learned.agent:make_fim_ppo_agent",
+        "MaskablePPO candidate-scoring policy (checkpoints/fim_selection_ppo.zip)",
+    )
+)
 
 
 class CooperativeGreedyPolicy:

@@ -177,7 +177,7 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             raise ValueError(f"budget must lie in [1, {self.n}] (the pool size), got {budget}")
         self.budget = int(budget)
         self.action_space = spaces.Discrete(self.n)
-        self.observation_space = fim_observation_space(self.n, self.m, self.d)
+        self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment]
         self.problem: FIMProblem | None = None
         self._state: LogDetGainState | None = None
 

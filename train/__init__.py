@@ -1,0 +1,1 @@
+"""Thin training entry points (``python -m train.train_fim_ppo``)."""
