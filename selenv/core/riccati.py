@@ -1,0 +1,98 @@
+"""Covariance-only Kalman recursions (the Riccati difference equation), batched.
+
+For a linear Gaussian model the filter covariance does not depend on the measurements, so the
+posterior MSE of a filter can be computed ahead of time by iterating prediction and update on
+``P`` alone (Greiff et al. 2022, eqs. (11b) and (12c); Algorithm 1 runs exactly this over a
+window of ``tau`` steps for every candidate cluster).
+
+Symbols follow :mod:`selenv.core.kalman`: ``P`` (B, n, n) covariances stacked over a leading batch
+axis, ``F`` (n, n) transition and ``Q`` (n, n) process noise shared by the batch, ``H`` (p, n)
+measurement matrix shared by the batch, ``R`` (p, p) shared or (B, p, p) per batch element.
+
+The update uses the symmetric form ``P' = P - (H P)^T S^-1 (H P)`` with ``S = H P H^T + R``
+(optimal gain; the Joseph form of :func:`selenv.core.kalman.kf_update` exists for suboptimal
+gains and agrees with it to rounding, which the tests check). ``S^-1 (H P)`` is a batched solve,
+never an inverse. Inputs are assumed validated by the caller (the scenario builds them); the
+public :func:`riccati_pass` validates shapes and finiteness once per call.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from selenv.core.linalg import FloatArray, as_float_array, check_finite, check_shape
+
+__all__ = ["riccati_pass", "riccati_step"]
+
+
+def riccati_step(
+    P: FloatArray, F: FloatArray, Q: FloatArray, H: FloatArray, R: FloatArray
+) -> FloatArray:
+    """One prediction and update of the covariance, batched (no validation: hot path).
+
+    ``P^- = F P F^T + Q`` (eq. 11b), ``S = H P^- H^T + R``,
+    ``P^+ = P^- - (H P^-)^T S^-1 (H P^-)`` (eqs. 12a, 12c).
+
+    Args:
+        P: posterior covariances at ``k-1``, (B, n, n).
+        F: transition (n, n).
+        Q: process noise (n, n).
+        H: measurement matrix (p, n).
+        R: measurement noise (p, p) or (B, p, p).
+
+    Returns:
+        Posterior covariances at ``k``, (B, n, n), symmetrized.
+    """
+    Pm = F @ P @ F.T + Q  # (11b)
+    HP = H @ Pm  # (B, p, n)
+    S = HP @ H.T + R  # innovation covariance (B, p, p)
+    Pp = Pm - np.swapaxes(HP, -1, -2) @ np.linalg.solve(S, HP)  # (12a) + (12c)
+    return 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
+
+
+def riccati_pass(
+    P0: FloatArray,
+    F: FloatArray,
+    Q: FloatArray,
+    H: FloatArray,
+    R: FloatArray,
+    steps: int,
+) -> FloatArray:
+    """Iterate :func:`riccati_step` ``steps`` times from ``P0``; return the whole history.
+
+    Args:
+        P0: prior (posterior at the window start), (B, n, n).
+        F: transition (n, n).
+        Q: process noise (n, n).
+        H: measurement matrix (p, n).
+        R: measurement noise (p, p) or (B, p, p).
+        steps: number of prediction-update steps, >= 0.
+
+    Returns:
+        ``(B, steps + 1, n, n)``: ``P0`` then the posterior after each step.
+
+    Raises:
+        ValueError: wrong shapes, NaN/inf, or a negative ``steps``.
+    """
+    P0 = check_finite(as_float_array(P0, "P0"), "P0")
+    if P0.ndim != 3 or P0.shape[1] != P0.shape[2]:
+        raise ValueError(f"P0 must have shape (B, n, n), got {P0.shape}")
+    B, n = P0.shape[0], P0.shape[1]
+    F = check_finite(check_shape(as_float_array(F, "F"), (n, n), "F"), "F")
+    Q = check_finite(check_shape(as_float_array(Q, "Q"), (n, n), "Q"), "Q")
+    H = check_finite(as_float_array(H, "H"), "H")
+    if H.ndim != 2 or H.shape[1] != n:
+        raise ValueError(f"H must have shape (p, {n}), got {H.shape}")
+    p = H.shape[0]
+    R = check_finite(as_float_array(R, "R"), "R")
+    if R.shape not in ((p, p), (B, p, p)):
+        raise ValueError(f"R must have shape ({p}, {p}) or ({B}, {p}, {p}), got {R.shape}")
+    if isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 0:
+        raise ValueError(f"steps must be an int >= 0, got {steps!r}")
+    out = np.empty((B, int(steps) + 1, n, n))
+    out[:, 0] = P0
+    P = P0
+    for t in range(1, int(steps) + 1):
+        P = riccati_step(P, F, Q, H, R)
+        out[:, t] = P
+    return out

@@ -1,0 +1,386 @@
+"""Receiver clustering for multi-receiver GNSS (Greiff, Di Cairano & Berntorp 2022).
+
+``n`` receivers (agents) each have a position and a velocity in R^2 and share one bias
+``theta`` in R^2 (eqs. 2-3, step ``h``)::
+
+    x^i = (p^i; v^i; theta),   A^i = [[I, hI, 0], [0, I, 0], [0, 0, I]],
+    Q^ii = [[h^3/3 I, h^2/2 I, 0], [h^2/2 I, h I, 0], [0, 0, h I]],
+    y^i = C^i x^i + r^i,       C^i = [[I, 0, -I], [I, 0, I]],
+    R^ii = diag(sigma_1i^2 I, sigma_2i^2 I),   R^ij = r (R^ii)^1/2 (R^jj)^1/2.
+
+A clustering is an integer label vector ``I`` (n,); cluster ``C_j`` estimates the stacked
+unique states of its members plus one copy of ``theta`` (eq. 6), so ``N(C_j) = 4 |C_j| + 2``
+states and ``N_y(C_j) = 4 |C_j|`` measurements. Problem 1 requires
+``max{N(C_j), N_y(C_j)} <= N_max`` for every cluster, i.e. a cap on the cluster size.
+
+**Per-axis reduction (exact).** Every matrix above is a Kronecker product with ``I_2`` (the east
+and north axes never mix and have the same noise), so a cluster's covariance is
+``P_axis (x) I_2`` up to a permutation, with ``P_axis`` of size ``2|C| + 1`` (state order
+``p_1, v_1, ..., p_s, v_s, theta``; measurement order ``y1_1, y2_1, ..., y1_s, y2_s``). Every
+filter in selenv runs on ``P_axis``: 8x fewer flops than the full model, which
+:meth:`ClusteringProblem.full_model` still builds (eqs. 3-6) for tests and users.
+
+The cost eq. (10) ``J = a_G J_G + a_C J_C + a_L J_L`` is computed from the per-axis posteriors
+(:func:`clustering_cost`); the Kalman forward passes of Algorithm 1 live in
+:mod:`selenv.scenarios.clustering_filters`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from selenv.core.linalg import FloatArray
+
+__all__ = [
+    "MEASUREMENTS_PER_AGENT",
+    "SHARED_STATES",
+    "UNIQUE_STATES",
+    "ClusteringConfig",
+    "ClusteringProblem",
+    "CostBreakdown",
+    "canonical_labels",
+    "clustering_cost",
+    "make_clustering_problem",
+    "n_measurements",
+    "n_states",
+]
+
+UNIQUE_STATES = 4  #: position and velocity in R^2 per receiver
+SHARED_STATES = 2  #: the bias theta in R^2, one copy per cluster
+MEASUREMENTS_PER_AGENT = 4  #: y^i in R^4 (eq. 3b)
+D = 2  #: positional dimension d of J_C and J_L
+
+
+def n_states(size: int) -> int:
+    """``N(C) = 4 |C| + 2``: states of a cluster of ``size`` receivers (eq. 6a)."""
+    return UNIQUE_STATES * size + SHARED_STATES
+
+
+def n_measurements(size: int) -> int:
+    """``N_y(C) = 4 |C|``: measurements of a cluster of ``size`` receivers (eq. 6b)."""
+    return MEASUREMENTS_PER_AGENT * size
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClusteringConfig:
+    """Parameters of the receiver-clustering scenario (defaults: Greiff et al. Sec. IV-A).
+
+    Attributes:
+        n_agents: number of receivers ``n``.
+        n_max_states: ``N_max`` of Problem 1; ``None`` removes the constraint (Remark 2).
+        sigma: (n_agents, 2) measurement std devs ``(sigma_1i, sigma_2i)``; ``None`` draws them
+            ``U(0, 1]`` from the generator given to :func:`make_clustering_problem`.
+        noise_correlation: inter-receiver noise correlation ``r`` in [0, 1) (eq. 4).
+        dt: step ``h`` of eq. (3).
+        tau: window of Algorithm 1 (steps of the forward pass).
+        weights: ``(alpha_G, alpha_C, alpha_L)`` of eq. (10), non-negative, not all zero.
+        prior_std: 1-sigma of the initial belief ``(position, velocity, bias)`` per axis (the
+            paper does not give ``P_0|0``).
+    """
+
+    n_agents: int = 30
+    n_max_states: int | None = 14
+    sigma: Any = None
+    noise_correlation: float = 0.9
+    dt: float = 0.1
+    tau: int = 20
+    weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    prior_std: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        n = self.n_agents
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+            raise ValueError(f"n_agents must be an int >= 1, got {n!r}")
+        nmax = self.n_max_states
+        if nmax is not None:
+            if isinstance(nmax, bool) or not isinstance(nmax, int | np.integer):
+                raise ValueError(f"n_max_states must be an int or None, got {nmax!r}")
+            need = max(n_states(1), n_measurements(1))
+            if nmax < need:
+                raise ValueError(
+                    f"n_max_states={nmax} is below one receiver's state count "
+                    f"N(C)={n_states(1)} (4 unique + 2 shared states): no clustering is feasible"
+                )
+        r = self.noise_correlation
+        if not (isinstance(r, float | int | np.floating) and 0.0 <= float(r) < 1.0):
+            raise ValueError(f"noise_correlation (r) must lie in [0, 1), got {r!r}")
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"dt must be a finite number > 0, got {self.dt!r}")
+        if isinstance(self.tau, bool) or not isinstance(self.tau, int | np.integer) or self.tau < 1:
+            raise ValueError(f"tau must be an int >= 1, got {self.tau!r}")
+        w = np.asarray(self.weights, dtype=float)
+        if w.shape != (3,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+            raise ValueError(
+                f"weights must be 3 finite non-negative numbers (alpha_G, alpha_C, alpha_L), "
+                f"not all zero; got {self.weights!r}"
+            )
+        ps = np.asarray(self.prior_std, dtype=float)
+        if ps.shape != (3,) or not np.all(np.isfinite(ps)) or np.any(ps <= 0):
+            raise ValueError(f"prior_std must be 3 finite numbers > 0, got {self.prior_std!r}")
+        if self.sigma is not None:
+            _check_sigma(self.sigma, int(n))
+
+    @property
+    def max_cluster_size(self) -> int:
+        """Largest feasible cluster: ``max{4s + 2, 4s} <= N_max``; ``n`` when unconstrained."""
+        if self.n_max_states is None:
+            return int(self.n_agents)
+        return min(int(self.n_agents), (int(self.n_max_states) - SHARED_STATES) // UNIQUE_STATES)
+
+
+def _check_sigma(sigma: Any, n: int) -> FloatArray:
+    s = np.asarray(sigma, dtype=float)
+    if s.shape != (n, 2):
+        raise ValueError(f"sigma must have shape (n_agents, 2) = ({n}, 2), got {s.shape}")
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        bad = np.argwhere(~(np.isfinite(s) & (s > 0)))[0]
+        raise ValueError(
+            f"sigma must be finite and > 0 (standard deviations), got sigma[{bad[0]}, {bad[1]}]"
+            f" = {s[bad[0], bad[1]]}"
+        )
+    return s
+
+
+def canonical_labels(labels: Any, n: int | None = None) -> np.ndarray:
+    """Relabel a clustering by order of first appearance (equal partitions -> equal arrays).
+
+    Args:
+        labels: (n,) integer labels, any values >= 0.
+        n: expected length (``None``: any).
+
+    Returns:
+        (n,) int64 labels ``0, 1, ...`` in order of first appearance.
+
+    Raises:
+        TypeError: non-integer labels. ValueError: wrong shape or negative labels.
+    """
+    arr = np.asarray(labels)
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        else:
+            raise TypeError(f"clustering labels must be integers, got dtype {arr.dtype}")
+    if arr.ndim != 1 or (n is not None and arr.shape[0] != n):
+        want = f"({n},)" if n is not None else "(n,)"
+        raise ValueError(f"clustering must have shape {want}, got {arr.shape}")
+    if arr.size and arr.min() < 0:
+        raise ValueError(f"clustering labels must be >= 0, got {int(arr.min())}")
+    _, first, inverse = np.unique(arr, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))  # rank of each label's first appearance
+    return order[inverse].astype(np.int64)
+
+
+@dataclass(frozen=True, eq=False)
+class CostBreakdown:
+    """Eq. (10) and its terms for one clustering (per-axis posteriors, MSE per state)."""
+
+    J: float
+    J_G: float
+    J_C: float
+    J_L: float
+
+
+def clustering_cost(
+    posteriors: Sequence[FloatArray], weights: Sequence[float] = (1.0, 1.0, 1.0)
+) -> CostBreakdown:
+    """Cost eq. (10) of a clustering from its clusters' per-axis posterior covariances.
+
+    With ``P_j`` the per-axis covariance of cluster ``j`` (size ``s_j``, position variances
+    ``P_j[2a, 2a]``), the full covariance is ``P_j (x) I_2``, so
+
+    * ``J_G = sum_j 2 tr P_j / sum_j N(C_j)`` (total MSE per state),
+    * ``J_C = max_j (2 s_j)^-1 sum_a 2 P_j[2a, 2a]`` (worst cluster's positional MSE per state),
+    * ``J_L = max_j max_a P_j[2a, 2a]`` (worst receiver's positional MSE per coordinate).
+
+    Args:
+        posteriors: one (2 s_j + 1, 2 s_j + 1) per-axis covariance per cluster.
+        weights: ``(alpha_G, alpha_C, alpha_L)``.
+    """
+    total_mse = 0.0
+    total_states = 0
+    J_C = J_L = -np.inf
+    for P in posteriors:
+        s = (P.shape[0] - 1) // 2
+        pos = np.diagonal(P)[0 : 2 * s : 2]
+        total_mse += 2.0 * float(np.trace(P))
+        total_states += n_states(s)
+        J_C = max(J_C, float(pos.mean()))
+        J_L = max(J_L, float(pos.max()))
+    J_G = total_mse / total_states
+    a_G, a_C, a_L = (float(w) for w in weights)
+    return CostBreakdown(a_G * J_G + a_C * J_C + a_L * J_L, J_G, J_C, J_L)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class ClusteringProblem:
+    """One realisation of the scenario: the config and the drawn noise levels.
+
+    Attributes:
+        config: the :class:`ClusteringConfig`.
+        sigma: (n, 2) std devs ``(sigma_1i, sigma_2i)``.
+    """
+
+    config: ClusteringConfig
+    sigma: FloatArray
+    _axis_cache: dict[tuple[int, ...], tuple[FloatArray, ...]] = field(
+        default_factory=dict, repr=False
+    )
+
+    @property
+    def n(self) -> int:
+        """Number of receivers."""
+        return int(self.config.n_agents)
+
+    @property
+    def max_cluster_size(self) -> int:
+        """Largest feasible cluster (``ClusteringConfig.max_cluster_size``)."""
+        return self.config.max_cluster_size
+
+    # -- feasibility ------------------------------------------------------------------------
+    def check_clustering(self, labels: Any, name: str = "clustering") -> np.ndarray:
+        """Validate a clustering against Problem 1; return it canonically relabelled.
+
+        Raises:
+            TypeError: non-integer labels.
+            ValueError: wrong shape, labels outside [0, n), or a cluster whose state or
+                measurement count exceeds ``N_max`` (the message names the cluster and its
+                receivers).
+        """
+        arr = np.asarray(labels)
+        try:
+            canon = canonical_labels(arr, self.n)
+        except (TypeError, ValueError) as exc:
+            raise type(exc)(f"{name}: {exc}") from None
+        if arr.max() >= self.n:
+            raise ValueError(f"{name}: labels must lie in [0, {self.n}), got {int(arr.max())}")
+        sizes = np.bincount(canon)
+        cap = self.max_cluster_size
+        if sizes.max() > cap:
+            j = int(np.argmax(sizes))
+            members = np.flatnonzero(canon == j).tolist()
+            s = int(sizes[j])
+            raise ValueError(
+                f"{name}: cluster {int(arr[members[0]])} (receivers {members}) has "
+                f"max(N(C), N_y(C)) = {max(n_states(s), n_measurements(s))} > "
+                f"n_max_states = {self.config.n_max_states} (at most {cap} receivers per cluster)"
+            )
+        return canon
+
+    # -- per-axis model (what the filters run on) -------------------------------------------
+    def axis_model(self, members: Sequence[int]) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(F, Q, H)`` of a cluster of ``len(members)`` receivers, per axis.
+
+        State ``(p_1, v_1, ..., p_s, v_s, theta)`` (2s + 1), measurements
+        ``(y1_1, y2_1, ..., y1_s, y2_s)`` with ``y1 = p - theta``, ``y2 = p + theta`` (eq. 3b).
+        """
+        s = len(members)
+        key = (s,)
+        if key not in self._axis_cache:
+            h = float(self.config.dt)
+            F = np.eye(2 * s + 1)
+            Q = np.zeros((2 * s + 1, 2 * s + 1))
+            H = np.zeros((2 * s, 2 * s + 1))
+            for a in range(s):
+                F[2 * a, 2 * a + 1] = h  # p' = p + h v (3a)
+                Q[2 * a : 2 * a + 2, 2 * a : 2 * a + 2] = [[h**3 / 3, h**2 / 2], [h**2 / 2, h]]
+                H[2 * a, [2 * a, 2 * s]] = [1.0, -1.0]  # y1 = p - theta (3b)
+                H[2 * a + 1, [2 * a, 2 * s]] = [1.0, 1.0]  # y2 = p + theta
+            Q[2 * s, 2 * s] = h
+            self._axis_cache[key] = (F, Q, H)
+        F, Q, H = self._axis_cache[key]
+        return F, Q, H
+
+    def axis_noise(self, members: Sequence[int]) -> FloatArray:
+        """Per-axis measurement covariance (2s, 2s): ``R[(a,c),(b,c)] = rho_ab s_ca s_cb``.
+
+        ``rho_aa = 1``, ``rho_ab = r`` (eq. 4); channels ``c`` (y1, y2) are uncorrelated.
+        """
+        idx = np.asarray(members, dtype=int)
+        s = idx.size
+        r = float(self.config.noise_correlation)
+        rho = np.full((s, s), r) + (1.0 - r) * np.eye(s)
+        R = np.zeros((2 * s, 2 * s))
+        for c in range(2):
+            sc = self.sigma[idx, c]
+            R[c::2, c::2] = rho * np.outer(sc, sc)
+        return R
+
+    def axis_prior(self, size: int) -> FloatArray:
+        """Initial per-axis covariance ``diag(sp^2, sv^2, ..., sb^2)`` of a cluster."""
+        sp, sv, sb = (float(v) for v in self.config.prior_std)
+        return np.diag([sp**2, sv**2] * size + [sb**2])
+
+    # -- full model, eqs. (3)-(6): for tests and users --------------------------------------
+    def full_model(
+        self, members: Sequence[int]
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(A, Q, C, R)`` of a cluster in the paper's coordinates (eqs. 3, 6).
+
+        State ``x = (p_1; v_1; ...; p_s; v_s; theta)`` in R^{4s+2}, measurement
+        ``(y^{l_1}; ...; y^{l_s})`` in R^{4s} with ``y^i = (p^i - theta; p^i + theta)``.
+        """
+        idx = np.asarray(members, dtype=int)
+        s = idx.size
+        h = float(self.config.dt)
+        I2 = np.eye(2)
+        N, M = n_states(s), n_measurements(s)
+        A, Q, C = np.eye(N), np.zeros((N, N)), np.zeros((M, N))
+        th = slice(4 * s, 4 * s + 2)
+        for a in range(s):
+            p, v = slice(4 * a, 4 * a + 2), slice(4 * a + 2, 4 * a + 4)
+            A[p, v] = h * I2
+            Q[p, p], Q[p, v], Q[v, p], Q[v, v] = h**3 / 3 * I2, h**2 / 2 * I2, h**2 / 2 * I2, h * I2
+            C[4 * a : 4 * a + 2, p], C[4 * a : 4 * a + 2, th] = I2, -I2
+            C[4 * a + 2 : 4 * a + 4, p], C[4 * a + 2 : 4 * a + 4, th] = I2, I2
+        Q[th, th] = h * I2
+        r = float(self.config.noise_correlation)
+        Rii = [np.diag(np.repeat(self.sigma[i] ** 2, 2)) for i in idx]  # diag(s1^2 I, s2^2 I)
+        R = np.zeros((M, M))
+        for a in range(s):
+            for b in range(s):
+                blk = Rii[a] if a == b else r * np.sqrt(Rii[a]) @ np.sqrt(Rii[b])
+                R[4 * a : 4 * a + 4, 4 * b : 4 * b + 4] = blk
+        return A, Q, C, R
+
+    def selection_maps(self, labels: Any) -> list[tuple[FloatArray, FloatArray]]:
+        """``(M_I^{uj}, M_I^{sj})`` per cluster ``j`` (eq. after 6b), each (N(C_j), 4n + 2).
+
+        Global state (eq. 5a) ``x = (x^1_u; ...; x^n_u; theta)`` with ``x^i_u = (p^i; v^i)``;
+        ``M^{uj} x = (x^{uj}; 0)`` and ``M^{sj} x = (0; theta)``. Clusters in canonical order.
+        """
+        canon = self.check_clustering(labels)
+        N = n_states(self.n)
+        maps = []
+        for j in range(int(canon.max()) + 1):
+            members = np.flatnonzero(canon == j)
+            s = members.size
+            Mu, Ms = np.zeros((n_states(s), N)), np.zeros((n_states(s), N))
+            for a, i in enumerate(members):
+                Mu[4 * a : 4 * a + 4, 4 * i : 4 * i + 4] = np.eye(4)
+            Ms[4 * s :, 4 * self.n :] = np.eye(2)
+            maps.append((Mu, Ms))
+        return maps
+
+
+def make_clustering_problem(
+    config: ClusteringConfig | None = None, rng: np.random.Generator | None = None
+) -> ClusteringProblem:
+    """Draw a realisation: ``sigma ~ U(0, 1]`` per receiver and channel unless given.
+
+    Args:
+        config: scenario parameters (default: the paper's Sec. IV-A).
+        rng: generator for ``sigma`` (required when ``config.sigma`` is ``None``).
+    """
+    cfg = ClusteringConfig() if config is None else config
+    if cfg.sigma is not None:
+        sigma = _check_sigma(cfg.sigma, int(cfg.n_agents)).copy()
+    else:
+        if rng is None:
+            raise ValueError("rng is required to draw sigma ~ U(0, 1] (config.sigma is None)")
+        sigma = 1.0 - rng.random((int(cfg.n_agents), 2))  # U(0, 1]
+    sigma.setflags(write=False)
+    return ClusteringProblem(config=cfg, sigma=sigma)
