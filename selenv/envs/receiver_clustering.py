@@ -1,0 +1,325 @@
+"""``selenv/ReceiverClustering-v0``: dynamic clustering of GNSS receivers with a shared bias."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from selenv.scenarios.clustering import (
+    ClusteringConfig,
+    ClusteringProblem,
+    make_clustering_problem,
+)
+from selenv.scenarios.clustering_filters import ClusterFilterBank
+
+__all__ = [
+    "ACTION_MODES",
+    "ReceiverClusteringEnv",
+    "apply_edit",
+    "clustering_observation",
+    "clustering_observation_space",
+    "edit_action_count",
+    "edit_mask",
+    "random_partition",
+]
+
+ACTION_MODES = ("assignment", "edit")
+
+
+def random_partition(n: int, max_size: int, rng: np.random.Generator) -> np.ndarray:
+    """Random feasible clustering: a permutation cut into ``ceil(n / max_size)`` equal-ish parts."""
+    m = -(-n // max_size)
+    labels = np.empty(n, np.int64)
+    labels[rng.permutation(n)] = np.arange(n) % m
+    return labels
+
+
+# -- the "edit" action encoding -----------------------------------------------------------------
+def edit_action_count(n: int) -> int:
+    """``1 + n^2 + n(n-1)/2``: no-op, moves ``(i, j)`` and swaps ``i < j``."""
+    return 1 + n * n + n * (n - 1) // 2
+
+
+def _swap_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(n, k=1)
+
+
+def edit_mask(labels: np.ndarray, max_size: int) -> np.ndarray:
+    """Allowed edits of a canonical clustering, ``(1 + n^2 + n(n-1)/2,)`` bool.
+
+    * ``0``: keep the clustering (always allowed, so the mask is never all zeros);
+    * ``1 + i n + j``, ``j != i``: receiver ``i`` joins receiver ``j``'s cluster (allowed if they
+      differ and that cluster has room); ``j == i``: ``i`` leaves to a new singleton cluster
+      (allowed if its cluster has other members);
+    * ``1 + n^2 + p``: swap the clusters of the ``p``-th pair ``i < j`` (allowed if they differ).
+    """
+    n = labels.size
+    sizes = np.bincount(labels)
+    same = labels[:, None] == labels[None, :]
+    move = ~same & (sizes[labels][None, :] < max_size)
+    move[np.arange(n), np.arange(n)] = sizes[labels] > 1
+    iu, ju = _swap_pairs(n)
+    return np.concatenate([[True], move.ravel(), ~same[iu, ju]])
+
+
+def apply_edit(labels: np.ndarray, action: int) -> np.ndarray:
+    """The clustering after edit ``action`` (see :func:`edit_mask`); does not check the mask."""
+    n = labels.size
+    out = labels.copy()
+    if action == 0:
+        return out
+    a = action - 1
+    if a < n * n:
+        i, j = divmod(a, n)
+        out[i] = labels.max() + 1 if i == j else labels[j]
+        return out
+    iu, ju = _swap_pairs(n)
+    i, j = int(iu[a - n * n]), int(ju[a - n * n])
+    out[i], out[j] = labels[j], labels[i]
+    return out
+
+
+# -- observations -------------------------------------------------------------------------------
+def clustering_observation_space(n: int, mask_size: int | None = None) -> spaces.Dict:
+    """Observation space over ``n`` receivers; ``mask_size`` adds ``action_mask``."""
+    space: dict[str, spaces.Space[Any]] = {
+        "assignment": spaces.Box(0, n - 1, (n,), np.int64),
+        "cluster_size": spaces.Box(1, n, (n,), np.int64),
+        "sigma": spaces.Box(0.0, np.inf, (n, 2), np.float32),
+        "position_var": spaces.Box(0.0, np.inf, (n,), np.float32),
+        "cost": spaces.Box(0.0, np.inf, (4,), np.float32),
+        "time": spaces.Box(0.0, 1.0, (1,), np.float32),
+    }
+    if mask_size is not None:
+        space["action_mask"] = spaces.MultiBinary(mask_size)
+    return spaces.Dict(space)
+
+
+def clustering_observation(bank: ClusterFilterBank, horizon: int) -> dict[str, np.ndarray]:
+    """Observation of the current state of ``bank`` (no ``action_mask``)."""
+    labels = bank.labels
+    c = bank.cost()
+    return {
+        "assignment": labels.copy(),
+        "cluster_size": np.bincount(labels)[labels].astype(np.int64),
+        "sigma": bank.problem.sigma.astype(np.float32),
+        "position_var": bank.receiver_position_variance().astype(np.float32),
+        "cost": np.array([c.J, c.J_G, c.J_C, c.J_L], np.float32),
+        "time": np.array([min(bank.k / horizon, 1.0)], np.float32),
+    }
+
+
+class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
+    r"""Re-cluster GNSS receivers with a shared bias to minimise the posterior MSE cost.
+
+    ## Description
+    The dynamic clustering problem of Greiff, Di Cairano & Berntorp (2022). ``n_agents``
+    receivers, each with position and velocity in R^2 and a shared bias in R^2 (eqs. 2-3),
+    are split into clusters; each cluster runs one Kalman filter on its members' states, one
+    copy of the bias and their (correlated, eq. 4) measurements. A cluster may hold at most
+    ``N_max`` states and measurements (Problem 1), i.e. ``(N_max - 2) // 4`` receivers. The
+    cost eq. (10) ``J = a_G J_G + a_C J_C + a_L J_L`` is computed from the filters' posteriors;
+    one big cluster would be best (Remark 2) but is infeasible.
+
+    ## Action Space
+    ``action_mode="assignment"`` (default): ``MultiDiscrete([n] * n)``, the clustering to use
+    from now on as a label per receiver (labels are arbitrary: only the partition matters).
+    An infeasible clustering raises ``ValueError`` naming the violated cluster. This is the
+    GA's encoding. :meth:`action_masks` gives, per receiver, the labels it could take if every
+    other receiver stayed (the joint constraint is still validated).
+
+    ``action_mode="edit"``: ``Discrete(1 + n^2 + n(n-1)/2)``, one local edit of the current
+    clustering (no-op, receiver ``i`` joins ``j``'s cluster or leaves to a singleton, swap two
+    receivers), exactly masked (:func:`edit_mask`); a masked action raises ``ValueError``.
+    Meant for RL (MaskablePPO).
+
+    ## Observation Space
+    ``Dict``: ``assignment (n,)`` canonical labels, ``cluster_size (n,)`` size of each
+    receiver's cluster, ``sigma (n, 2)``, ``position_var (n,)`` each receiver's per-axis position
+    variance, ``cost (4,)`` ``(J, J_G, J_C, J_L)`` now, ``time (1,)`` ``k / horizon``; in edit mode
+    also ``action_mask``.
+
+    ## Rewards
+    ``-J`` after the filter step; ``info["objective"]`` is ``J`` (with ``J_G``, ``J_C``,
+    ``J_L``, ``n_clusters``, ``changed``, ``k``).
+
+    ## Starting State
+    ``sigma ~ U(0, 1]`` per receiver and channel (new draw per reset unless ``sigma`` is
+    given); filters at the prior ``diag(prior_std^2)``; a random feasible clustering with
+    ``ceil(n / max_size)`` near-equal clusters (``initial="singletons"`` for the worst one), or
+    ``reset(options={"clustering": labels})``.
+
+    ## Episode End
+    Terminates after ``horizon`` filter steps (a finite-horizon problem; ``time`` is observed).
+
+    ## Step
+    ``step(action)`` (1) re-clusters at time ``k`` if the partition changes, re-initialising the
+    new clusters' filters with the moments of their Algorithm 1 evaluation (Alg. 2, lines
+    17-19), then (2) runs one prediction and update of every cluster filter, ``k -> k + 1``.
+
+    ## Arguments
+    ``gymnasium.make("selenv/ReceiverClustering-v0", n_agents=30, n_max_states=14, sigma=None,
+    noise_correlation=0.9, dt=0.1, tau=20, weights=(1, 1, 1), horizon=500,
+    prior_std=(1, 1, 1), action_mode="assignment", initial="random")``. ``n_max_states=None``
+    lifts the constraint.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+
+    def __init__(
+        self,
+        *,
+        n_agents: int = 30,
+        n_max_states: int | None = 14,
+        sigma: Any = None,
+        noise_correlation: float = 0.9,
+        dt: float = 0.1,
+        tau: int = 20,
+        weights: tuple[float, float, float] = (1.0, 1.0, 1.0),
+        horizon: int = 500,
+        prior_std: tuple[float, float, float] = (1.0, 1.0, 1.0),
+        action_mode: str = "assignment",
+        initial: str = "random",
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        self.config = ClusteringConfig(
+            n_agents=n_agents,
+            n_max_states=n_max_states,
+            sigma=None if sigma is None else np.asarray(sigma, dtype=float),
+            noise_correlation=noise_correlation,
+            dt=dt,
+            tau=tau,
+            weights=tuple(weights),  # type: ignore[arg-type]
+            prior_std=tuple(prior_std),  # type: ignore[arg-type]
+        )
+        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
+            raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        if initial not in ("random", "singletons"):
+            raise ValueError(f"initial must be 'random' or 'singletons', got {initial!r}")
+        self.n = int(n_agents)
+        self.horizon = int(horizon)
+        self.action_mode = action_mode
+        self.initial = initial
+        self.max_size = self.config.max_cluster_size
+        if action_mode == "assignment":
+            self.action_space: spaces.Space[Any] = spaces.MultiDiscrete([self.n] * self.n)
+            self.observation_space = clustering_observation_space(self.n)  # type: ignore[assignment]
+        else:
+            n_edit = edit_action_count(self.n)
+            self.action_space = spaces.Discrete(n_edit)
+            self.observation_space = clustering_observation_space(self.n, n_edit)  # type: ignore[assignment]
+        self.problem: ClusteringProblem | None = None
+        self._bank: ClusterFilterBank | None = None
+
+    # -- oracle view for heuristics ----------------------------------------------------------
+    @property
+    def bank(self) -> ClusterFilterBank:
+        """The cluster filters (Algorithm 1 costs via ``bank.evaluate``); needs ``reset``."""
+        if self._bank is None:
+            raise RuntimeError("call reset() before using the environment")
+        return self._bank
+
+    def action_masks(self) -> np.ndarray:
+        """Edit mode: :func:`edit_mask`. Assignment mode: (n * n,) per-receiver label masks."""
+        bank = self.bank
+        if self.action_mode == "edit":
+            return edit_mask(bank.labels, self.max_size)
+        labels = bank.labels
+        sizes = np.bincount(labels, minlength=self.n)
+        room = sizes < self.max_size
+        mask = np.broadcast_to(room, (self.n, self.n)).copy()
+        mask[np.arange(self.n), labels] = True  # staying is always allowed
+        return mask.ravel()
+
+    # -- Gymnasium API -----------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """New noise realisation (unless ``sigma`` was given) and initial clustering.
+
+        ``options={"clustering": labels}`` sets the initial clustering (validated).
+        """
+        super().reset(seed=seed)
+        self.problem = make_clustering_problem(self.config, self.np_random)
+        opts = options or {}
+        unknown = set(opts) - {"clustering"}
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; known: ['clustering']")
+        if "clustering" in opts:
+            labels = self.problem.check_clustering(opts["clustering"], "options['clustering']")
+        elif self.initial == "singletons":
+            labels = np.arange(self.n)
+        else:
+            labels = random_partition(self.n, self.max_size, self.np_random)
+        self._bank = ClusterFilterBank(self.problem, labels)
+        return self._obs(), self._info(changed=False)
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Re-cluster (if the action changes the partition), then one filter step."""
+        bank = self.bank
+        if bank.k >= self.horizon:
+            raise RuntimeError("episode is over: call reset()")
+        labels = self._parse(action)
+        changed = bank.recluster(labels)
+        bank.step()
+        J = bank.cost().J
+        terminated = bank.k >= self.horizon
+        return self._obs(), -J, terminated, False, self._info(changed=changed)
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _parse(self, action: Any) -> np.ndarray:
+        bank = self.bank
+        if self.action_mode == "assignment":
+            return self.problem.check_clustering(action, "action")  # type: ignore[union-attr]
+        a = np.asarray(action)
+        n_edit = edit_action_count(self.n)
+        if a.shape not in ((), (1,)) or a.dtype == bool or not np.issubdtype(a.dtype, np.integer):
+            raise TypeError(f"action must be an integer in [0, {n_edit}), got {action!r}")
+        k = int(a.reshape(()))
+        if not 0 <= k < n_edit:
+            raise ValueError(f"action {k} is out of range: expected an integer in [0, {n_edit})")
+        if not edit_mask(bank.labels, self.max_size)[k]:
+            raise ValueError(f"action {k} is masked: {self.describe_edit(k)} is not allowed now")
+        return apply_edit(bank.labels, k)
+
+    def describe_edit(self, action: int) -> str:
+        """Human-readable meaning of an edit action."""
+        n = self.n
+        if action == 0:
+            return "no-op"
+        a = action - 1
+        if a < n * n:
+            i, j = divmod(a, n)
+            return f"receiver {i} -> new singleton" if i == j else f"receiver {i} -> cluster of {j}"
+        iu, ju = _swap_pairs(n)
+        return f"swap receivers {int(iu[a - n * n])} and {int(ju[a - n * n])}"
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        obs = clustering_observation(self.bank, self.horizon)
+        if self.action_mode == "edit":
+            obs["action_mask"] = self.action_masks().astype(np.int8)
+        return obs
+
+    def _info(self, changed: bool) -> dict[str, Any]:
+        bank = self.bank
+        c = bank.cost()
+        return {
+            "objective": c.J,
+            "J_G": c.J_G,
+            "J_C": c.J_C,
+            "J_L": c.J_L,
+            "n_clusters": int(bank.labels.max()) + 1,
+            "changed": changed,
+            "k": bank.k,
+            "action_mask": self.action_masks(),
+        }
