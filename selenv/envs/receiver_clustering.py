@@ -54,7 +54,10 @@ def edit_mask(labels: np.ndarray, max_size: int) -> np.ndarray:
     * ``1 + i n + j``, ``j != i``: receiver ``i`` joins receiver ``j``'s cluster (allowed if they
       differ and that cluster has room); ``j == i``: ``i`` leaves to a new singleton cluster
       (allowed if its cluster has other members);
-    * ``1 + n^2 + p``: swap the clusters of the ``p``-th pair ``i < j`` (allowed if they differ).
+    * ``1 + n^2 + p``: swap the clusters of the ``p``-th pair ``i < j`` (allowed if they differ
+      and are not both singletons).
+
+    Every allowed edit yields a feasible clustering with a different partition.
     """
     n = labels.size
     sizes = np.bincount(labels)
@@ -62,7 +65,9 @@ def edit_mask(labels: np.ndarray, max_size: int) -> np.ndarray:
     move = ~same & (sizes[labels][None, :] < max_size)
     move[np.arange(n), np.arange(n)] = sizes[labels] > 1
     iu, ju = _swap_pairs(n)
-    return np.concatenate([[True], move.ravel(), ~same[iu, ju]])
+    alone = sizes[labels] == 1  # swapping two singletons leaves the partition unchanged
+    swap = ~same[iu, ju] & ~(alone[iu] & alone[ju])
+    return np.concatenate([[True], move.ravel(), swap])
 
 
 def apply_edit(labels: np.ndarray, action: int) -> np.ndarray:
