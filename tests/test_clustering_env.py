@@ -15,9 +15,9 @@ from selenv.envs.receiver_clustering import (
     apply_edit,
     edit_action_count,
     edit_mask,
-    random_partition,
 )
 from selenv.scenarios.clustering import canonical_labels
+from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 ENV_ID = "selenv/ReceiverClustering-v0"
 
@@ -111,7 +111,7 @@ def test_infeasible_or_bad_actions_are_clear_errors() -> None:
         env.step(np.array([0, 0, 0, 0, 1, 1]))
     with pytest.raises(ValueError, match=r"shape \(6,\)"):
         env.step(np.array([0, 1, 2]))
-    with pytest.raises(TypeError, match="integers"):
+    with pytest.raises(ValueError, match="integer labels"):
         env.step(np.array([0.5, 1, 2, 3, 4, 5]))
     edit = gym.make(ENV_ID, n_agents=6, horizon=5, action_mode="edit")
     edit.reset(seed=0, options={"clustering": [0, 0, 0, 1, 1, 1]})
@@ -151,7 +151,7 @@ def test_bad_kwargs(kwargs, match) -> None:
 )
 def test_edit_mask_allows_exactly_the_feasible_changes(n: int, cap: int, seed: int) -> None:
     rng = np.random.default_rng(seed)
-    labels = canonical_labels(random_partition(n, cap, rng))
+    labels = canonical_labels(random_feasible_clustering(n, cap, rng))
     mask = edit_mask(labels, cap)
     assert mask[0]
     for a in range(1, edit_action_count(n)):

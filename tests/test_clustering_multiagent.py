@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, state_test
 
 import selenv  # noqa: F401  (registers the Gymnasium ids)
-from selenv.envs.receiver_clustering import random_partition
 from selenv.multiagent import receiver_clustering_v0 as rc
 from selenv.scenarios.clustering import canonical_labels
+from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 SMALL: dict[str, Any] = {"n_agents": 7, "n_max_states": 14, "horizon": 10, "tau": 5}  # max_size 3
 FREE: dict[str, Any] = {
@@ -168,7 +168,7 @@ def _instance(draw: Any) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     n = draw(st.integers(2, 9))
     max_size = draw(st.integers(1, n))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
-    labels = canonical_labels(random_partition(n, max_size, rng))
+    labels = canonical_labels(random_feasible_clustering(n, max_size, rng))
     targets = np.array(draw(st.lists(st.integers(0, n - 1), min_size=n, max_size=n)))
     return labels, targets, max_size, rng.permutation(n)
 
@@ -257,7 +257,7 @@ def test_shared_reward_matches_single_agent_env(
         elif t % 2 == 0:  # via singletons, so that every target is reachable in one step
             target = np.arange(n)
         else:
-            target = canonical_labels(random_partition(n, max_size, rng))
+            target = canonical_labels(random_feasible_clustering(n, max_size, rng))
         _obs, rew, terms, _truncs, infos = ma.step(_actions_for(ma.bank.labels, target, max_size))
         _obs_sa, r_sa, term_sa, _, info_sa = sa.step(target)
         assert all(info["accepted"] for info in infos.values())

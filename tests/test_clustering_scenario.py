@@ -186,7 +186,7 @@ def test_canonical_labels_and_feasibility_errors() -> None:
         prob.check_clustering([0, 1, 2, 3, 4, 6])
     with pytest.raises(ValueError, match=">= 0"):
         prob.check_clustering([0, 1, 2, 3, 4, -1])
-    with pytest.raises(TypeError, match="integers"):
+    with pytest.raises(ValueError, match="integer labels"):
         prob.check_clustering([0.5, 1, 2, 3, 4, 5])
     bank = ClusterFilterBank(prob, np.arange(6))
     with pytest.raises(ValueError, match=r"candidates\[1\]: cluster"):

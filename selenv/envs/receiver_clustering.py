@@ -14,6 +14,7 @@ from selenv.scenarios.clustering import (
     make_clustering_problem,
 )
 from selenv.scenarios.clustering_filters import ClusterFilterBank
+from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 __all__ = [
     "ACTION_MODES",
@@ -23,18 +24,9 @@ __all__ = [
     "clustering_observation_space",
     "edit_action_count",
     "edit_mask",
-    "random_partition",
 ]
 
 ACTION_MODES = ("assignment", "edit")
-
-
-def random_partition(n: int, max_size: int, rng: np.random.Generator) -> np.ndarray:
-    """Random feasible clustering: a permutation cut into ``ceil(n / max_size)`` equal-ish parts."""
-    m = -(-n // max_size)
-    labels = np.empty(n, np.int64)
-    labels[rng.permutation(n)] = np.arange(n) % m
-    return labels
 
 
 # -- the "edit" action encoding -----------------------------------------------------------------
@@ -265,7 +257,7 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
         elif self.initial == "singletons":
             labels = np.arange(self.n)
         else:
-            labels = random_partition(self.n, self.max_size, self.np_random)
+            labels = random_feasible_clustering(self.n, self.max_size, self.np_random)
         self._bank = ClusterFilterBank(self.problem, labels)
         return self._obs(), self._info(changed=False)
 

@@ -96,7 +96,6 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from selenv.envs.receiver_clustering import (
     clustering_observation,
     clustering_observation_space,
-    random_partition,
 )
 from selenv.scenarios.clustering import (
     ClusteringConfig,
@@ -104,6 +103,7 @@ from selenv.scenarios.clustering import (
     make_clustering_problem,
 )
 from selenv.scenarios.clustering_filters import ClusterFilterBank
+from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 __all__ = ["env", "label_masks", "parallel_env", "raw_env", "resolve_moves"]
 
@@ -272,7 +272,7 @@ class raw_env(ParallelEnv):
         elif self.initial == "singletons":
             labels = np.arange(self.n)
         else:
-            labels = random_partition(self.n, self.max_size, self._np_random)
+            labels = random_feasible_clustering(self.n, self.max_size, self._np_random)
         self._bank = ClusterFilterBank(self.problem, labels)
         self.last_order = None
         self.agents = list(self.possible_agents)

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from selenv.core.linalg import FloatArray
+from selenv.scenarios.clustering_labels import as_labels, canonical_labels
 
 __all__ = [
     "MEASUREMENTS_PER_AGENT",
@@ -145,35 +146,6 @@ def _check_sigma(sigma: Any, n: int) -> FloatArray:
     return s
 
 
-def canonical_labels(labels: Any, n: int | None = None) -> np.ndarray:
-    """Relabel a clustering by order of first appearance (equal partitions -> equal arrays).
-
-    Args:
-        labels: (n,) integer labels, any values >= 0.
-        n: expected length (``None``: any).
-
-    Returns:
-        (n,) int64 labels ``0, 1, ...`` in order of first appearance.
-
-    Raises:
-        TypeError: non-integer labels. ValueError: wrong shape or negative labels.
-    """
-    arr = np.asarray(labels)
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
-            arr = arr.astype(np.int64)
-        else:
-            raise TypeError(f"clustering labels must be integers, got dtype {arr.dtype}")
-    if arr.ndim != 1 or (n is not None and arr.shape[0] != n):
-        want = f"({n},)" if n is not None else "(n,)"
-        raise ValueError(f"clustering must have shape {want}, got {arr.shape}")
-    if arr.size and arr.min() < 0:
-        raise ValueError(f"clustering labels must be >= 0, got {int(arr.min())}")
-    _, first, inverse = np.unique(arr, return_index=True, return_inverse=True)
-    order = np.argsort(np.argsort(first))  # rank of each label's first appearance
-    return order[inverse].astype(np.int64)
-
-
 @dataclass(frozen=True, eq=False)
 class CostBreakdown:
     """Eq. (10) and its terms for one clustering (per-axis posteriors, MSE per state)."""
@@ -245,18 +217,16 @@ class ClusteringProblem:
         """Validate a clustering against Problem 1; return it canonically relabelled.
 
         Raises:
-            TypeError: non-integer labels.
-            ValueError: wrong shape, labels outside [0, n), or a cluster whose state or
-                measurement count exceeds ``N_max`` (the message names the cluster and its
-                receivers).
+            ValueError: non-integer labels, wrong shape, labels outside [0, n), or a cluster
+                whose state or measurement count exceeds ``N_max`` (the message names the
+                cluster and its receivers).
         """
-        arr = np.asarray(labels)
-        try:
-            canon = canonical_labels(arr, self.n)
-        except (TypeError, ValueError) as exc:
-            raise type(exc)(f"{name}: {exc}") from None
+        arr = as_labels(labels, name)
+        if arr.shape != (self.n,):
+            raise ValueError(f"{name} must have shape ({self.n},), got {arr.shape}")
         if arr.max() >= self.n:
             raise ValueError(f"{name}: labels must lie in [0, {self.n}), got {int(arr.max())}")
+        canon = canonical_labels(arr)
         sizes = np.bincount(canon)
         cap = self.max_cluster_size
         if sizes.max() > cap:

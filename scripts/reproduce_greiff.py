@@ -1,0 +1,348 @@
+"""Reproduce Sec. IV of Greiff, Di Cairano & Berntorp (2022): Fig. 3, Table II and Fig. 4.
+
+Every run plays ``selenv/ReceiverClustering-v0`` with the registered agents (the same code as
+``selenv bench``):
+
+* **Fig. 3** (n = 30, N_max = 14, one noise realisation): cost over K steps of singletons,
+  a fixed random clustering (Monte Carlo over initial clusterings, mean and 2-sigma band), the
+  GA (Algorithm 2, switched on at k = 50) from the same initial clusterings, and the single
+  cluster (the unconstrained lower bound); plus the J_G, J_C, J_L components.
+* **Table II**: the GA with each operator removed (the O vector), Monte Carlo over noise
+  realisations and initial clusterings (paired: the same seeds for every O); ``k*_eps`` for
+  eps = 0.1, 0.05, 0.01 and ``E[J(I_K)]``, ``Var[J(I_K)]``.
+* **Fig. 4** (N_max = 42, initial 15 clusters of 2): number of clusters, cost and the best
+  assignment over time.
+
+Usage::
+
+    python scripts/reproduce_greiff.py [--runs 100] [--table-runs 50] [--steps 500]
+                                       [--workers 2] [--seed 2022] [--out docs/figures] [--quick]
+
+Runs are spread over ``--workers`` processes with a progress bar. ``main(argv)`` returns the
+numbers as a dict and prints Markdown tables. Results: ``docs/REPRODUCTION.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from matplotlib.figure import Figure
+from tqdm import tqdm
+
+import selenv  # noqa: F401  (registers the env and the agents)
+from selenv.agents import make as make_agent
+from selenv.agents.clustering_ga import align_labels
+from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
+from selenv.scenarios.clustering_labels import random_feasible_clustering
+
+ENV_ID = "selenv/ReceiverClustering-v0"
+GA_START = 50  #: the paper switches the GA on at k = 50
+OPERATOR_SETS: tuple[tuple[int, ...], ...] = (
+    (0, 1, 1, 1, 1),
+    (1, 0, 1, 1, 1),
+    (1, 1, 0, 1, 1),
+    (1, 1, 1, 0, 1),
+    (1, 1, 1, 1, 0),
+    (1, 1, 1, 1, 1),
+)
+#: the paper's Table II: O -> (k*_0.1, k*_0.05, k*_0.01, E[J(I_K)])
+PAPER_TABLE_II = {
+    (0, 1, 1, 1, 1): (71, 94, 203, 0.1775),
+    (1, 0, 1, 1, 1): (73, 99, 201, 0.1775),
+    (1, 1, 0, 1, 1): (77, 107, 248, 0.1780),
+    (1, 1, 1, 0, 1): (70, 91, 194, 0.1774),
+    (1, 1, 1, 1, 0): (71, 93, 182, 0.1776),
+    (1, 1, 1, 1, 1): (72, 94, 203, 0.1773),
+}
+EPSILONS = (0.1, 0.05, 0.01)
+
+
+# -- one episode (runs in a worker process) ------------------------------------------------------
+def run_episode(task: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Play one episode; return the cost components per step and optionally the labels.
+
+    ``task``: ``env_kwargs``, ``seed``, ``agent`` (``"keep"`` or a registry name),
+    ``agent_kwargs``, ``clustering`` (initial labels or None), ``record_labels``.
+    """
+    env = gym.make(ENV_ID, **task["env_kwargs"])
+    options = None if task.get("clustering") is None else {"clustering": task["clustering"]}
+    obs, info = env.reset(seed=task["seed"], options=options)
+    agent = None
+    if task["agent"] != "keep":
+        agent = make_agent(task["agent"], ENV_ID, **task.get("agent_kwargs", {}))
+        agent.reset(env, seed=task["seed"])
+    rows = [(info["objective"], info["J_G"], info["J_C"], info["J_L"], info["n_clusters"])]
+    labels = [obs["assignment"].copy()]
+    done = False
+    while not done:
+        action = obs["assignment"] if agent is None else agent.act(obs, info)
+        obs, _, terminated, truncated, info = env.step(action)
+        rows.append((info["objective"], info["J_G"], info["J_C"], info["J_L"], info["n_clusters"]))
+        if task.get("record_labels"):
+            labels.append(obs["assignment"].copy())
+        done = terminated or truncated
+    arr = np.array(rows)
+    out = {"J": arr[:, 0], "J_G": arr[:, 1], "J_C": arr[:, 2], "J_L": arr[:, 3], "m": arr[:, 4]}
+    if task.get("record_labels"):
+        out["labels"] = np.array(labels)
+    return out
+
+
+def run_all(tasks: list[dict[str, Any]], workers: int, desc: str) -> list[dict[str, np.ndarray]]:
+    """Run tasks on ``workers`` processes (in order) with a progress bar."""
+    if workers <= 1:
+        return [run_episode(t) for t in tqdm(tasks, desc=desc, unit="run")]
+    with ProcessPoolExecutor(workers) as pool:
+        return list(tqdm(pool.map(run_episode, tasks), total=len(tasks), desc=desc, unit="run"))
+
+
+# -- experiments ---------------------------------------------------------------------------------
+def fig3_experiment(args: argparse.Namespace, sigma: np.ndarray) -> dict[str, Any]:
+    """Singletons, fixed random (MC), GA from the same starts (MC), single cluster."""
+    base = {"sigma": sigma, "horizon": args.steps}
+    rng = np.random.default_rng(args.seed)
+    starts = [random_feasible_clustering(30, 3, rng) for _ in range(args.runs)]
+    tasks = [
+        {"env_kwargs": base, "seed": r, "agent": "keep", "clustering": s}
+        for r, s in enumerate(starts)
+    ]
+    tasks += [
+        {
+            "env_kwargs": base,
+            "seed": r,
+            "agent": "ga",
+            "agent_kwargs": {"start_step": GA_START},
+            "clustering": s,
+        }
+        for r, s in enumerate(starts)
+    ]
+    tasks.append({"env_kwargs": base, "seed": 0, "agent": "keep", "clustering": np.arange(30)})
+    tasks.append(
+        {
+            "env_kwargs": {**base, "n_max_states": None},
+            "seed": 0,
+            "agent": "keep",
+            "clustering": np.zeros(30, int),
+        }
+    )
+    res = run_all(tasks, args.workers, "Fig. 3")
+    R = args.runs
+    stack = lambda rs, key: np.stack([r[key] for r in rs])  # noqa: E731
+    out: dict[str, Any] = {}
+    for name, rs in (("fixed_random", res[:R]), ("ga", res[R : 2 * R])):
+        out[name] = {key: stack(rs, key) for key in ("J", "J_G", "J_C", "J_L")}
+    out["singletons"] = res[2 * R]
+    out["single_cluster"] = res[2 * R + 1]
+    return out
+
+
+def k_star(J: np.ndarray, eps: float) -> int:
+    """``min{k : E[(J_k - J_K) / J_K] <= eps}`` over runs (rows), k counted from 0."""
+    gap = np.mean((J - J[:, -1:]) / J[:, -1:], axis=0)
+    return int(np.flatnonzero(gap <= eps)[0])
+
+
+def table2_experiment(args: argparse.Namespace) -> dict[tuple[int, ...], dict[str, Any]]:
+    """GA with each operator set; the same realisations (seeds) for every set."""
+    base = {"horizon": args.steps}
+    tasks = [
+        {
+            "env_kwargs": base,
+            "seed": 10_000 + r,
+            "agent": "ga",
+            "agent_kwargs": {"start_step": GA_START, "operators": ops},
+        }
+        for ops in OPERATOR_SETS
+        for r in range(args.table_runs)
+    ]
+    res = run_all(tasks, args.workers, "Table II")
+    out = {}
+    for i, ops in enumerate(OPERATOR_SETS):
+        J = np.stack([r["J"] for r in res[i * args.table_runs : (i + 1) * args.table_runs]])
+        out[ops] = {
+            "J": J,
+            "k_star": tuple(k_star(J, e) for e in EPSILONS),
+            "mean_JK": float(J[:, -1].mean()),
+            "var_JK": float(J[:, -1].var()),
+        }
+    return out
+
+
+def fig4_experiment(args: argparse.Namespace, sigma: np.ndarray) -> dict[str, Any]:
+    """N_max = 42 from 15 clusters of 2, GA on from k = 50; one run with the labels."""
+    rng = np.random.default_rng(args.seed + 1)
+    start = random_feasible_clustering(30, 2, rng)  # 15 clusters of 2
+    task = {
+        "env_kwargs": {"sigma": sigma, "horizon": args.steps, "n_max_states": 42},
+        "seed": 0,
+        "agent": "ga",
+        "agent_kwargs": {"start_step": GA_START},
+        "clustering": start,
+        "record_labels": True,
+    }
+    return run_episode(task)
+
+
+# -- figures -------------------------------------------------------------------------------------
+def plot_fig3(res: dict[str, Any], path: Path) -> None:
+    """Cost over time (left) and its three components (right), as the paper's Fig. 3."""
+    fig = Figure(figsize=(13, 5.5), constrained_layout=True)
+    grid = fig.add_gridspec(3, 2, width_ratios=(1.6, 1))
+    ax = fig.add_subplot(grid[:, 0])
+    comps = [fig.add_subplot(grid[i, 1]) for i in range(3)]
+    k = np.arange(res["singletons"]["J"].size)
+    styles = (
+        ("singletons", "tab:blue", "singletons (m = n)"),
+        ("fixed_random", "black", "fixed random clustering (mean, 2σ band)"),
+        ("ga", "tab:red", f"GA from the same starts, on at k = {GA_START} (mean, 2σ band)"),
+        ("single_cluster", "tab:green", "single cluster (no constraint): lower bound"),
+    )
+    for key, color, label in styles:
+        for a, comp in zip([ax, *comps], ("J", "J_G", "J_C", "J_L"), strict=True):
+            data = res[key][comp]
+            if data.ndim == 2:
+                mean, std = data.mean(axis=0), data.std(axis=0)
+                a.fill_between(k, mean - 2 * std, mean + 2 * std, color=color, alpha=0.2, lw=0)
+                data = mean
+            a.plot(k, data, color=color, lw=1.5, label=label if a is ax else None)
+    runs = res["ga"]["J"].shape[0]
+    ax.set(xlabel="time step k", ylabel="J (eq. 10)", yscale="log")
+    ax.set_title(f"Fig. 3: n = 30, N_max = 14, {runs} Monte Carlo runs")
+    ax.legend(fontsize=8)
+    for a, comp in zip(comps, ("J_G", "J_C", "J_L"), strict=True):
+        a.set(ylabel=comp, yscale="log")
+        a.grid(alpha=0.3)
+    comps[-1].set_xlabel("time step k")
+    ax.grid(alpha=0.3, which="both")
+    fig.savefig(path, dpi=120)
+
+
+def plot_table2(res: dict[tuple[int, ...], dict[str, Any]], path: Path) -> None:
+    """Mean relative gap to the final cost per operator set (the convergence behind Table II)."""
+    fig = Figure(figsize=(8, 4.5), constrained_layout=True)
+    ax = fig.add_subplot()
+    for ops, r in res.items():
+        J = r["J"]
+        gap = np.mean((J - J[:, -1:]) / J[:, -1:], axis=0)
+        ax.plot(gap, lw=1.2, label=f"O = {ops}")
+    for e in EPSILONS:
+        ax.axhline(e, color="grey", lw=0.8, ls=":")
+    ax.set(xlabel="time step k", ylabel="E[(J_k - J_K) / J_K]", yscale="log", ylim=(1e-3, None))
+    runs = next(iter(res.values()))["J"].shape[0]
+    ax.set_title(f"Table II: convergence by GA operator set ({runs} realisations each)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    fig.savefig(path, dpi=120)
+
+
+def plot_fig4(res: dict[str, Any], path: Path) -> None:
+    """Cluster count, cost and the assignment image over time (the paper's Fig. 4)."""
+    labels = res["labels"].copy()
+    for t in range(1, len(labels)):  # keep colours stable: align each step to the previous one
+        labels[t] = align_labels(labels[t - 1], labels[t])
+    fig = Figure(figsize=(10, 8), constrained_layout=True)
+    ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True, height_ratios=(1, 1, 1.6))
+    k = np.arange(len(res["J"]))
+    ax1.plot(k, res["m"], color="tab:blue")
+    ax1.set(ylabel="number of clusters")
+    ax2.plot(k, res["J"], color="tab:red")
+    ax2.set(ylabel="J (eq. 10)", yscale="log")
+    ax3.imshow(labels.T, aspect="auto", interpolation="nearest", cmap="tab20", origin="lower")
+    ax3.set(xlabel="time step k", ylabel="receiver i (colour: cluster)")
+    ax1.set_title(f"Fig. 4: N_max = 42, GA on at k = {GA_START}; final J = {res['J'][-1]:.4f}")
+    for a in (ax1, ax2):
+        a.grid(alpha=0.3)
+    fig.savefig(path, dpi=120)
+
+
+# -- main ----------------------------------------------------------------------------------------
+def format_tables(results: dict[str, Any]) -> str:
+    """Markdown tables of the three experiments."""
+    f3 = results["fig3"]
+    lines = [
+        "### Fig. 3: J at k = K",
+        "",
+        "| clustering | E[J(I_K)] | Var[J(I_K)] |",
+        "|---|---:|---:|",
+    ]
+    for key in ("singletons", "fixed_random", "ga", "single_cluster"):
+        J = np.atleast_2d(f3[key]["J"])[:, -1]
+        lines.append(f"| {key} | {J.mean():.4f} | {J.var():.2e} |")
+    lines += [
+        "",
+        "### Table II",
+        "",
+        "| O | k*_0.1 | k*_0.05 | k*_0.01 | E[J(I_K)] | Var[J(I_K)] | paper k* | paper E[J] |",
+        "|---|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    for ops, r in results["table2"].items():
+        p = PAPER_TABLE_II[ops]
+        ks = " | ".join(str(v) for v in r["k_star"])
+        lines.append(
+            f"| {ops} | {ks} | {r['mean_JK']:.4f} | {r['var_JK']:.2e} | "
+            f"{p[0]} / {p[1]} / {p[2]} | {p[3]} |"
+        )
+    f4 = results["fig4"]
+    first3 = np.flatnonzero(f4["m"] <= 3)
+    lines += [
+        "",
+        "### Fig. 4 (N_max = 42)",
+        "",
+        f"final J = {f4['J'][-1]:.4f}; clusters at k = K: {int(f4['m'][-1])}; "
+        f"sizes {sorted(np.bincount(f4['labels'][-1]).tolist(), reverse=True)}; "
+        f"first k with <= 3 clusters: {int(first3[0]) if first3.size else 'never'}",
+    ]
+    return "\n".join(lines)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command line (see the module docstring)."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--runs", type=int, default=100, help="Fig. 3 Monte Carlo runs (paper: 1000)")
+    p.add_argument("--table-runs", type=int, default=50, help="Table II runs per O (paper: 1000)")
+    p.add_argument("--steps", type=int, default=500, help="K (paper: 500)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--seed", type=int, default=2022)
+    p.add_argument("--out", type=Path, default=Path("docs/figures"))
+    p.add_argument("--quick", action="store_true", help="4 runs, 3 per O, K = 120 (for tests)")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.runs, args.table_runs, args.steps = 4, 3, 120
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Run the three experiments, write the figures, print the tables; return the numbers."""
+    args = parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    sigma = make_clustering_problem(ClusteringConfig(), np.random.default_rng(args.seed)).sigma
+    results: dict[str, Any] = {
+        "fig3": fig3_experiment(args, np.asarray(sigma)),
+        "table2": table2_experiment(args),
+        "fig4": fig4_experiment(args, np.asarray(sigma)),
+    }
+    paths = {
+        name: args.out / f"{name}.png" for name in ("greiff_fig3", "greiff_table2", "greiff_fig4")
+    }
+    plot_fig3(results["fig3"], paths["greiff_fig3"])
+    plot_table2(results["table2"], paths["greiff_table2"])
+    plot_fig4(results["fig4"], paths["greiff_fig4"])
+    wall = time.perf_counter() - t0
+    results["figures"] = {k: str(v) for k, v in paths.items()}
+    results["config"] = {**vars(args), "out": str(args.out), "wall_time_s": wall}
+    print(format_tables(results))
+    print(f"\nruns={args.runs} table_runs={args.table_runs} K={args.steps} wall time {wall:.1f} s")
+    return results
+
+
+if __name__ == "__main__":
+    main()

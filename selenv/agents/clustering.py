@@ -1,0 +1,192 @@
+"""Agents for ``selenv/ReceiverClustering-v0`` (Greiff et al. 2022 and baselines to test against).
+
+All act on the env's oracle view ``env.unwrapped.bank`` (a
+:class:`~selenv.scenarios.clustering_filters.ClusterFilterBank`: current clustering, time,
+Algorithm 1 costs of candidates) and return a full assignment (``action_mode="assignment"``);
+``greedy`` also plays ``action_mode="edit"``. Randomness comes from the agent's seeded ``rng``.
+
+| name | what |
+|---|---|
+| ``ga`` | Algorithm 2: one GA generation every ``every`` steps from ``start_step`` on |
+| ``greedy`` | best single move or swap by Algorithm 1 cost, if it improves (local search) |
+| ``fixed_random`` | a random feasible clustering (clusters filled to the cap), kept all episode |
+| ``singletons`` | one receiver per cluster: the worst clustering (Remark 2) |
+| ``single_cluster`` | all receivers together: the unconstrained lower bound (refuses when
+  the env's ``n_max_states`` forbids it) |
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from selenv.agents.base import Agent, AgentSpec, register_agent
+from selenv.agents.clustering_ga import GAConfig, GeneticClustering
+from selenv.envs.receiver_clustering import (
+    ReceiverClusteringEnv,
+    apply_edit,
+    edit_mask,
+)
+from selenv.scenarios.clustering_labels import random_feasible_clustering
+
+__all__ = [
+    "CLUSTERING_ENV_ID",
+    "FixedClusteringAgent",
+    "GAAgent",
+    "GreedyMoveAgent",
+]
+
+CLUSTERING_ENV_ID = "selenv/ReceiverClustering-v0"
+
+
+def _clustering_env(env: gym.Env[Any, Any], name: str, modes: tuple[str, ...]) -> Any:
+    base = env.unwrapped
+    if not isinstance(base, ReceiverClusteringEnv):
+        raise ValueError(f"agent {name!r} needs {CLUSTERING_ENV_ID}, got {type(base).__name__}")
+    if base.action_mode not in modes:
+        raise ValueError(
+            f"agent {name!r} plays action_mode in {modes}, the env uses {base.action_mode!r}"
+        )
+    return base
+
+
+class FixedClusteringAgent(Agent):
+    """Keeps one clustering all episode (``kind``: fixed_random, singletons, single_cluster)."""
+
+    def __init__(self, kind: str) -> None:
+        if kind not in ("fixed_random", "singletons", "single_cluster"):
+            raise ValueError(f"unknown fixed clustering kind {kind!r}")
+        self.name = kind  # type: ignore[misc]
+        self.kind = kind
+
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
+        """Choose the clustering (``ValueError`` if the env's constraint forbids it)."""
+        super().reset(env, seed)
+        base = _clustering_env(env, self.kind, ("assignment",))
+        n = base.n
+        if self.kind == "singletons":
+            self.labels = np.arange(n)
+        elif self.kind == "single_cluster":
+            if base.max_size < n:
+                raise ValueError(
+                    f"single_cluster is the unconstrained lower bound: it needs n_max_states=None"
+                    f" (or >= {4 * n + 2}) but the env allows {base.max_size} receivers per cluster"
+                )
+            self.labels = np.zeros(n, np.int64)
+        else:
+            self.labels = random_feasible_clustering(n, base.max_size, self.rng)
+
+    def act(self, obs: Any, info: dict[str, Any]) -> np.ndarray:
+        """The fixed clustering."""
+        return self.labels.copy()
+
+
+class GAAgent(Agent):
+    """Algorithm 2 (Greiff et al.): the genetic algorithm re-clustering online.
+
+    Args:
+        every: ``N_T``, steps between generations.
+        start_step: first step at which the GA runs (the paper switches it on at ``k = 50``);
+            before that the current clustering is kept.
+        **ga_kwargs: fields of :class:`~selenv.agents.clustering_ga.GAConfig`
+            (``population_size``, ``alpha``, ``operators``, ``max_tries``, ``n_labels``).
+    """
+
+    name = "ga"
+
+    def __init__(self, every: int = 1, start_step: int = 0, **ga_kwargs: Any) -> None:
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"every (N_T) must be an int >= 1, got {every!r}")
+        if isinstance(start_step, bool) or not isinstance(start_step, int) or start_step < 0:
+            raise ValueError(f"start_step must be an int >= 0, got {start_step!r}")
+        self.every = every
+        self.start_step = start_step
+        self.config = GAConfig(**ga_kwargs)
+        self.ga: GeneticClustering | None = None
+
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
+        super().reset(env, seed)
+        self.base = _clustering_env(env, self.name, ("assignment",))
+        self.ga = None  # built at the first generation, from the clustering in use then
+
+    def act(self, obs: Any, info: dict[str, Any]) -> np.ndarray:
+        """Run a generation when due; play the best clustering found."""
+        bank = self.base.bank
+        k = bank.k
+        if k < self.start_step or (k - self.start_step) % self.every:
+            return bank.labels.copy()
+        if self.ga is None:
+            self.ga = GeneticClustering(
+                bank.evaluate, bank.labels, self.base.max_size, self.config, rng=self.rng
+            )
+        best, _ = self.ga.generation()
+        return best
+
+
+class GreedyMoveAgent(Agent):
+    """Local search: each step, the best single move or swap by Algorithm 1 cost, if it helps.
+
+    Evaluates every allowed edit of :func:`~selenv.envs.receiver_clustering.edit_mask` (moves to
+    another receiver's cluster or to a new singleton, and swaps) in one batched call and takes
+    the best if it beats keeping the clustering. Plays both action modes.
+
+    Args:
+        every: steps between searches (keeps the clustering in between).
+        swaps: include swaps (needed when every cluster is full, as with ``N_max = 14``).
+    """
+
+    name = "greedy"
+
+    def __init__(self, every: int = 5, swaps: bool = True) -> None:
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"every must be an int >= 1, got {every!r}")
+        self.every = every
+        self.swaps = swaps
+
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
+        super().reset(env, seed)
+        self.base = _clustering_env(env, self.name, ("assignment", "edit"))
+
+    def act(self, obs: Any, info: dict[str, Any]) -> Any:
+        """The best improving edit (as labels or as an edit index, per the env's mode)."""
+        bank = self.base.bank
+        labels = bank.labels
+        best_action = 0
+        if bank.k % self.every == 0:
+            n = labels.size
+            mask = edit_mask(labels, self.base.max_size)
+            if not self.swaps:
+                mask[1 + n * n :] = False
+            actions = np.flatnonzero(mask[1:]) + 1
+            if actions.size:
+                cands = np.stack([apply_edit(labels, int(a)) for a in actions])
+                costs = bank.evaluate(cands)
+                j = int(np.argmin(costs))
+                if costs[j] < bank.cost().J:
+                    best_action = int(actions[j])
+        if self.base.action_mode == "edit":
+            return best_action
+        return apply_edit(labels, best_action)
+
+
+def _fixed(kind: str) -> Any:
+    def factory(**kwargs: Any) -> FixedClusteringAgent:
+        return FixedClusteringAgent(kind, **kwargs)
+
+    return factory
+
+
+_ID = (CLUSTERING_ENV_ID,)
+register_agent(AgentSpec("ga", _ID, GAAgent, "Algorithm 2 genetic algorithm (Greiff et al.)"))
+register_agent(AgentSpec("greedy", _ID, GreedyMoveAgent, "best single move/swap if it improves"))
+register_agent(
+    AgentSpec("fixed_random", _ID, _fixed("fixed_random"), "random feasible clustering, kept")
+)
+register_agent(AgentSpec("singletons", _ID, _fixed("singletons"), "one receiver per cluster"))
+register_agent(
+    AgentSpec(
+        "single_cluster", _ID, _fixed("single_cluster"), "all in one cluster (unconstrained bound)"
+    )
+)

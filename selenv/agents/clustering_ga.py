@@ -1,0 +1,391 @@
+"""Genetic algorithm for dynamic receiver clustering (Greiff et al. 2022, Sec. III, Alg. 2).
+
+A clustering of ``n`` receivers is an integer label vector ``labels`` of shape ``(n,)``; label
+vectors inducing the same partition are the same clustering (:func:`canonical_labels` maps them
+to equal arrays). Problem 1's state limit reduces to a size cap: a clustering is feasible when
+every cluster has at most ``max_size`` members. Lower cost ``J`` is better.
+
+The Table I operators :func:`o1c`, :func:`o2c`, :func:`o1m`, :func:`o2m`, :func:`o3m` are
+called as ``op(parents..., rng, max_size, max_tries)`` and return a feasible ``(n,)`` child
+("operations only return a solution if it is feasible", Sec. III-A): they retry up to
+``max_tries`` random draws and, if none is feasible, return a copy of the first parent.
+Children are raw labels in the first parent's label space (Table I checks elementwise); the GA
+stores canonical labels. All randomness comes from the ``np.random.Generator`` passed in.
+
+Our additions to the paper: crossovers first relabel the second parent with
+:func:`align_labels` (the paper crosses raw label vectors, for which label-permutation symmetry
+makes O1C/O2C close to a random reassignment); O1M enumerates its feasible moves instead of
+retrying blindly and counts "move to a new cluster" once, not once per unused label.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import linear_sum_assignment
+
+from selenv.core.linalg import FloatArray
+from selenv.scenarios.clustering_labels import (
+    IntArray,
+    as_labels,
+    canonical_labels,
+    check_int,
+    cluster_sizes,
+    is_feasible,
+    random_feasible_clustering,
+)
+
+#: batched cost: ``evaluate(candidates (B, n) int) -> J (B,) float``
+Evaluate = Callable[[IntArray], ArrayLike]
+
+__all__ = [
+    "GAConfig",
+    "GeneticClustering",
+    "align_labels",
+    "canonical_labels",
+    "cluster_sizes",
+    "draw_rank",
+    "is_feasible",
+    "o1c",
+    "o1m",
+    "o2c",
+    "o2m",
+    "o3m",
+    "random_feasible_clustering",
+]
+
+
+def _check_alpha(alpha: object) -> float:
+    a = float(alpha) if isinstance(alpha, int | float | np.number) else math.nan
+    if isinstance(alpha, bool) or not (math.isfinite(a) and a > 0):
+        raise ValueError(f"alpha must be a finite number > 0, got {alpha!r}")
+    return a
+
+
+def _fits(labels: IntArray, max_size: int) -> bool:
+    return bool(np.bincount(labels).max() <= max_size)
+
+
+def align_labels(a: ArrayLike, b: ArrayLike) -> IntArray:
+    """Rename the clusters of ``b`` ``(n,)`` to agree with ``a`` ``(n,)`` on most agents.
+
+    Maximises the matched mass of the contingency table ``T[i, j] = |A_i ∩ B_j|`` with
+    :func:`scipy.optimize.linear_sum_assignment`; clusters of ``b`` left unmatched get the
+    smallest labels unused by ``a``. The result ``(n,)`` is the partition of ``b``; if ``b`` is
+    a relabelling of ``a`` it equals ``a``. Our addition to Greiff et al. 2022 (Table I crosses
+    raw label vectors): it makes crossover meaningful despite label-permutation symmetry.
+    """
+    x, y = as_labels(a, "a"), as_labels(b, "b")
+    if x.shape != y.shape:
+        raise ValueError(f"a and b must have the same shape, got {x.shape} and {y.shape}")
+    ua, ia = np.unique(x, return_inverse=True)
+    ub, ib = np.unique(y, return_inverse=True)
+    ia, ib = ia.reshape(-1), ib.reshape(-1)
+    T = np.bincount(ia * ub.size + ib, minlength=ua.size * ub.size).reshape(ua.size, ub.size)
+    rows, cols = linear_sum_assignment(T, maximize=True)
+    mapping = np.empty(ub.size, dtype=np.int64)
+    mapping[cols] = ua[rows]
+    unmatched = np.setdiff1d(np.arange(ub.size), cols)
+    mapping[unmatched] = np.setdiff1d(np.arange(x.size + ub.size), ua)[: unmatched.size]
+    return mapping[ib]
+
+
+def _retry(draw: Callable[[], IntArray], x: IntArray, max_size: int, max_tries: int) -> IntArray:
+    """First feasible ``draw()`` out of ``max_tries``, else a copy of the parent ``x``."""
+    max_size = check_int(max_size, "max_size", 1)
+    for _ in range(check_int(max_tries, "max_tries", 1)):
+        child = draw()
+        if _fits(child, max_size):
+            return child
+    return x.copy()
+
+
+def o1c(
+    a: ArrayLike, b: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20
+) -> IntArray:
+    """O1C (Table I): one-point crossover ``a[:j] ++ b'[j:]``, ``j ~ U{1..n-1}``.
+
+    Args:
+        a: ``(n,)`` first parent; a copy of it is the fallback.
+        b: ``(n,)`` second parent, relabelled to ``b'`` by :func:`align_labels` first.
+        rng: source of randomness.
+        max_size: cluster-size cap.
+        max_tries: random draws (here cut points) before falling back to a copy of ``a``.
+
+    Returns:
+        ``(n,)`` feasible child in ``a``'s label space, or a copy of ``a``.
+    """
+    x = as_labels(a, "a")
+    y = align_labels(x, b)
+
+    def draw() -> IntArray:
+        j = int(rng.integers(1, x.size)) if x.size > 1 else 1  # cut point
+        return np.concatenate([x[:j], y[j:]])
+
+    return _retry(draw, x, max_size, max_tries)
+
+
+def o2c(
+    a: ArrayLike, b: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20
+) -> IntArray:
+    """O2C (Table I): uniform crossover, each element from ``a`` or aligned ``b'`` w.p. 1/2.
+
+    Arguments and result as :func:`o1c`.
+    """
+    x = as_labels(a, "a")
+    y = align_labels(x, b)
+    return _retry(lambda: np.where(rng.random(x.size) < 0.5, x, y), x, max_size, max_tries)
+
+
+def o1m(
+    a: ArrayLike, n_labels: int, rng: np.random.Generator, max_size: int, max_tries: int = 20
+) -> IntArray:
+    """O1M (Table I): set one element of ``a`` ``(n,)`` to another label in ``[0, n_labels)``.
+
+    Enumerates the feasible moves ``(agent i, label l != a[i])`` that change the partition and
+    picks one uniformly. Every unused label gives the same partition (``i`` alone in a new
+    cluster), so they count as one move, to the smallest unused label; a singleton moved to an
+    unused label is no change and is excluded. ``max_tries`` is accepted for the common
+    signature and not used. Returns an ``(n,)`` child differing from ``a`` in exactly one
+    element, or a copy of ``a`` when no feasible move exists.
+    """
+    x = as_labels(a, "a")
+    n_labels = check_int(n_labels, "n_labels", 1)
+    max_size = check_int(max_size, "max_size", 1)
+    check_int(max_tries, "max_tries", 1)
+    sizes = np.bincount(x, minlength=n_labels)
+    used = np.flatnonzero(sizes[:n_labels] > 0)
+    unused = np.flatnonzero(sizes[:n_labels] == 0)
+    targets = np.append(used, unused[:1])  # (L,)
+    over = sizes > max_size
+    # the source cluster of agent i shrinks by one: fine unless another cluster is over the cap
+    src_ok = (over.sum() == 0) | ((over.sum() == 1) & over[x] & (sizes[x] - 1 <= max_size))
+    ok = (targets[None, :] != x[:, None]) & (sizes[targets] < max_size)[None, :] & src_ok[:, None]
+    if unused.size:
+        ok[:, -1] &= sizes[x] > 1  # a singleton moved to a new cluster: same partition
+    agents, cols = np.nonzero(ok)  # (n, L) -> feasible moves
+    child = x.copy()
+    if agents.size:
+        k = int(rng.integers(agents.size))
+        child[agents[k]] = targets[cols[k]]
+    return child
+
+
+def o2m(a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20) -> IntArray:
+    """O2M (Table I): swap the labels of two agents of ``a`` ``(n,)`` in different clusters.
+
+    The pair is uniform over pairs with different labels; cluster sizes are preserved, so the
+    child is feasible iff ``a`` is. Returns a copy of ``a`` if it has a single cluster.
+    """
+    x = as_labels(a, "a")
+    i, j = np.nonzero(np.triu(x[:, None] != x[None, :]))
+    if i.size == 0:
+        return x.copy()
+
+    def draw() -> IntArray:
+        k = int(rng.integers(i.size))
+        child = x.copy()
+        child[[i[k], j[k]]] = x[[j[k], i[k]]]
+        return child
+
+    return _retry(draw, x, max_size, max_tries)
+
+
+def o3m(a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20) -> IntArray:
+    """O3M (Table I): O2C on two random clusters of ``a`` ``(n,)``.
+
+    Each try picks two distinct clusters and reassigns each of their members to one of the two
+    w.p. 1/2. Returns a copy of ``a`` if it has a single cluster or no try was feasible.
+    """
+    x = as_labels(a, "a")
+    clusters = np.unique(x)
+    if clusters.size < 2:
+        return x.copy()
+
+    def draw() -> IntArray:
+        l1, l2 = rng.choice(clusters, size=2, replace=False)
+        members = np.flatnonzero((x == l1) | (x == l2))
+        child = x.copy()
+        child[members] = np.where(rng.random(members.size) < 0.5, l1, l2)
+        return child
+
+    return _retry(draw, x, max_size, max_tries)
+
+
+def draw_rank(rng: np.random.Generator, alpha: float, population_size: int) -> int:
+    """Selection of Alg. 2, steps 4-5: rank ``r`` of the partner, the ``(r+1)``-th best.
+
+    Returns ``r = clip(round(|r̄|), 1, N_S - 1)`` with ``r̄ ~ N(0, (alpha (N_S - 1))^2)``: the
+    index of the partner in the population sorted by cost.
+    """
+    N_S = check_int(population_size, "population_size", 2)
+    r_bar = rng.normal(0.0, _check_alpha(alpha) * (N_S - 1))  # r̄ ~ N(0, (α(N_S - 1))²)
+    return min(max(round(abs(r_bar)), 1), N_S - 1)  # nearest integer in [1, N_S - 1]
+
+
+@dataclass(frozen=True, kw_only=True)
+class GAConfig:
+    """Parameters of :class:`GeneticClustering` (defaults: the paper's alpha 0.1, N_S 20).
+
+    Attributes:
+        population_size: ``N_S >= 2``.
+        alpha: selection spread ``> 0`` (:func:`draw_rank`).
+        operators: the ``O`` vector of Table II: 0/1 flags for (O1C, O2C, O1M, O2M, O3M), at
+            least one set. With no crossover enabled the crossover half of a generation is
+            filled by mutations; with no mutation enabled the mutation half by crossovers.
+        max_tries: random draws per operator call before falling back to the parent, >= 1.
+        n_labels: label range of O1M (``None``: ``n``).
+        redraw_partner: draw a new partner rank for every crossover (``False``: once per
+            generation, as Alg. 2 does).
+    """
+
+    population_size: int = 20
+    alpha: float = 0.1
+    operators: tuple[int, ...] = (1, 1, 1, 1, 1)
+    max_tries: int = 20
+    n_labels: int | None = None
+    redraw_partner: bool = False
+
+    def __post_init__(self) -> None:
+        check_int(self.population_size, "population_size", 2)
+        _check_alpha(self.alpha)
+        ops = tuple(self.operators) if isinstance(self.operators, tuple | list) else ()
+        if len(ops) != 5 or any(isinstance(o, str) or o not in (0, 1) for o in ops):
+            raise ValueError(
+                f"operators must be 5 flags in {{0, 1}} (O1C, O2C, O1M, O2M, O3M), got {ops!r}"
+            )
+        if not any(ops):
+            raise ValueError("operators must enable at least one operator, got all zeros")
+        object.__setattr__(self, "operators", tuple(int(o) for o in ops))
+        check_int(self.max_tries, "max_tries", 1)
+        if self.n_labels is not None:
+            check_int(self.n_labels, "n_labels", 1)
+
+
+class GeneticClustering:
+    """Genetic algorithm for clustering under a size cap (Greiff et al. 2022, Alg. 2 / Table I).
+
+    Each :meth:`generation` keeps the best member (elitism; it is re-evaluated because the cost
+    may drift in time), adds crossovers of (best, partner at :func:`draw_rank`) with a uniformly
+    random enabled O_C until ``ceil(N_S / 2)`` members, then mutations of uniformly random
+    members of the new population so far with a random enabled O_M until ``N_S``, evaluates all
+    ``N_S`` in one batched ``evaluate`` call and sorts them by cost (stable: ties keep the elite
+    first). With a time-invariant cost the best cost never increases.
+
+    Args:
+        evaluate: batched cost, ``(B, n)`` canonical labels -> ``(B,)`` float, lower is better.
+        initial_labels: ``(n,)`` feasible clustering; the initial population is it plus
+            ``N_S - 1`` mutations of it (random feasible clusterings if no O_M is enabled).
+        max_size: cluster-size cap (Problem 1).
+        config: :class:`GAConfig`, default ``GAConfig()``.
+        rng: generator or seed.
+
+    Attributes:
+        population: ``(N_S, n)`` canonical labels sorted by cost.
+        costs: ``(N_S,)`` costs, increasing.
+        n_generations: generations run.
+        n_evaluations: candidates passed to ``evaluate`` in total, duplicates included.
+
+    Raises:
+        ValueError: if ``initial_labels`` is infeasible (naming the cluster and its size) or
+            ``evaluate`` returns a wrong shape or NaN.
+    """
+
+    def __init__(
+        self,
+        evaluate: Evaluate,
+        initial_labels: ArrayLike,
+        max_size: int,
+        config: GAConfig | None = None,
+        rng: np.random.Generator | int | None = None,
+    ) -> None:
+        self.config = GAConfig() if config is None else config
+        self.max_size = check_int(max_size, "max_size", 1)
+        self._evaluate = evaluate
+        self._rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        x = as_labels(initial_labels, "initial_labels")
+        self.n = x.size
+        self.n_labels = self.n if self.config.n_labels is None else self.config.n_labels
+        self.n_generations = 0
+        self.n_evaluations = 0
+        O = self.config.operators  # noqa: E741  (the paper's symbol)
+        self._crossovers = [k for k in range(2) if O[k]]  # 0: O1C, 1: O2C
+        self._mutations = [k for k in range(3) if O[2 + k]]  # 0: O1M, 1: O2M, 2: O3M
+        self.population: IntArray
+        self.costs: FloatArray
+        self._initialize(x, "initial_labels")
+
+    @property
+    def best(self) -> IntArray:
+        """``(n,)`` canonical labels of the best member."""
+        return self.population[0].copy()
+
+    @property
+    def best_cost(self) -> float:
+        """Cost of :attr:`best` at its last evaluation."""
+        return float(self.costs[0])
+
+    def reset_population(self, labels: ArrayLike) -> None:
+        """Restart from ``labels`` ``(n,)`` as in ``__init__``; counters keep accumulating."""
+        self._initialize(as_labels(labels, "labels"), "labels")
+
+    def generation(self) -> tuple[IntArray, float]:
+        """Run one generation of Alg. 2 (steps 4-15); return ``(best (n,), best cost)``."""
+        cfg, rng = self.config, self._rng
+        r = draw_rank(rng, cfg.alpha, cfg.population_size)  # steps 4-5
+        new = [self.population[0].copy()]  # step 6: elitism
+        while len(new) < cfg.population_size / 2:  # steps 7-10
+            if cfg.redraw_partner:
+                r = draw_rank(rng, cfg.alpha, cfg.population_size)
+            new.append(self._crossover(r) if self._crossovers else self._mutate(new))
+        while len(new) < cfg.population_size:  # steps 11-14
+            new.append(self._mutate(new) if self._mutations else self._crossover(r))
+        self._accept(np.stack(new))  # step 15
+        self.n_generations += 1
+        return self.best, self.best_cost
+
+    def _crossover(self, r: int) -> IntArray:
+        op = (o1c, o2c)[self._crossovers[int(self._rng.integers(len(self._crossovers)))]]
+        a, b = self.population[0], self.population[r]
+        return op(a, b, self._rng, self.max_size, self.config.max_tries)
+
+    def _mutate(self, members: list[IntArray]) -> IntArray:
+        k = self._mutations[int(self._rng.integers(len(self._mutations)))]
+        a = members[int(self._rng.integers(len(members)))]
+        rng, s, t = self._rng, self.max_size, self.config.max_tries
+        return o1m(a, self.n_labels, rng, s, t) if k == 0 else (o2m, o3m)[k - 1](a, rng, s, t)
+
+    def _initialize(self, x: IntArray, name: str) -> None:
+        if x.size != self.n:
+            raise ValueError(f"{name} must have n={self.n} entries, got {x.size}")
+        sizes = np.bincount(x)
+        if np.any(over := sizes > self.max_size):
+            c = int(np.argmax(over))
+            msg = f"cluster {c} has {sizes[c]} members, max_size={self.max_size}"
+            raise ValueError(f"{name} is infeasible: {msg}")
+        x = canonical_labels(x)
+        N_S, rng = self.config.population_size, self._rng
+        if self._mutations:
+            others = [self._mutate([x]) for _ in range(N_S - 1)]
+        else:
+            others = [
+                random_feasible_clustering(self.n, self.max_size, rng) for _ in range(N_S - 1)
+            ]
+        self._accept(np.stack([x, *others]))
+
+    def _accept(self, candidates: IntArray) -> None:
+        """Evaluate ``candidates`` ``(B, n)`` in one batch and store them sorted by cost."""
+        candidates = np.stack([canonical_labels(c) for c in candidates])
+        B = candidates.shape[0]
+        J = np.asarray(self._evaluate(candidates), dtype=np.float64)
+        if J.shape != (B,):
+            raise ValueError(f"evaluate must return shape ({B},), got {J.shape}")
+        if np.any(np.isnan(J)):
+            raise ValueError("evaluate returned NaN costs")
+        order = np.argsort(J, kind="stable")  # ties keep the elite (index 0) first
+        self.population, self.costs = candidates[order], J[order]
+        self.n_evaluations += B
