@@ -1,0 +1,144 @@
+"""Clustering agents in selenv/ReceiverClustering-v0, and the Greiff reproduction script."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import selenv  # noqa: F401
+from selenv.agents import agents_for, make
+from selenv.agents.clustering_ga import GAConfig, GeneticClustering
+from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
+from selenv.scenarios.clustering_filters import ClusterFilterBank
+from selenv.scenarios.clustering_labels import random_feasible_clustering
+
+ENV_ID = "selenv/ReceiverClustering-v0"
+
+
+def _play(env, agent, seed, options=None):
+    obs, info = env.reset(seed=seed, options=options)
+    agent.reset(env, seed=seed)
+    out = [(obs["assignment"].copy(), info["objective"])]
+    done = False
+    while not done:
+        obs, _, term, trunc, info = env.step(agent.act(obs, info))
+        out.append((obs["assignment"].copy(), info["objective"]))
+        done = term or trunc
+    return out
+
+
+def test_registered_agents() -> None:
+    names = set(agents_for(ENV_ID))
+    assert {"ga", "greedy", "fixed_random", "singletons", "single_cluster"} <= names
+
+
+def test_ga_agent_waits_then_improves_and_stays_feasible() -> None:
+    env = gym.make(ENV_ID, n_agents=12, horizon=40)
+    agent = make("ga", ENV_ID, start_step=10)
+    traj = _play(env, agent, seed=1)
+    start = traj[0][0]
+    for labels, _ in traj[:11]:
+        np.testing.assert_array_equal(labels, start)  # k < 10: the initial clustering is kept
+    assert all(np.bincount(lab).max() <= 3 for lab, _ in traj)
+    keep = _play(env, make("fixed_random", ENV_ID), seed=1)  # same realisation, other start
+    assert traj[-1][1] < traj[10][1]
+    assert traj[-1][1] < np.mean([j for _, j in keep[-5:]]) * 1.05
+    again = _play(env, make("ga", ENV_ID, start_step=10), seed=1)
+    assert [j for _, j in again] == [j for _, j in traj]  # same seed, same trajectory
+
+
+def test_ga_every_n_t_steps_only() -> None:
+    env = gym.make(ENV_ID, n_agents=9, horizon=12)
+    traj = _play(env, make("ga", ENV_ID, every=4), seed=2)
+    changes = [k for k in range(1, len(traj)) if not np.array_equal(traj[k][0], traj[k - 1][0])]
+    assert all((k - 1) % 4 == 0 for k in changes)  # actions at k = 0, 4, 8 may change it
+
+
+def test_ga_best_cost_never_rises_at_a_fixed_time_on_the_real_cost() -> None:
+    rng = np.random.default_rng(3)
+    problem = make_clustering_problem(ClusteringConfig(n_agents=15), rng)
+    bank = ClusterFilterBank(problem, random_feasible_clustering(15, 3, rng))
+    for _ in range(25):
+        bank.step()
+    ga = GeneticClustering(bank.evaluate, bank.labels, 3, GAConfig(), rng=rng)
+    best = [ga.best_cost]
+    for _ in range(15):
+        labels, cost = ga.generation()
+        assert np.bincount(labels).max() <= 3
+        best.append(cost)
+    assert np.all(np.diff(best) <= 1e-15) and best[-1] < best[0]
+
+
+def test_greedy_improves_on_its_start_in_both_action_modes() -> None:
+    for mode in ("assignment", "edit"):
+        env = gym.make(ENV_ID, n_agents=9, horizon=15, action_mode=mode)
+        agent = make("greedy", ENV_ID, every=1)
+        traj = _play(env, agent, seed=4)
+        keep_env = gym.make(ENV_ID, n_agents=9, horizon=15)
+        obs, _ = keep_env.reset(seed=4)
+        for _ in range(15):
+            obs, _, _, _, info = keep_env.step(obs["assignment"])
+        assert traj[-1][1] < info["objective"]
+        assert all(np.bincount(lab).max() <= 3 for lab, _ in traj)
+
+
+def test_fixed_agents() -> None:
+    env = gym.make(ENV_ID, n_agents=10, horizon=5)
+    traj = _play(env, make("fixed_random", ENV_ID), seed=0)
+    labels = [lab for lab, _ in traj[1:]]
+    assert all(np.array_equal(lab, labels[0]) for lab in labels)
+    assert sorted(np.bincount(labels[0]).tolist()) == [2, 2, 3, 3]
+    sing = _play(env, make("singletons", ENV_ID), seed=0)
+    np.testing.assert_array_equal(sing[-1][0], np.arange(10))
+    with pytest.raises(ValueError, match=r"unconstrained lower bound.*n_max_states=None"):
+        make("single_cluster", ENV_ID).reset(env, seed=0)
+    free = gym.make(ENV_ID, n_agents=10, horizon=5, n_max_states=None)
+    one = _play(free, make("single_cluster", ENV_ID), seed=0)
+    assert one[-1][0].max() == 0 and one[-1][1] < sing[-1][1]
+
+
+def test_agents_refuse_the_wrong_env_or_mode() -> None:
+    edit = gym.make(ENV_ID, n_agents=6, horizon=3, action_mode="edit")
+    edit.reset(seed=0)
+    with pytest.raises(ValueError, match="action_mode"):
+        make("ga", ENV_ID).reset(edit, seed=0)
+    fim = gym.make("selenv/FIMSelection-v0", n_candidates=5, budget=2)
+    fim.reset(seed=0)
+    with pytest.raises(ValueError, match="needs selenv/ReceiverClustering-v0"):
+        make("ga", ENV_ID).reset(fim, seed=0)
+    with pytest.raises(ValueError, match="every"):
+        make("ga", ENV_ID, every=0)
+    with pytest.raises(ValueError, match="population_size"):
+        make("ga", ENV_ID, population_size=1)
+
+
+# -- scripts/reproduce_greiff.py --quick ----------------------------------------------------------
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_greiff.py"
+
+
+@pytest.fixture(scope="module")
+def repro(tmp_path_factory):
+    spec = importlib.util.spec_from_file_location("reproduce_greiff", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    out = tmp_path_factory.mktemp("greiff")
+    return out, module.main(["--quick", "--out", str(out), "--workers", "1"])
+
+
+def test_reproduction_writes_figures_and_orders_the_methods(repro) -> None:
+    out, res = repro
+    for name in ("greiff_fig3", "greiff_table2", "greiff_fig4"):
+        assert (out / f"{name}.png").stat().st_size > 10_000
+    f3 = res["fig3"]
+    final = {k: np.atleast_2d(f3[k]["J"])[:, -1].mean() for k in f3}
+    # Fig. 3 ordering: single cluster < GA < fixed random < singletons
+    assert final["single_cluster"] < final["ga"] < final["fixed_random"] < final["singletons"]
+    assert set(res["table2"]) and all(len(r["k_star"]) == 3 for r in res["table2"].values())
+    f4 = res["fig4"]
+    assert f4["m"][-1] < f4["m"][0] == 15  # N_max = 42: the GA merges clusters
