@@ -18,15 +18,70 @@ from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 __all__ = [
     "ACTION_MODES",
+    "INITIALS",
     "ReceiverClusteringEnv",
     "apply_edit",
+    "clustering_config",
     "clustering_observation",
     "clustering_observation_space",
     "edit_action_count",
     "edit_mask",
+    "initial_clustering",
 ]
 
 ACTION_MODES = ("assignment", "edit")
+
+
+INITIALS = ("random", "singletons")
+
+
+def clustering_config(
+    *,
+    n_agents: int,
+    n_max_states: int | None,
+    sigma: Any,
+    noise_correlation: float,
+    dt: float,
+    tau: int,
+    weights: tuple[float, float, float],
+    prior_std: tuple[float, float, float],
+    horizon: int,
+    initial: str,
+) -> ClusteringConfig:
+    """Validated scenario config from the env keywords (shared by both clustering envs).
+
+    Raises:
+        ValueError: any bad keyword (via :class:`ClusteringConfig`), ``horizon < 1`` or an
+            unknown ``initial``.
+    """
+    if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
+        raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
+    if initial not in INITIALS:
+        raise ValueError(f"initial must be one of {INITIALS}, got {initial!r}")
+    return ClusteringConfig(
+        n_agents=n_agents,
+        n_max_states=n_max_states,
+        sigma=None if sigma is None else np.asarray(sigma, dtype=float),
+        noise_correlation=noise_correlation,
+        dt=dt,
+        tau=tau,
+        weights=tuple(weights),  # type: ignore[arg-type]
+        prior_std=tuple(prior_std),  # type: ignore[arg-type]
+    )
+
+
+def initial_clustering(
+    problem: ClusteringProblem,
+    initial: str,
+    options: dict[str, Any],
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Start clustering: ``options["clustering"]`` (validated), singletons, or random feasible."""
+    if "clustering" in options:
+        return problem.check_clustering(options["clustering"], "options['clustering']")
+    if initial == "singletons":
+        return np.arange(problem.n)
+    return random_feasible_clustering(problem.n, problem.max_cluster_size, rng)
 
 
 # -- the "edit" action encoding -----------------------------------------------------------------
@@ -187,22 +242,20 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
     ) -> None:
         if render_mode is not None:
             raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
-        self.config = ClusteringConfig(
+        self.config = clustering_config(
             n_agents=n_agents,
             n_max_states=n_max_states,
-            sigma=None if sigma is None else np.asarray(sigma, dtype=float),
+            sigma=sigma,
             noise_correlation=noise_correlation,
             dt=dt,
             tau=tau,
-            weights=tuple(weights),  # type: ignore[arg-type]
-            prior_std=tuple(prior_std),  # type: ignore[arg-type]
+            weights=weights,
+            prior_std=prior_std,
+            horizon=horizon,
+            initial=initial,
         )
-        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
-            raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
-        if initial not in ("random", "singletons"):
-            raise ValueError(f"initial must be 'random' or 'singletons', got {initial!r}")
         self.n = int(n_agents)
         self.horizon = int(horizon)
         self.action_mode = action_mode
@@ -252,12 +305,7 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
         unknown = set(opts) - {"clustering"}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; known: ['clustering']")
-        if "clustering" in opts:
-            labels = self.problem.check_clustering(opts["clustering"], "options['clustering']")
-        elif self.initial == "singletons":
-            labels = np.arange(self.n)
-        else:
-            labels = random_feasible_clustering(self.n, self.max_size, self.np_random)
+        labels = initial_clustering(self.problem, self.initial, opts, self.np_random)
         self._bank = ClusterFilterBank(self.problem, labels)
         return self._obs(), self._info(changed=False)
 

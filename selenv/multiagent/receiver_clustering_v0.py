@@ -94,20 +94,18 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from selenv.envs.receiver_clustering import (
+    clustering_config,
     clustering_observation,
     clustering_observation_space,
+    initial_clustering,
 )
 from selenv.scenarios.clustering import (
-    ClusteringConfig,
     ClusteringProblem,
     make_clustering_problem,
 )
 from selenv.scenarios.clustering_filters import ClusterFilterBank
-from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 __all__ = ["env", "label_masks", "parallel_env", "raw_env", "resolve_moves"]
-
-INITIALS = ("random", "singletons")
 
 
 def label_masks(labels: np.ndarray, max_size: int) -> np.ndarray:
@@ -196,20 +194,18 @@ class raw_env(ParallelEnv):
     ) -> None:
         if render_mode is not None:
             raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
-        self.config = ClusteringConfig(
+        self.config = clustering_config(
             n_agents=n_agents,
             n_max_states=n_max_states,
-            sigma=None if sigma is None else np.asarray(sigma, dtype=float),
+            sigma=sigma,
             noise_correlation=noise_correlation,
             dt=dt,
             tau=tau,
-            weights=tuple(weights),  # type: ignore[arg-type]
-            prior_std=tuple(prior_std),  # type: ignore[arg-type]
+            weights=weights,
+            prior_std=prior_std,
+            horizon=horizon,
+            initial=initial,
         )
-        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
-            raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
-        if initial not in INITIALS:
-            raise ValueError(f"initial must be one of {INITIALS}, got {initial!r}")
         self.render_mode = None
         self.n = n = int(n_agents)
         self.horizon = int(horizon)
@@ -267,12 +263,7 @@ class raw_env(ParallelEnv):
             self._np_random, _ = seeding.np_random(seed)
         self.problem = make_clustering_problem(self.config, self._np_random)
         opts = options or {}
-        if "clustering" in opts:
-            labels = self.problem.check_clustering(opts["clustering"], "options['clustering']")
-        elif self.initial == "singletons":
-            labels = np.arange(self.n)
-        else:
-            labels = random_feasible_clustering(self.n, self.max_size, self._np_random)
+        labels = initial_clustering(self.problem, self.initial, opts, self._np_random)
         self._bank = ClusterFilterBank(self.problem, labels)
         self.last_order = None
         self.agents = list(self.possible_agents)
