@@ -255,8 +255,11 @@ def plot_fig4(res: dict[str, Any], path: Path) -> None:
     ax1.set(ylabel="number of clusters")
     ax2.plot(k, res["J"], color="tab:red")
     ax2.set(ylabel="J (eq. 10)", yscale="log")
-    ax3.imshow(labels.T, aspect="auto", interpolation="nearest", cmap="tab20", origin="lower")
-    ax3.set(xlabel="time step k", ylabel="receiver i (colour: cluster)")
+    order = np.argsort(labels[-1], kind="stable")  # receivers grouped by their final cluster
+    ax3.imshow(
+        labels[:, order].T, aspect="auto", interpolation="nearest", cmap="tab20", origin="lower"
+    )
+    ax3.set(xlabel="time step k", ylabel="receiver (sorted by final cluster; colour: cluster)")
     ax1.set_title(f"Fig. 4: N_max = 42, GA on at k = {GA_START}; final J = {res['J'][-1]:.4f}")
     for a in (ax1, ax2):
         a.grid(alpha=0.3)
