@@ -100,17 +100,24 @@ class AgentSpec:
 
 #: name -> env id -> spec
 AGENTS: dict[str, dict[str, AgentSpec]] = {}
+#: env id -> agent names in the order they were registered for it
+_ORDER: dict[str, list[str]] = {}
 
 
 def register_agent(spec: AgentSpec) -> None:
     """Register ``spec`` under its name for each of its env ids (re-registering replaces)."""
     for env_id in spec.env_ids:
         AGENTS.setdefault(spec.name, {})[env_id] = spec
+        names = _ORDER.setdefault(env_id, [])
+        if spec.name not in names:
+            names.append(spec.name)
 
 
 def agents_for(env_id: str) -> list[str]:
     """Names of the agents that apply to ``env_id``, in registration order."""
-    return [name for name, by_env in AGENTS.items() if env_id in by_env]
+    ordered = [name for name in _ORDER.get(env_id, []) if env_id in AGENTS.get(name, {})]
+    others = [n for n, by_env in AGENTS.items() if env_id in by_env and n not in ordered]
+    return ordered + others
 
 
 def make(name: str, env_id: str, **kwargs: Any) -> Agent:
