@@ -7,10 +7,15 @@ import gymnasium as gym
 __all__ = ["ENV_IDS"]
 
 #: every Gymnasium id this package registers, in the order ``selenv list`` shows them
-ENV_IDS: tuple[str, ...] = ("selenv/FIMSelection-v0", "selenv/ReceiverClustering-v0")
+ENV_IDS: tuple[str, ...] = (
+    "selenv/FIMSelection-v0",
+    "selenv/LandmarkSelection-v0",
+    "selenv/ReceiverClustering-v0",
+)
 
 _ENTRY_POINTS = {
     "selenv/FIMSelection-v0": "selenv.envs.fim_selection:FIMSelectionEnv",
+    "selenv/LandmarkSelection-v0": "selenv.envs.landmark_selection:LandmarkSelectionEnv",
     "selenv/ReceiverClustering-v0": "selenv.envs.receiver_clustering:ReceiverClusteringEnv",
 }
 

@@ -1,0 +1,127 @@
+"""Variable Neighbourhood Search for log-det subset selection (Soubaras & Chahbazian 2023, Alg. 2).
+
+Maximises ``f(S) = log det(Q0 + sum_{k in S} G_k^T G_k) - log det Q0`` over subsets of exactly
+``budget`` candidates (the same objective as :mod:`selenv.agents.fim_solvers`; minimising the
+det or log det of the posterior covariance, eq. 11, is the same problem because
+``log det P_post = log det P_prior - f(S)``).
+
+Neighbourhood ``V_l(s)`` (eq. 15): the selections that differ from ``s`` in exactly ``l``
+candidates. From a reference ``s`` (warm start: the previous step's selection, as the paper
+suggests) and ``l = 1``: draw ``w ~ U(V_l(s))`` by exchanging ``l`` selected with ``l`` unselected
+candidates; if ``f(w) > f(s)`` take it and reset ``l = 1``; after ``M_l`` draws without
+improvement go to ``l + 1``; stop after ``l_max``. ``f`` of a subset is
+``log det(I + Z_S Z_S^T)`` with ``Z_k = G_k L^-T`` (``Q0 = L L^T``), read off one Gram matrix
+of the whitened rows, so one evaluation is a ``(m K) x (m K)`` log det.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from selenv.agents.fim_solvers import Selection, _check_budget, _finish
+from selenv.core.information import as_candidates
+from selenv.core.linalg import FloatArray, cholesky_spd
+
+__all__ = ["DEFAULT_M", "vns", "vns_whitened"]
+
+#: default ``M_l`` (draws without improvement before widening), for ``l = 1, 2, ...``
+DEFAULT_M: tuple[int, ...] = (40, 20)
+
+
+def vns_whitened(
+    Q0: FloatArray,
+    G: FloatArray,
+    budget: int,
+    *,
+    initial: Sequence[int] | None = None,
+    l_max: int | None = None,
+    m_l: Sequence[int] = DEFAULT_M,
+    batched: bool = True,
+    rng: np.random.Generator | int | None = None,
+) -> Selection:
+    """Algorithm 2 of Soubaras & Chahbazian on a whitened pool.
+
+    Args:
+        Q0: (d, d) SPD prior information (``P_prior^-1`` in the filter).
+        G: (N, m, d) whitened candidates ``R^-1/2 H``.
+        budget: subset size ``K``.
+        initial: warm start (``K`` distinct indices); ``None`` starts from the ``K`` candidates
+            with the largest single gains.
+        l_max: largest neighbourhood, default ``min(K, N - K, len(m_l))``.
+        m_l: ``M_1, M_2, ...``: draws without improvement before widening (the last value is
+            reused for larger ``l``).
+        batched: draw the ``M_l`` neighbours of the reference at once, evaluate them in one
+            batched log det and move to the best if it improves (default); ``False`` is the
+            paper's sequential loop (move at the first improving draw). Same neighbourhoods
+            and stopping rule; the batched form is ~5x faster per evaluation in numpy and
+            picks the best of the draws instead of the first improvement.
+        rng: generator or seed for the neighbourhood draws.
+
+    Returns:
+        The best subset found (indices sorted), ``f`` and the number of subset evaluations.
+
+    Raises:
+        ValueError: ``budget`` out of range, an invalid ``initial`` or ``l_max < 1``
+            (``Q0``/``G`` are trusted here; :func:`vns` validates raw arrays).
+    """
+    N, m, d = G.shape
+    K = _check_budget(budget, N)
+    if K == 0 or K == N:
+        return _finish(Q0, G, list(range(K)), 0)
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    L = cholesky_spd(Q0, "Q0")
+    Z = np.linalg.solve(L, G.reshape(N * m, d).T).T  # rows of G L^-T, (N m, d)
+    gram = Z @ Z.T  # (N m, N m)
+    rows = np.arange(N * m).reshape(N, m)
+    eye = np.eye(m * K)
+    single = np.linalg.slogdet(eye[:m, :m] + gram[rows[:, :, None], rows[:, None, :]])[1]
+    if initial is None:
+        sel = np.sort(np.argsort(-single, kind="stable")[:K])
+    else:
+        sel = np.array(sorted(int(i) for i in initial), dtype=np.intp)
+        if sel.size != K or np.unique(sel).size != K or sel.min() < 0 or sel.max() >= N:
+            raise ValueError(f"initial must be {K} distinct indices in [0, {N}), got {initial!r}")
+    l_max = min(K, N - K, len(m_l)) if l_max is None else int(l_max)
+    if l_max < 1 or not m_l or min(m_l) < 1:
+        raise ValueError(f"l_max and every M_l must be >= 1, got l_max={l_max}, m_l={m_l!r}")
+
+    def values(cands: np.ndarray) -> FloatArray:  # (B, K) subsets -> (B,) f
+        r = rows[cands].reshape(cands.shape[0], -1)
+        return np.linalg.slogdet(eye + gram[r[:, :, None], r[:, None, :]])[1]
+
+    best = float(values(sel[None])[0])
+    evals = 1
+    size, j = 1, 0  # neighbourhood size l and draws without improvement at this size
+    while size <= l_max:
+        M = m_l[min(size, len(m_l)) - 1]
+        unsel = np.setdiff1d(np.arange(N), sel, assume_unique=True)
+        n_draw = M if batched else 1
+        out_pos = np.argsort(rng.random((n_draw, K)), axis=1)[:, :size]  # selected to drop
+        new = unsel[np.argsort(rng.random((n_draw, unsel.size)), axis=1)[:, :size]]
+        cands = np.repeat(sel[None], n_draw, axis=0)
+        np.put_along_axis(cands, out_pos, new, axis=1)
+        v = values(cands)
+        evals += n_draw
+        i = int(np.argmax(v))
+        if v[i] > best:
+            sel, best = np.sort(cands[i]), float(v[i])
+            size, j = 1, 0
+        else:
+            j += n_draw
+            if j >= M:
+                size, j = size + 1, 0
+    return _finish(Q0, G, sel.tolist(), evals)
+
+
+def vns(
+    Q0: object,
+    H: object,
+    R: object,
+    budget: int,
+    **kwargs: object,
+) -> Selection:
+    """:func:`vns_whitened` on raw arrays (validated): ``Q0 (d, d)``, ``H (N, m, d)``, ``R``."""
+    Q0_a, G = as_candidates(Q0, H, R)
+    return vns_whitened(Q0_a, G, budget, **kwargs)  # type: ignore[arg-type]

@@ -1,0 +1,227 @@
+"""``selenv/LandmarkSelection-v0``: pick K of N angle-of-arrival landmarks for each EKF update."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from selenv.core.information import LogDetGainState, whiten
+from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd
+from selenv.envs.fim_selection import fim_observation, fim_observation_space, parse_action
+from selenv.scenarios.landmarks import (
+    LandmarkConfig,
+    LandmarkEKF,
+    LandmarkProblem,
+    make_landmark_problem,
+)
+
+__all__ = ["OBJECTIVES", "LandmarkSelectionEnv", "landmark_features"]
+
+OBJECTIVES = ("logdet", "det")
+
+
+def landmark_features(h_pred: FloatArray, k: int, horizon: int) -> np.ndarray:
+    """Per-landmark features (N, 4): sin, cos of the predicted azimuth, elevation / (pi/2), time.
+
+    ``h_pred`` (N, 2) predicted (azimuth, elevation); time is ``k / horizon``.
+    """
+    az, el = h_pred[:, 0], h_pred[:, 1]
+    t = np.full_like(az, k / horizon)
+    return np.stack([np.sin(az), np.cos(az), el / (np.pi / 2), t], axis=1).astype(np.float32)
+
+
+class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+    r"""Choose which K of N landmarks the EKF processes at each step of an angles-only UAV flight.
+
+    ## Description
+    The data-selection problem of Soubaras & Chahbazian (2023). A UAV navigates with an EKF on
+    position, velocity and Euler attitude (9 states), propagated with a noisy IMU at 10 Hz; it
+    can observe the azimuth and elevation of ``n_landmarks`` known landmarks (eqs. 16-18) but
+    processes only ``k`` of them per step (Algorithm 3: propagation, selection, update). The
+    paper's cost is eq. (11) on the approximate CRLB, i.e. the filter's posterior covariance:
+    ``det P`` (``objective="det"``) or ``log det P`` (``"logdet"``, default). For one step both
+    are minimised by the same selection, which maximises ``log det(I + W_S)`` with ``W`` the
+    selected rows whitened in the predicted covariance; the sequence matters through the
+    future (the Bellman eq. 13 the paper truncates to its first term).
+
+    ## Action Space
+    ``Discrete(N)``: one landmark per env step; the filter updates after the ``k``-th pick of
+    a filter step. Landmarks already picked in this filter step are masked
+    (:meth:`action_masks`, ``info["action_mask"]``, ``obs["action_mask"]``); a masked or
+    out-of-range action raises ``ValueError``.
+
+    ## Observation Space
+    The ``FIMSelection-v0`` layout over the landmarks of the current filter step:
+
+    | key | shape | meaning |
+    |---|---|---|
+    | ``gain`` | ``(N,)`` | marginal ``log det`` information gain given this step's picks |
+    | ``whitened`` | ``(N, 18)`` | ``R^-1/2 H_n`` whitened in the current information |
+    | ``features`` | ``(N, 4)`` | sin, cos of the predicted azimuth, elevation / (pi/2), time |
+    | ``selected`` | ``(N,)`` | 1 if picked in this filter step |
+    | ``budget_left`` | ``(1,)`` | fraction of the ``k`` picks still to make |
+    | ``action_mask`` | ``(N,)`` | 1 where the action is allowed |
+
+    ## Rewards
+    0 for the first ``k - 1`` picks of a filter step; at the ``k``-th the filter updates and the
+    reward is minus the cost eq. (11) of the posterior (``-log det P`` or ``-det P``), so the
+    return is minus the paper's objective eq. (12). ``info["objective"]`` is that cost after the
+    latest update; ``info["position_error"]`` the true position error (m) of the estimate.
+
+    ## Starting State
+    A new seeded flight per ``reset``: landmark layout, IMU noise, initial error (Table I),
+    measurement noise; the first propagation is done, so the first pick is for step 1.
+
+    ## Episode End
+    Terminates after ``horizon`` filter updates. Never truncates.
+
+    ## Arguments
+    ``gymnasium.make("selenv/LandmarkSelection-v0", n_landmarks=30, k=2, horizon=300,
+    objective="logdet", landmarks=None)``; ``landmarks`` is an optional (N, 3) ENU layout.
+    Any other :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+
+    def __init__(
+        self,
+        *,
+        n_landmarks: int = 30,
+        k: int = 2,
+        horizon: int = 300,
+        objective: str = "logdet",
+        landmarks: Any = None,
+        render_mode: str | None = None,
+        **config: Any,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        if objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
+        if isinstance(k, bool) or not isinstance(k, int | np.integer):
+            raise TypeError(f"k must be an int, got {type(k).__name__}")
+        if isinstance(n_landmarks, int | np.integer) and not 1 <= k <= n_landmarks:
+            raise ValueError(f"k must lie in [1, n_landmarks={n_landmarks}], got {k}")
+        if landmarks is not None:
+            landmarks = np.asarray(landmarks, dtype=float)
+        try:
+            self.config = LandmarkConfig(
+                n_landmarks=n_landmarks, horizon=horizon, landmarks=landmarks, **config
+            )
+        except TypeError as exc:
+            raise ValueError(f"unknown LandmarkSelection keyword: {exc}") from None
+        self.n = int(n_landmarks)
+        self.k = int(k)
+        self.objective = objective
+        self.horizon = int(horizon)
+        self.action_space = gym.spaces.Discrete(self.n)
+        space = fim_observation_space(self.n, 2, 9)
+        space.spaces["features"] = gym.spaces.Box(-1.0, 1.0, (self.n, 4), np.float32)
+        self.observation_space = space  # type: ignore[assignment]
+        self.problem: LandmarkProblem | None = None
+        self._ekf: LandmarkEKF | None = None
+        self._state: LogDetGainState | None = None
+        self.picks: list[int] = []
+        self.last_selection: tuple[int, ...] | None = None
+        self._cost = float("nan")
+        self._done = False
+
+    # -- oracle view for heuristics (same names as FIMSelectionEnv) --------------------------
+    @property
+    def ekf(self) -> LandmarkEKF:
+        """The filter (needs ``reset``)."""
+        if self._ekf is None:
+            raise RuntimeError("call reset() before using the environment")
+        return self._ekf
+
+    @property
+    def state(self) -> LogDetGainState:
+        """Gain state of the current filter step: prior ``P_pred^-1`` plus this step's picks."""
+        if self._state is None:
+            raise RuntimeError("call reset() before using the environment")
+        return self._state
+
+    @property
+    def budget_left(self) -> int:
+        """Picks left in the current filter step."""
+        return self.k - len(self.picks)
+
+    def action_masks(self) -> np.ndarray:
+        """(N,) bool: landmarks not yet picked in this filter step."""
+        return ~self.state.selected
+
+    # -- Gymnasium API -----------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """New seeded flight; propagate to step 1 and open its selection."""
+        super().reset(seed=seed)
+        self.problem = make_landmark_problem(self.config, self.np_random)
+        self._ekf = LandmarkEKF(self.problem)
+        self.last_selection = None
+        self._done = False
+        self._cost = self._cost_of(self._ekf.P)
+        self._ekf.predict()
+        self._open_step()
+        return self._obs(), self._info()
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Pick one landmark; after the ``k``-th pick, update the filter and propagate."""
+        ekf = self.ekf
+        if self._state is None or self._done:
+            raise RuntimeError("episode is over: call reset()")
+        a = parse_action(action, self.n, self.action_masks())
+        self.state.add(a)
+        self.picks.append(a)
+        if len(self.picks) < self.k:
+            return self._obs(), 0.0, False, False, self._info()
+        ekf.update(self.picks)
+        self.last_selection = tuple(self.picks)
+        self._cost = self._cost_of(ekf.P)
+        reward = -self._cost
+        if ekf.k >= self.horizon:
+            self._done = True
+            return self._obs(), reward, True, False, self._info()
+        ekf.predict()
+        self._open_step()
+        return self._obs(), reward, False, False, self._info()
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _cost_of(self, P: FloatArray) -> float:
+        logdet = float(logdet_spd(P, "P"))
+        return logdet if self.objective == "logdet" else float(np.exp(logdet))
+
+    def _open_step(self) -> None:
+        """Gain state over the landmarks at the new prediction: ``Q0 = P_pred^-1``."""
+        ekf = self.ekf
+        H, self._h_pred = ekf.candidates()
+        G = whiten(H, np.broadcast_to(ekf.problem.R_landmark, (self.n, 2, 2)))
+        L = cholesky_spd(ekf.P, "P_pred")
+        Linv = np.linalg.solve(L, np.eye(9))
+        Q0 = Linv.T @ Linv  # P_pred^-1 from its Cholesky factor
+        self._state = LogDetGainState(0.5 * (Q0 + Q0.T), G, track_gains=True, track_whitened=True)
+        self.picks = []
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        st = self.state
+        assert st.gains is not None and st.Z is not None  # tracked by construction
+        feats = landmark_features(self._h_pred, self.ekf.k, self.horizon)
+        return fim_observation(st.gains, st.Z, st.selected, feats, self.budget_left / self.k)
+
+    def _info(self) -> dict[str, Any]:
+        ekf = self.ekf
+        truth = self.problem.states[ekf.k]  # type: ignore[union-attr]
+        mask = self.action_masks() if not self._done else np.ones(self.n, bool)
+        return {
+            "objective": self._cost,
+            "position_error": float(np.linalg.norm(ekf.x[:3] - truth[:3])),
+            "k": ekf.k,
+            "picks": tuple(self.picks),
+            "last_selection": self.last_selection,
+            "action_mask": mask,
+        }
