@@ -16,6 +16,8 @@ of the whitened rows, so one evaluation is a ``(m K) x (m K)`` log det.
 
 from __future__ import annotations
 
+import itertools
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -56,7 +58,9 @@ def vns_whitened(
             batched log det and move to the best if it improves (default); ``False`` is the
             paper's sequential loop (move at the first improving draw). Same neighbourhoods
             and stopping rule; the batched form is ~5x faster per evaluation in numpy and
-            picks the best of the draws instead of the first improvement.
+            picks the best of the draws instead of the first improvement. When the whole
+            neighbourhood ``V_l`` has at most ``M_l`` members it is enumerated instead of
+            sampled, so with ``K = 1`` VNS returns the exact optimum.
         rng: generator or seed for the neighbourhood draws.
 
     Returns:
@@ -97,9 +101,18 @@ def vns_whitened(
     while size <= l_max:
         M = m_l[min(size, len(m_l)) - 1]
         unsel = np.setdiff1d(np.arange(N), sel, assume_unique=True)
-        n_draw = M if batched else 1
-        out_pos = np.argsort(rng.random((n_draw, K)), axis=1)[:, :size]  # selected to drop
-        new = unsel[np.argsort(rng.random((n_draw, unsel.size)), axis=1)[:, :size]]
+        if batched and math.comb(K, size) * math.comb(N - K, size) <= M:
+            # the whole neighbourhood fits in one batch: evaluate all of V_l exactly once
+            pairs = itertools.product(
+                itertools.combinations(range(K), size), itertools.combinations(unsel, size)
+            )
+            out_l, new_l = zip(*pairs, strict=True)
+            out_pos, new = np.array(out_l, dtype=np.intp), np.array(new_l, dtype=np.intp)
+        else:
+            n_draw = M if batched else 1
+            out_pos = np.argsort(rng.random((n_draw, K)), axis=1)[:, :size]  # selected to drop
+            new = unsel[np.argsort(rng.random((n_draw, unsel.size)), axis=1)[:, :size]]
+        n_draw = out_pos.shape[0]
         cands = np.repeat(sel[None], n_draw, axis=0)
         np.put_along_axis(cands, out_pos, new, axis=1)
         v = values(cands)
