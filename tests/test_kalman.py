@@ -389,3 +389,25 @@ def test_rank_deficient_process_noise_is_accepted_and_negative_rejected():
     )
     with pytest.raises(ValueError, match="Q must be positive semi-definite"):
         kf_predict(np.zeros(2), np.eye(2), np.eye(2), -Q)
+
+
+def test_unvalidated_fast_path_matches_validated_update() -> None:
+    rng = np.random.default_rng(11)
+    n, m = 6, 3
+    A = rng.normal(size=(n, n))
+    P = A @ A.T + np.eye(n)
+    H = rng.normal(size=(m, n))
+    B = rng.normal(size=(m, m))
+    R = B @ B.T + 0.5 * np.eye(m)
+    x, z = rng.normal(size=n), rng.normal(size=m)
+    ref = kf_update(x, P, z, H, R)
+    fast = kf_update(x, P, z, H, R, validate=False)
+    for name in ("x", "P", "y", "S", "K"):
+        np.testing.assert_allclose(getattr(fast, name), getattr(ref, name), rtol=1e-12, atol=1e-12)
+    assert fast.log_likelihood == pytest.approx(ref.log_likelihood, rel=1e-12)
+    # the batched path (a different code path) agrees with the single path
+    batched = kf_update(x[None], P[None], z[None], H, R)
+    np.testing.assert_allclose(batched.P[0], ref.P, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(batched.log_likelihood[0], ref.log_likelihood, rtol=1e-10)
+    with pytest.raises(ValueError, match="not positive definite"):
+        kf_update(x, P, z, H, -10 * np.eye(m) - H @ P @ H.T, validate=False)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
 
 from selenv.core.linalg import (
     FloatArray,
@@ -152,6 +153,8 @@ def _update(
     x: FloatArray, P: FloatArray, y: FloatArray, H: FloatArray, R: FloatArray
 ) -> KalmanUpdate:
     """Shared KF/EKF update on validated arrays, given the innovation ``y``."""
+    if x.ndim == 1:
+        return _update_single(x, P, y, H, R)
     n, m = x.shape[-1], y.shape[-1]
     S = symmetrize(H @ P @ _T(H) + R)  # S = H P H^T + R
     L = cholesky_spd(S, "S = H P H^T + R")  # S = L L^T
@@ -163,6 +166,29 @@ def _update(
     logdet_S = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)  # log det S
     ll = -0.5 * (np.sum(w * w, axis=-1) + logdet_S + m * _LOG_2PI)  # log N(y; 0, S)
     return KalmanUpdate(x_post, P_post, y, S, K, float(ll) if np.ndim(ll) == 0 else ll)
+
+
+def _update_single(
+    x: FloatArray, P: FloatArray, y: FloatArray, H: FloatArray, R: FloatArray
+) -> KalmanUpdate:
+    """Unbatched :func:`_update` through LAPACK directly (same equations, ~5x less overhead)."""
+    n, m = x.shape[0], y.shape[0]
+    HP = H @ P  # (m, n)
+    S = HP @ H.T + R
+    S = 0.5 * (S + S.T)  # S = H P H^T + R
+    L, info = dpotrf(S, lower=1, clean=1)  # S = L L^T
+    if info != 0:
+        raise ValueError("S = H P H^T + R is not positive definite (Cholesky failed)")
+    KT, _ = dpotrs(L, HP, lower=1)  # S K^T = H P  ->  K^T = S^-1 H P
+    K = KT.T
+    x_post = x + K @ y  # x' = x + K y
+    I_KH = np.eye(n) - K @ H
+    P_post = I_KH @ P @ I_KH.T + K @ R @ KT  # Joseph form
+    P_post = 0.5 * (P_post + P_post.T)
+    w, _ = dtrtrs(L, y, lower=1)  # w = L^-1 y
+    logdet_S = 2.0 * float(np.sum(np.log(np.diagonal(L))))
+    ll = -0.5 * (float(w @ w) + logdet_S + m * _LOG_2PI)
+    return KalmanUpdate(x_post, P_post, y, S, K, ll)
 
 
 def kf_predict(
@@ -191,7 +217,15 @@ def kf_predict(
     return x_prior, P_prior
 
 
-def kf_update(x: ArrayLike, P: ArrayLike, z: ArrayLike, H: ArrayLike, R: ArrayLike) -> KalmanUpdate:
+def kf_update(
+    x: ArrayLike,
+    P: ArrayLike,
+    z: ArrayLike,
+    H: ArrayLike,
+    R: ArrayLike,
+    *,
+    validate: bool = True,
+) -> KalmanUpdate:
     """Kalman measurement update in Joseph form.
 
     Implements ``y = z - H x``, ``S = H P H^T + R``, ``K = P H^T S^-1`` (Cholesky solves of
@@ -203,6 +237,9 @@ def kf_update(x: ArrayLike, P: ArrayLike, z: ArrayLike, H: ArrayLike, R: ArrayLi
         z: measurement, (m,) or (B, m) (batched iff ``x`` is).
         H: measurement matrix, (m, n) or (B, m, n).
         R: SPD measurement noise covariance, (m, m) or (B, m, m).
+        validate: check shapes, finiteness and SPD-ness (default). ``False`` is for hot paths
+            whose inputs are known good (float64 arrays of the right shapes): it skips the
+            checks, which dominate the cost of small updates; a non-SPD ``S`` still raises.
 
     Returns:
         Posterior ``x``, ``P`` with the intermediate ``y``, ``S``, ``K`` and ``log_likelihood``.
@@ -210,6 +247,9 @@ def kf_update(x: ArrayLike, P: ArrayLike, z: ArrayLike, H: ArrayLike, R: ArrayLi
     Raises:
         ValueError: wrong shape, NaN/inf, or ``P``/``R`` not SPD (the message names the argument).
     """
+    if not validate:
+        xa, Pa, Ha, Ra = (np.asarray(a, dtype=np.float64) for a in (x, P, H, R))
+        return _update(xa, Pa, np.asarray(z, dtype=np.float64) - _mv(Ha, xa), Ha, Ra)
     x, P, B = _state(x, P)
     z = _vector(z, "z", B)
     m, n = z.shape[-1], x.shape[-1]

@@ -491,6 +491,7 @@ class LandmarkEKF:
         self.k = 0
         self._pending = False  # a prediction awaits its (optional) update
         self._cache: tuple[FloatArray, FloatArray] | None = None  # (H, h) at the prediction
+        self._R: dict[int, FloatArray] = {}  # blockdiag(R_landmark) per K
         cfg = problem.config
         self._sigmas = (float(cfg.accel_sigma), cfg.gyro_sigma)
 
@@ -575,7 +576,11 @@ class LandmarkEKF:
             H, hx = measurement_jacobian(self.x, lm), measure(self.x, lm)
         H2 = H.reshape(-1, STATE_DIM)  # (2K, 9)
         y = wrap_angle(self.measurements[idx] - hx).reshape(-1)  # y = wrap(z - h(x))
-        res = kf_update(self.x, self.P, H2 @ self.x + y, H2, self.problem.selection_noise(idx.size))
+        R = self._R.get(idx.size)
+        if R is None:
+            R = self._R[idx.size] = self.problem.selection_noise(idx.size)
+        # internal, well-formed arrays: skip kf_update's input checks (they dominate small K)
+        res = kf_update(self.x, self.P, H2 @ self.x + y, H2, R, validate=False)
         self.x, self.P = res.x, res.P
         self._cache = None
         return res
