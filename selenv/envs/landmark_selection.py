@@ -68,7 +68,8 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     0 for the first ``k - 1`` picks of a filter step; at the ``k``-th the filter updates and the
     reward is minus the cost eq. (11) of the posterior (``-log det P`` or ``-det P``), so the
     return is minus the paper's objective eq. (12). ``info["objective"]`` is that cost after the
-    latest update; ``info["position_error"]`` the true position error (m) of the estimate.
+    latest update and ``info["position_error"]`` the true position error (m) of that posterior
+    estimate (``k`` is the index of the step whose picks are open).
 
     ## Starting State
     A new seeded flight per ``reset``: landmark layout, IMU noise, initial error (Table I),
@@ -129,6 +130,7 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         self.picks: list[int] = []
         self.last_selection: tuple[int, ...] | None = None
         self._cost = float("nan")
+        self._error = float("nan")
         self._done = False
 
     # -- oracle view for heuristics (same names as FIMSelectionEnv) --------------------------
@@ -166,6 +168,7 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         self.last_selection = None
         self._done = False
         self._cost = self._cost_of(self._ekf.P)
+        self._error = self._position_error()
         self._ekf.predict()
         self._open_step()
         return self._obs(), self._info()
@@ -183,6 +186,7 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         ekf.update(self.picks)
         self.last_selection = tuple(self.picks)
         self._cost = self._cost_of(ekf.P)
+        self._error = self._position_error()  # of the posterior, before the next prediction
         reward = -self._cost
         if ekf.k >= self.horizon:
             self._done = True
@@ -213,13 +217,17 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         feats = landmark_features(self._h_pred, self.ekf.k, self.horizon)
         return fim_observation(st.gains, st.Z, st.selected, feats, self.budget_left / self.k)
 
-    def _info(self) -> dict[str, Any]:
+    def _position_error(self) -> float:
         ekf = self.ekf
         truth = self.problem.states[ekf.k]  # type: ignore[union-attr]
+        return float(np.linalg.norm(ekf.x[:3] - truth[:3]))
+
+    def _info(self) -> dict[str, Any]:
+        ekf = self.ekf
         mask = self.action_masks() if not self._done else np.ones(self.n, bool)
         return {
             "objective": self._cost,
-            "position_error": float(np.linalg.norm(ekf.x[:3] - truth[:3])),
+            "position_error": self._error,
             "k": ekf.k,
             "picks": tuple(self.picks),
             "last_selection": self.last_selection,
