@@ -8,12 +8,14 @@ __all__ = ["ENV_IDS"]
 
 #: every Gymnasium id this package registers, in the order ``selenv list`` shows them
 ENV_IDS: tuple[str, ...] = (
+    "selenv/CLScheduling-v0",
     "selenv/FIMSelection-v0",
     "selenv/LandmarkSelection-v0",
     "selenv/ReceiverClustering-v0",
 )
 
 _ENTRY_POINTS = {
+    "selenv/CLScheduling-v0": "selenv.envs.cl_scheduling:CLSchedulingEnv",
     "selenv/FIMSelection-v0": "selenv.envs.fim_selection:FIMSelectionEnv",
     "selenv/LandmarkSelection-v0": "selenv.envs.landmark_selection:LandmarkSelectionEnv",
     "selenv/ReceiverClustering-v0": "selenv.envs.receiver_clustering:ReceiverClusteringEnv",

@@ -452,15 +452,19 @@ class CLSimulation:
             H_i, H_j = np.vstack([H_i, Hb_i]), np.vstack([H_j, Hb_j])
         return H_i, H_j, np.asarray(res)
 
-    def relative_update(self, p: int, method: str | None = None) -> float:
-        """Process relative measurement ``p``; return the drop in ``log det P_i`` (nats)."""
+    def preview(self, p: int, method: str | None = None) -> tuple[FloatArray, FloatArray]:
+        """Agent ``i``'s posterior ``(x, P)`` if relative measurement ``p`` were processed now."""
         i, j = self.problem.config.relative_pairs[p]
         H_i, H_j, residual = self.relative_terms(p)
-        before = float(logdet_spd(self.P[i], "P_i"))
-        x, P = fuse_relative(
+        return fuse_relative(
             method or self.fusion, self.x[i], self.P[i], self.P[j], H_i, H_j, self.R_rel, residual
         )
-        self.x[i], self.P[i] = x, P
+
+    def relative_update(self, p: int, method: str | None = None) -> float:
+        """Process relative measurement ``p``; return the drop in ``log det P_i`` (nats)."""
+        i = self.problem.config.relative_pairs[p][0]
+        before = float(logdet_spd(self.P[i], "P_i"))
+        self.x[i], self.P[i] = self.preview(p, method)
         return before - float(logdet_spd(self.P[i], "P_i"))
 
     def step(self, pairs: Sequence[int] | None = None) -> None:

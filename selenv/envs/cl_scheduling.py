@@ -1,0 +1,229 @@
+"""``selenv/CLScheduling-v0``: which relative measurements to process (cooperative localization)."""
+
+from __future__ import annotations
+
+from itertools import permutations
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from selenv.core.linalg import logdet_spd
+from selenv.envs.fim_selection import parse_action
+from selenv.scenarios.cooperative import (
+    FUSION_METHODS,
+    CLConfig,
+    CLProblem,
+    CLSimulation,
+    make_cl_problem,
+)
+
+__all__ = ["OBJECTIVES", "CLSchedulingEnv"]
+
+OBJECTIVES = ("logdet", "trace")
+
+
+class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+    r"""Schedule relative-measurement processing under a budget in cooperative localization.
+
+    ## Description
+    ``n_agents`` walkers localise with local filters (Chen & Kia 2022 setting, see
+    :mod:`selenv.scenarios.cooperative`); agent 0 ranges to beacons. Every step each directed
+    pair ``(i, j)`` can yield a relative range that agent ``i`` would process with agent ``j``'s
+    belief using the ``fusion`` method (``naive``, ``ci``, ``dmv``, ``pecmv``) without the
+    cross-covariance. A processing budget allows only ``budget`` of them per step: the agent
+    picks them one at a time, or stops early.
+
+    ## Action Space
+    ``Discrete(P + 1)`` with ``P = n_agents (n_agents - 1)`` directed pairs (the order of
+    ``env.unwrapped.pairs``): pick pair ``p``, or ``P`` = stop processing for this step.
+    Pairs already processed this step are masked (:meth:`action_masks`,
+    ``info["action_mask"]``, ``obs["action_mask"]``; stop is always allowed); a masked or
+    out-of-range action raises ``ValueError``.
+
+    ## Observation Space
+    ``Dict``: ``logdet (A,)`` each agent's ``log det P``, ``pos_std (A,)`` its horizontal
+    position std (m), ``pair_gain (P,)`` the naive-EKF information gain of each pair now
+    (``log det(I + H_i P_i H_i^T (H_j P_j H_j^T + R)^-1)``, a cheap proxy, 0 when masked),
+    ``budget_left (1,)``, ``time (1,)``, ``action_mask (P + 1,)``.
+
+    ## Rewards
+    For a processed pair, the decrease of the objective (``objective="logdet"``: the sum over
+    agents of ``log det P``; ``"trace"``: the sum of the horizontal position variances); 0 for
+    stop. ``info["objective"]`` is the objective now (lower is better).
+
+    ## Starting State
+    A new seeded realisation per reset (input, measurement noise and initial errors); tracks
+    are rectangles, circles and lemniscates cycled over the agents; the first step is
+    propagated.
+
+    ## Episode End
+    Terminates after ``horizon`` steps.
+
+    ## Arguments
+    ``gymnasium.make("selenv/CLScheduling-v0", n_agents=4, budget=2, fusion="dmv",
+    horizon=200, objective="logdet", model="ins")``; other
+    :class:`~selenv.scenarios.cooperative.CLConfig` fields pass through.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+
+    def __init__(
+        self,
+        *,
+        n_agents: int = 4,
+        budget: int = 2,
+        fusion: str = "dmv",
+        horizon: int = 200,
+        objective: str = "logdet",
+        render_mode: str | None = None,
+        **config: Any,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        if fusion not in FUSION_METHODS[1:]:
+            raise ValueError(f"fusion must be one of {FUSION_METHODS[1:]}, got {fusion!r}")
+        if objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
+        if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 1:
+            raise ValueError(f"budget must be an int >= 1, got {budget!r}")
+        if isinstance(n_agents, int | np.integer) and n_agents < 2:
+            raise ValueError(f"n_agents must be >= 2 (relative measurements), got {n_agents}")
+        tracks = ("rectangle", "circle", "lemniscate")
+        defaults: dict[str, Any] = {
+            "relative_pairs": tuple(permutations(range(int(n_agents)), 2)),
+            "relative_every": 1,
+            "tracks": tracks,
+            "input_sigma": ((0.02, 0.05), (0.06, 0.2)),
+        }
+        try:
+            self.config = CLConfig(n_agents=n_agents, horizon=horizon, **{**defaults, **config})
+        except TypeError as exc:
+            raise ValueError(f"unknown CLScheduling keyword: {exc}") from None
+        self.pairs: tuple[tuple[int, int], ...] = self.config.relative_pairs
+        self.n_pairs = len(self.pairs)
+        self.budget, self.fusion, self.objective = int(budget), fusion, objective
+        self.horizon = int(horizon)
+        A = int(n_agents)
+        self.action_space = spaces.Discrete(self.n_pairs + 1)
+        self.observation_space = spaces.Dict(  # type: ignore[assignment]
+            {
+                "logdet": spaces.Box(-np.inf, np.inf, (A,), np.float32),
+                "pos_std": spaces.Box(0.0, np.inf, (A,), np.float32),
+                "pair_gain": spaces.Box(0.0, np.inf, (self.n_pairs,), np.float32),
+                "budget_left": spaces.Box(0.0, 1.0, (1,), np.float32),
+                "time": spaces.Box(0.0, 1.0, (1,), np.float32),
+                "action_mask": spaces.MultiBinary(self.n_pairs + 1),
+            }
+        )
+        self.problem: CLProblem | None = None
+        self._sim: CLSimulation | None = None
+        self._done_pairs: set[int] = set()
+        self._available: list[int] = []
+        self._done = False
+
+    # -- oracle view -------------------------------------------------------------------------
+    @property
+    def sim(self) -> CLSimulation:
+        """The simulation (needs ``reset``)."""
+        if self._sim is None:
+            raise RuntimeError("call reset() before using the environment")
+        return self._sim
+
+    @property
+    def budget_left(self) -> int:
+        """Pairs that may still be processed in this step."""
+        return self.budget - len(self._done_pairs)
+
+    def action_masks(self) -> np.ndarray:
+        """(P + 1,) bool: available, unprocessed pairs; stop is always allowed."""
+        mask = np.zeros(self.n_pairs + 1, bool)
+        if self.budget_left > 0:
+            mask[[p for p in self._available if p not in self._done_pairs]] = True
+        mask[-1] = True
+        return mask
+
+    def objective_value(self) -> float:
+        """Sum over agents of ``log det P`` or of the horizontal position variance."""
+        P = self.sim.P
+        if self.objective == "logdet":
+            return float(np.sum(logdet_spd(P, "P")))
+        return float(np.trace(P[:, :2, :2], axis1=1, axis2=2).sum())
+
+    # -- Gymnasium API -----------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """New realisation; propagate to the first step."""
+        super().reset(seed=seed)
+        self.problem = make_cl_problem(self.config, self.np_random)
+        self._sim = CLSimulation(self.problem, self.fusion)
+        self._done = False
+        self._advance()
+        return self._obs(), self._info()
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Process one pair (or stop); the step ends after ``budget`` pairs or a stop."""
+        sim = self.sim
+        if self._done:
+            raise RuntimeError("episode is over: call reset()")
+        p = parse_action(action, self.n_pairs + 1, self.action_masks())
+        reward = 0.0
+        if p < self.n_pairs:
+            before = self.objective_value()
+            sim.relative_update(p)
+            reward = before - self.objective_value()
+            self._done_pairs.add(p)
+        if p == self.n_pairs or self.budget_left == 0 or not self.action_masks()[:-1].any():
+            if sim.k >= self.horizon:
+                self._done = True
+                return self._obs(), reward, True, False, self._info()
+            self._advance()
+        return self._obs(), reward, False, False, self._info()
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _advance(self) -> None:
+        """One simulation step (propagation, ZUPT and beacon updates); open its pairs."""
+        sim = self.sim
+        sim.predict()
+        sim.zupt_updates()
+        sim.beacon_updates()
+        self._available = sim.available()
+        self._done_pairs = set()
+
+    def _pair_gains(self) -> np.ndarray:
+        sim = self.sim
+        out = np.zeros(self.n_pairs)
+        mask = self.action_masks()
+        for p in np.flatnonzero(mask[:-1]):
+            i, j = self.pairs[p]
+            H_i, H_j, _ = sim.relative_terms(int(p))
+            A = H_i @ sim.P[i] @ H_i.T
+            N = H_j @ sim.P[j] @ H_j.T + sim.R_rel
+            out[p] = np.linalg.slogdet(np.eye(A.shape[0]) + np.linalg.solve(N, A))[1]
+        return out
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        sim = self.sim
+        return {
+            "logdet": np.asarray(logdet_spd(sim.P, "P"), np.float32),
+            "pos_std": np.sqrt(np.trace(sim.P[:, :2, :2], axis1=1, axis2=2)).astype(np.float32),
+            "pair_gain": self._pair_gains().astype(np.float32),
+            "budget_left": np.array([self.budget_left / self.budget], np.float32),
+            "time": np.array([sim.k / self.horizon], np.float32),
+            "action_mask": self.action_masks().astype(np.int8),
+        }
+
+    def _info(self) -> dict[str, Any]:
+        sim = self.sim
+        return {
+            "objective": self.objective_value(),
+            "k": sim.k,
+            "position_errors": sim.position_errors(),
+            "processed": sorted(self._done_pairs),
+            "action_mask": self.action_masks(),
+        }
