@@ -161,3 +161,19 @@ def test_bad_input() -> None:
         env.step(0)
     with pytest.raises(ValueError, match="out of range"):
         env.step(99)
+
+
+@pytest.mark.parametrize("fusion", ["dmv", "pecmv"])
+def test_exact_fusion_in_the_env_and_simulation_consistency(fusion: str) -> None:
+    env = gym.make(ENV_ID, fusion=fusion, horizon=15)
+    g = _play(env, make("greedy", ENV_ID), 1)[0]
+    r = _play(env, make("random", ENV_ID), 1)[0]
+    assert g >= r - 1e-9
+    cfg = CLConfig(horizon=300)
+    vals = []
+    for seed in range(6):
+        sim = CLSimulation(make_cl_problem(cfg, np.random.default_rng(seed)), fusion)
+        for _ in range(cfg.horizon):
+            sim.step()
+            vals.append(sim.nees_position()[1])
+    assert float(np.mean(vals)) < 2.6  # agent 2: inside or below the 95 % band (2 dof)
