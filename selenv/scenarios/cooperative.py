@@ -352,12 +352,12 @@ def fuse_relative(
     from selenv.core import fusion  # deferred: keeps scenarios importable without cvxpy
 
     if method == "dmv":
-        out = fusion.dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
-    elif method == "pecmv":
-        out = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
-    else:
-        raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
-    return np.asarray(out.x), np.asarray(out.P)
+        dmv = fusion.dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
+        return np.asarray(dmv.x), np.asarray(dmv.P)
+    if method == "pecmv":
+        pecmv = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
+        return np.asarray(pecmv.x), np.asarray(pecmv.P)
+    raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
 
 
 class CLSimulation:

@@ -1,0 +1,62 @@
+"""Fusion with unknown cross-correlation: CI, DMV and PECMV (Chen & Kia 2022, eqs. 3-12).
+
+Agent ``i`` (state ``x_i`` in R^{n_i}, covariance ``P_i``) takes a relative measurement of
+agent ``j`` (``P_j``): ``z = h(x_i, x_j) + v``, ``v ~ N(0, R)``, with Jacobians ``H_i`` (m, n_i)
+and ``H_j`` (m, n_j). Their cross-covariance is unknown, so a plain Kalman update would be
+overconfident. The estimators here:
+
+==================================  =======================================================
+:func:`covariance_intersection`     CI of two estimates of the same state (optimal, fast,
+                                    improved fast, inverse CI)
+:func:`dmv_update`                  DMV, eqs. (4)-(6): Kalman update with the discorrelated
+                                    bound ``blkdiag(P_i / w, P_j / (1 - w))``, ``w*`` exact
+                                    (cubic for m = 1, Newton on the convex cost otherwise)
+:func:`pecmv_update`                PECMV, eqs. (7)-(9): update with the admissible
+                                    cross-covariance that maximises ``det P_i+``; closed form
+                                    for m = 1, exact reduction to m dimensions for m > 1,
+                                    cvxpy/Clarabel reference (``method="sdp"``)
+:func:`dmv_omega_batch`,            vectorised labels ``w*`` / ``C*`` for a dataset (LDMV,
+:func:`pecmv_batch`                 LPECMV surrogate training)
+:func:`dmv_cost`,                   the objectives of eqs. (6) and (8a), and the
+:func:`pecmv_objective`,            admissibility test ``[[P_i, X], [X^T, P_j]] >= 0``
+:func:`joint_covariance_is_admissible`
+==================================  =======================================================
+
+Shapes: ``P_i`` (n_i, n_i), ``P_j`` (n_j, n_j), ``H_i`` (m, n_i), ``H_j`` (m, n_j), ``R``
+(m, m), ``x_i`` (n_i,), ``residual = z - z_hat`` (m,). Results are frozen dataclasses with the
+fused covariance ``P`` (agent i's), the gain ``K`` (n_i, m), the correction ``dx = K residual``
+and posterior mean ``x`` when asked for, the optimiser (``omega`` or ``X`` and
+``C = L_i^-1 X L_j^-T``) and ``updated`` (False when the no-update rule applies).
+
+Bad input (non-symmetric, not positive definite, NaN/inf, mismatched shapes) raises
+``ValueError`` naming the argument. The derivations are in ``shared/notes/fusion_math.md`` and
+in the docstrings of :mod:`~selenv.core.fusion_dmv` and :mod:`~selenv.core.fusion_pecmv`
+(the exact m-dimensional reduction of PECMV). Layout: ``fusion_ci``, ``fusion_dmv``,
+``fusion_pecmv``, ``fusion_sdp`` (conic solvers), ``fusion_batch`` (vectorised labels) and
+``fusion_common`` (validation, root finders).
+"""
+
+from __future__ import annotations
+
+from selenv.core.fusion_batch import PECMVBatchResult, dmv_omega_batch, pecmv_batch
+from selenv.core.fusion_ci import CI_METHODS, CIResult, covariance_intersection
+from selenv.core.fusion_common import joint_covariance_is_admissible
+from selenv.core.fusion_dmv import DMVResult, dmv_cost, dmv_update
+from selenv.core.fusion_pecmv import PECMV_METHODS, PECMVResult, pecmv_objective, pecmv_update
+
+__all__ = [
+    "CI_METHODS",
+    "PECMV_METHODS",
+    "CIResult",
+    "DMVResult",
+    "PECMVBatchResult",
+    "PECMVResult",
+    "covariance_intersection",
+    "dmv_cost",
+    "dmv_omega_batch",
+    "dmv_update",
+    "joint_covariance_is_admissible",
+    "pecmv_batch",
+    "pecmv_objective",
+    "pecmv_update",
+]
