@@ -27,6 +27,8 @@ Shapes: ``P_i`` (n_i, n_i), ``P_j`` (n_j, n_j), ``H_i`` (m, n_i), ``H_j`` (m, n_
 fused covariance ``P`` (agent i's), the gain ``K`` (n_i, m), the correction ``dx = K residual``
 and posterior mean ``x`` when asked for, the optimiser (``omega`` or ``X`` and
 ``C = L_i^-1 X L_j^-T``) and ``updated`` (False when the no-update rule applies).
+``dmv_update(..., omega=w)`` and ``pecmv_update(..., C=C)`` apply a given (e.g. learned)
+optimiser instead of solving for it; ``validate=False`` skips the input checks on hot paths.
 
 Bad input (non-symmetric, not positive definite, NaN/inf, mismatched shapes) raises
 ``ValueError`` naming the argument. The derivations are in ``shared/notes/fusion_math.md`` and

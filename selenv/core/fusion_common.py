@@ -33,6 +33,7 @@ __all__ = [
     "finite_matrix",
     "joint_covariance_is_admissible",
     "logdet_from_chol",
+    "pair",
     "root_increasing",
     "root_increasing_batch",
     "spd",
@@ -122,6 +123,34 @@ def validate_pair(
         return Pair(Pi, Li, Pj, Lj, Hi, Hj, Rm, np.sqrt(Rm))
     Rm, LR = spd(Rm, "R", m)
     return Pair(Pi, Li, Pj, Lj, Hi, Hj, Rm, LR)
+
+
+def pair(
+    P_i: ArrayLike,
+    P_j: ArrayLike,
+    H_i: ArrayLike,
+    H_j: ArrayLike,
+    R: ArrayLike,
+    *,
+    validate: bool = True,
+) -> Pair:
+    """:func:`validate_pair`, or with ``validate=False`` only conversion and the factors.
+
+    ``validate=False`` is for hot paths whose inputs are known good (float64, right shapes,
+    symmetric, finite), as in :func:`selenv.core.kalman.kf_update`: it skips the shape,
+    symmetry and finiteness checks, which dominate the cost of a scalar update; a matrix that
+    is not positive definite still raises (its Cholesky factor is needed anyway).
+    """
+    if validate:
+        return validate_pair(P_i, P_j, H_i, H_j, R)
+    Pi, Pj, Hi, Hj, Rm = (np.asarray(a, dtype=np.float64) for a in (P_i, P_j, H_i, H_j, R))
+    if Rm.shape == (1, 1):
+        if not float(Rm[0, 0]) > 0.0:
+            raise ValueError("R is not positive definite")
+        LR = np.sqrt(Rm)
+    else:
+        LR = chol(Rm, "R")
+    return Pair(Pi, chol(Pi, "P_i"), Pj, chol(Pj, "P_j"), Hi, Hj, Rm, LR)
 
 
 def chol(A: FloatArray, name: str) -> FloatArray:

@@ -59,6 +59,7 @@ from selenv.core.fusion_common import (
     correction,
     finite_matrix,
     logdet_from_chol,
+    pair,
     tri_solve,
     validate_pair,
 )
@@ -237,6 +238,7 @@ def pecmv_update(
     residual: ArrayLike | None = None,
     method: str = "auto",
     C: ArrayLike | None = None,
+    validate: bool = True,
 ) -> PECMVResult:
     """PECMV update of agent ``i`` from its measurement of agent ``j`` (eqs. 8-9).
 
@@ -254,6 +256,9 @@ def pecmv_update(
             ``"sdp"`` (the full problem in cvxpy with Clarabel: the reference, slow).
         C: (n_i, n_j) use ``X = L_i C L_j^T`` instead of optimising (e.g. a learned LPECMV
             estimate); needs ``||C||_2 <= 1``.
+        validate: check shapes, symmetry, finiteness and definiteness (default). ``False``
+            is for hot paths with known-good float64 inputs (as in ``kf_update``): it skips
+            the checks, about half the cost of a scalar update; non-PD factors still raise.
 
     Returns:
         :class:`PECMVResult` with ``P``, ``K``, ``X*``, ``C*`` and the no-update flag.
@@ -265,7 +270,7 @@ def pecmv_update(
     """
     if method not in PECMV_METHODS:
         raise ValueError(f"method must be one of {PECMV_METHODS}, got {method!r}")
-    p = validate_pair(P_i, P_j, H_i, H_j, R)
+    p = pair(P_i, P_j, H_i, H_j, R, validate=validate)
     C_given = None
     if C is not None:
         C_given = finite_matrix(C, "C", (p.P_i.shape[0], p.P_j.shape[0]))
