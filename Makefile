@@ -26,10 +26,10 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check . && $(VENV)/bin/mypy
 
 figures: $(STAMP)
-	$(PY) scripts/reproduce_kirchner.py && $(PY) scripts/reproduce_greiff.py && $(PY) scripts/reproduce_soubaras.py
+	$(PY) scripts/reproduce_kirchner.py && $(PY) scripts/reproduce_greiff.py && $(PY) scripts/reproduce_soubaras.py && $(PY) scripts/reproduce_chen_kia.py
 
 perf: $(STAMP)
-	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py
+	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py && $(PY) benchmarks/bench_fusion.py
 
 clean:
 	rm -rf $(VENV) bench_results.json bench_plots .pytest_cache .ruff_cache .mypy_cache
