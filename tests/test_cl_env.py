@@ -141,6 +141,8 @@ def test_rewards_sum_to_the_objective_drops_and_greedy_beats_random() -> None:
     a = _play(env, make("random", ENV_ID), 5)
     b = _play(env, make("random", ENV_ID), 5)
     assert a[0] == b[0]  # same seed, same trajectory
+    _, info0 = env.reset(seed=5)
+    assert a[0] == pytest.approx(info0["objective"] - a[1]["objective"])  # rewards telescope
 
 
 def test_bad_input() -> None:

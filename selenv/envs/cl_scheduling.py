@@ -49,9 +49,12 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     ``budget_left (1,)``, ``time (1,)``, ``action_mask (P + 1,)``.
 
     ## Rewards
-    For a processed pair, the decrease of the objective (``objective="logdet"``: the sum over
-    agents of ``log det P``; ``"trace"``: the sum of the horizontal position variances); 0 for
-    stop. ``info["objective"]`` is the objective now (lower is better).
+    The decrease of the objective (``objective="logdet"``: the sum over agents of
+    ``log det P``; ``"trace"``: the sum of the horizontal position variances) caused by the
+    step: the processed pair's update, plus, on the action that ends a filter step, the change
+    from the next propagation and its ZUPT and beacon updates. Rewards telescope: the return
+    is the objective at the first step minus the final one, so maximising it minimises the
+    final uncertainty. ``info["objective"]`` is the objective now (lower is better).
 
     ## Starting State
     A new seeded realisation per reset (input, measurement noise and initial errors); tracks
@@ -182,7 +185,9 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             if sim.k >= self.horizon:
                 self._done = True
                 return self._obs(), reward, True, False, self._info()
-            self._advance()
+            before = self.objective_value()
+            self._advance()  # propagation and the uncontrolled updates: their change counts too
+            reward += before - self.objective_value()
         return self._obs(), reward, False, False, self._info()
 
     # -- helpers -----------------------------------------------------------------------------
