@@ -1,0 +1,343 @@
+"""Learned fusion surrogates: LDMV (``omega*``) and LPECMV (``C*``) of Chen & Kia 2022, Sec. III.
+
+Both are MLPs on the features of eq. (13) (:func:`learned.surrogate_data.features`) whose output
+layer enforces the constraint of the optimiser they replace, for ANY finite input::
+
+    features ─► (x - mean) / std ─► clamp ±1e4 ─► MLP ─► output activation
+    LDMV            omega = sigmoid(y)                 in [0, 1]               (eq. 6)
+    LPECMV method 3 C = diag(tanh(y)) (1 - 1e-6)       ||C||_2 < 1  (default, Table I)
+    LPECMV method 2 C = tanh(Y) (1 - 1e-6) / D, D = n  ||C||_2 <= ||C||_F < 1
+    LPECMV method 1 C = tanh(Y), barrier loss eq. (14) no guarantee; predict_C rescales
+                                                       ||C||_2 >= 1 - 1e-6 onto it
+
+so ``X = L_i C L_j^T`` (eq. 11) always makes ``[[P_i, X], [X^T, P_j]]`` positive definite
+(Lemma III.1) and ``dmv_update(..., omega=...)``, ``pecmv_update(..., C=...)`` accept the
+prediction. Table II's architectures are the defaults: LDMV 4 x 9 sigmoid (SGD, lr 0.05,
+batch 256), LPECMV 3 x 20 tanh (Adam, lr 0.025, batch 512), 200 epochs, MSE (the training
+script swaps LDMV's SGD for Adam, see ``train.train_surrogate.DEFAULT_OPTIMIZER``).
+
+The input standardisation is a pair of buffers inside the module, so the state dict carries it.
+:class:`Surrogate` wraps a module with its metadata: ``save`` writes ``<path>.pt`` (state dict)
+and ``<path>.json`` (kind, method, architecture, normalisation, n, m, R, training data summary,
+metrics, versions); ``load`` checks the two against each other. ``predict_omega`` and
+``predict_C`` are batched numpy in, numpy out (float32 inference, no per-sample loop).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from torch import nn
+
+import selenv
+from learned.surrogate_data import features, n_features
+from selenv.core.linalg import FloatArray
+
+__all__ = [
+    "C_SCALE",
+    "FORMAT",
+    "KINDS",
+    "METHODS",
+    "TABLE_II",
+    "Surrogate",
+    "SurrogateNet",
+    "barrier_loss",
+]
+
+FORMAT = "selenv-surrogate-v1"
+KINDS = ("ldmv", "lpecmv")
+METHODS = (1, 2, 3)
+#: contraction margin: tanh saturates to exactly 1 in float32, so outputs are scaled by this
+C_SCALE = 1.0 - 1e-6
+_CLAMP = 1e4  # standardised features are clamped to +-this (finite outputs for any input)
+_ACTIVATIONS: dict[str, type[nn.Module]] = {"sigmoid": nn.Sigmoid, "tanh": nn.Tanh, "relu": nn.ReLU}
+
+#: Table II of the paper (hidden layers, activation, optimiser, batch size, learning rate, epochs)
+TABLE_II: dict[str, dict[str, Any]] = {
+    "ldmv": {"hidden": (9, 9, 9, 9), "activation": "sigmoid", "optimizer": "sgd",
+             "batch_size": 256, "lr": 0.05, "epochs": 200},
+    "lpecmv": {"hidden": (20, 20, 20), "activation": "tanh", "optimizer": "adam",
+               "batch_size": 512, "lr": 0.025, "epochs": 200},
+}  # fmt: skip
+
+
+def _out_dim(kind: str, method: int, n: int) -> int:
+    if kind == "ldmv":
+        return 1
+    return n if method == 3 else n * n
+
+
+class SurrogateNet(nn.Module):
+    """Standardise, MLP, constrained output (see the module docstring).
+
+    Args:
+        kind: ``"ldmv"`` or ``"lpecmv"``.
+        method: LPECMV output method 1, 2 or 3 (ignored for LDMV).
+        n: state dimension of each agent; m: measurement dimension.
+        hidden: hidden layer widths; activation: ``sigmoid``, ``tanh`` or ``relu``.
+
+    Buffers ``mean`` and ``std`` (n(n+1) + 2mn,) hold the input standardisation.
+    """
+
+    mean: th.Tensor
+    std: th.Tensor
+
+    def __init__(
+        self, *, kind: str, method: int, n: int, m: int, hidden: tuple[int, ...], activation: str
+    ) -> None:
+        super().__init__()
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        if activation not in _ACTIVATIONS:
+            raise ValueError(f"activation must be in {sorted(_ACTIVATIONS)}, got {activation!r}")
+        if n < 1 or m < 1 or not hidden or min(hidden) < 1:
+            raise ValueError(f"need n, m >= 1 and hidden widths >= 1, got {n}, {m}, {hidden}")
+        self.kind, self.method, self.n, self.m = kind, method, n, m
+        d = n_features(n, m)
+        self.register_buffer("mean", th.zeros(d))
+        self.register_buffer("std", th.ones(d))
+        sizes = [d, *hidden]
+        layers: list[nn.Module] = []
+        for a, b in pairwise(sizes):
+            layers += [nn.Linear(a, b), _ACTIVATIONS[activation]()]
+        layers.append(nn.Linear(sizes[-1], _out_dim(kind, method, n)))
+        self.body = nn.Sequential(*layers)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        """(B, d) features -> (B,) omega (LDMV), (B, n) diagonal (method 3) or (B, n*n) C."""
+        z = (x - self.mean) / self.std
+        z = th.nan_to_num(z, nan=0.0, posinf=_CLAMP, neginf=-_CLAMP).clamp(-_CLAMP, _CLAMP)
+        y = self.body(z)
+        if self.kind == "ldmv":
+            return th.sigmoid(y).squeeze(-1)
+        t = th.tanh(y)
+        if self.method == 1:
+            return t
+        return t * (C_SCALE / self.n if self.method == 2 else C_SCALE)
+
+
+def barrier_loss(pred: th.Tensor, target: th.Tensor, lam: float) -> th.Tensor:
+    """Eq. (14): ``mean(||Y - Yhat||_2 - lam log(1 - ||Yhat||_2))`` (method 1).
+
+    The paper prints ``+ lam log(1 - ||Yhat||)``, which rewards approaching the boundary; the
+    barrier it describes (infinite as ``||Yhat|| -> 1``) is the negative log used here.
+    ``||Yhat||`` is clamped just below 1 so the loss stays finite while training.
+    """
+    norm = th.linalg.vector_norm(pred, dim=-1).clamp(max=1.0 - 1e-6)
+    return (th.linalg.vector_norm(target - pred, dim=-1) - lam * th.log1p(-norm)).mean()
+
+
+@dataclass(eq=False)
+class Surrogate:
+    """A trained (or fresh) LDMV / LPECMV module with its metadata; numpy in, numpy out."""
+
+    net: SurrogateNet
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def create(
+        cls,
+        kind: str,
+        *,
+        method: int = 3,
+        n: int = 9,
+        m: int = 1,
+        hidden: tuple[int, ...] | None = None,
+        activation: str | None = None,
+    ) -> Surrogate:
+        """A fresh surrogate with Table II's architecture unless ``hidden``/``activation`` given."""
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+        t2 = TABLE_II[kind]
+        hidden = tuple(t2["hidden"] if hidden is None else hidden)
+        activation = t2["activation"] if activation is None else activation
+        method = 3 if kind == "ldmv" else method
+        net = SurrogateNet(kind=kind, method=method, n=n, m=m, hidden=hidden, activation=activation)
+        meta = {
+            "format": FORMAT,
+            "kind": kind,
+            "method": method,
+            "n": n,
+            "m": m,
+            "n_features": n_features(n, m),
+            "architecture": {
+                "hidden": list(hidden),
+                "activation": activation,
+                "output": _output_doc(kind, method),
+                "n_parameters": int(sum(p.numel() for p in net.parameters())),
+            },
+        }
+        return cls(net=net, meta=meta)
+
+    @property
+    def kind(self) -> str:  # noqa: D102
+        return self.net.kind
+
+    @property
+    def method(self) -> int:  # noqa: D102
+        return self.net.method
+
+    @property
+    def n(self) -> int:  # noqa: D102
+        return self.net.n
+
+    @property
+    def m(self) -> int:  # noqa: D102
+        return self.net.m
+
+    def set_normalisation(self, X: np.ndarray) -> None:
+        """Standardise with the mean and std of training features ``X`` (B, d); std floor 1."""
+        mean = X.mean(axis=0)
+        std = X.std(axis=0)
+        std = np.where(std > 1e-8, std, 1.0)
+        self.net.mean.copy_(th.as_tensor(mean, dtype=th.float32))
+        self.net.std.copy_(th.as_tensor(std, dtype=th.float32))
+
+    # -- numpy path ---------------------------------------------------------------------------
+
+    def _forward(self, P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> tuple[np.ndarray, bool]:
+        P_i, P_j, H_i, H_j = (np.asarray(a, dtype=np.float64) for a in (P_i, P_j, H_i, H_j))
+        single = P_i.ndim == 2
+        if single:
+            P_i, P_j, H_i, H_j = (a[None] for a in (P_i, P_j, H_i, H_j))
+        n_call = P_i.shape[-1] if P_i.ndim >= 1 else 0
+        m_call = H_i.shape[-2] if H_i.ndim >= 2 else 0
+        if n_call != self.n or m_call != self.m or H_j.shape[-2:] != (self.m, self.n):
+            raise ValueError(
+                f"surrogate {self.meta.get('path', '(unsaved)')} is for n={self.n}, m={self.m}; "
+                f"the call has n={n_call}, m={m_call} (P_i {P_i.shape}, H_i {H_i.shape}, "
+                f"H_j {H_j.shape})"
+            )
+        x = th.from_numpy(features(P_i, P_j, H_i, H_j).astype(np.float32))
+        self.net.eval()
+        with th.inference_mode():
+            y = self.net(x).numpy()
+        return y, single
+
+    def _need(self, kind: str) -> None:
+        if self.kind != kind:
+            raise ValueError(f"this surrogate is {self.kind!r}, not {kind!r}")
+
+    def predict_omega(self, P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> FloatArray:
+        """LDMV: ``omega_hat`` in [0, 1] for a batch of fusion problems.
+
+        (B,) for (B, n, n) / (B, m, n) inputs, a 0-d float64 for one unbatched problem
+        ((n, n) / (m, n)). Feed to ``dmv_update(..., omega=...)``.
+
+        Raises:
+            ValueError: not an LDMV surrogate, (n, m) of the call differ from the checkpoint's,
+                or non-finite input.
+        """
+        self._need("ldmv")
+        y, single = self._forward(P_i, P_j, H_i, H_j)
+        w = np.clip(y.astype(np.float64), 0.0, 1.0)
+        return w[0] if single else w
+
+    def predict_C(self, P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> FloatArray:
+        """LPECMV: ``C_hat`` (B, n, n) with ``||C_hat||_2 < 1`` (or (n, n) unbatched).
+
+        ``X_hat = L_i C_hat L_j^T`` (``P = L L^T``), i.e. ``pecmv_update(..., C=C_hat)``.
+        Method 1 has no built-in guarantee: rows with ``||C||_2 >= 1 - 1e-6`` are rescaled to
+        that norm (``meta["architecture"]["output"]`` says so).
+
+        Raises:
+            ValueError: not an LPECMV surrogate, (n, m) mismatch, or non-finite input.
+        """
+        self._need("lpecmv")
+        y, single = self._forward(P_i, P_j, H_i, H_j)
+        y64 = y.astype(np.float64)
+        Bn, n = y64.shape[0], self.n
+        if self.method == 3:
+            C = np.zeros((Bn, n, n))
+            C[:, np.arange(n), np.arange(n)] = y64
+        else:
+            C = y64.reshape(Bn, n, n)
+        if self.method == 1 and Bn:
+            norm = np.linalg.norm(C, 2, axis=(1, 2))
+            C *= np.where(norm >= C_SCALE, C_SCALE / np.maximum(norm, C_SCALE), 1.0)[:, None, None]
+        return C[0] if single else C
+
+    # -- files --------------------------------------------------------------------------------
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``<path>.pt`` (state dict) and ``<path>.json`` (metadata); return the .pt path."""
+        pt = Path(path).with_suffix(".pt")
+        pt.parent.mkdir(parents=True, exist_ok=True)
+        meta = dict(self.meta)
+        meta.pop("path", None)
+        meta["normalisation"] = {
+            "features": "learned.surrogate_data.features",
+            "mean": self.net.mean.tolist(),
+            "std": self.net.std.tolist(),
+        }
+        meta["versions"] = {"selenv": selenv.__version__, "torch": th.__version__}
+        th.save(self.net.state_dict(), pt)
+        pt.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+        self.meta = {**meta, "path": str(pt)}
+        return pt
+
+    @classmethod
+    def load(cls, path: str | Path) -> Surrogate:
+        """Read a checkpoint written by :meth:`save` (``path`` with or without suffix).
+
+        Raises:
+            ValueError: the JSON or weights are missing or unreadable, the metadata is
+                incomplete, or it does not match the weights (the message names the file).
+        """
+        pt = Path(path).with_suffix(".pt")
+        js = pt.with_suffix(".json")
+        try:
+            meta = json.loads(js.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"surrogate metadata {js} is missing") from None
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"surrogate metadata {js} is not valid JSON: {exc}") from None
+        try:
+            if meta["format"] != FORMAT:
+                raise ValueError(f"format {meta['format']!r} is not {FORMAT!r}")
+            arch = meta["architecture"]
+            sur = cls.create(
+                meta["kind"],
+                method=int(meta["method"]),
+                n=int(meta["n"]),
+                m=int(meta["m"]),
+                hidden=tuple(int(h) for h in arch["hidden"]),
+                activation=str(arch["activation"]),
+            )
+            norm = meta["normalisation"]
+            mean = np.asarray(norm["mean"], dtype=np.float32)
+            std = np.asarray(norm["std"], dtype=np.float32)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"surrogate metadata {js} is invalid: {exc!s}") from None
+        try:
+            state = th.load(pt, map_location="cpu", weights_only=True)
+            sur.net.load_state_dict(state)
+        except FileNotFoundError:
+            raise ValueError(f"surrogate weights {pt} are missing (metadata {js})") from None
+        except (RuntimeError, OSError, EOFError, ValueError) as exc:
+            msg = str(exc).splitlines()[0]
+            raise ValueError(f"surrogate weights {pt} do not match metadata {js}: {msg}") from None
+        if mean.shape != sur.net.mean.shape or not (
+            np.allclose(mean, sur.net.mean.numpy()) and np.allclose(std, sur.net.std.numpy())
+        ):
+            raise ValueError(f"normalisation in {js} does not match the buffers in {pt}")
+        sur.meta = {**meta, "path": str(pt)}
+        return sur
+
+
+def _output_doc(kind: str, method: int) -> str:
+    if kind == "ldmv":
+        return "omega = sigmoid(y)"
+    return {
+        1: "C = tanh(Y) (n x n), barrier loss eq. 14; predict_C rescales ||C||_2 >= 1-1e-6",
+        2: "C = tanh(Y) * (1-1e-6) / n (n x n)",
+        3: "C = diag(tanh(y)) * (1-1e-6)",
+    }[method]
