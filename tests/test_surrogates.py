@@ -271,3 +271,15 @@ def test_training_script_generates_data(tmp_path: Path) -> None:
     assert meta["training_data"]["count"] == 200 and (tmp_path / "g.npz").exists()
     with pytest.raises(ValueError, match="--kind"):
         train_surrogate.main(["--kind", "nope"])
+
+
+def test_shipped_checkpoints_load_and_predict(data: SurrogateDataset) -> None:
+    root = Path(__file__).resolve().parents[1] / "checkpoints"
+    ldmv = Surrogate.load(root / "ldmv.pt")
+    lpecmv = Surrogate.load(root / "lpecmv.pt")
+    assert json.loads((root / "ldmv.json").read_text())["metrics"]["test"]["R"] > 0.85
+    omega = ldmv.predict_omega(data.P_i[:64], data.P_j[:64], data.H_i[:64], data.H_j[:64])
+    assert np.all((omega >= 0) & (omega <= 1))
+    assert np.mean(np.abs(omega - data.omega[:64])) < 0.05
+    C = lpecmv.predict_C(data.P_i[:64], data.P_j[:64], data.H_i[:64], data.H_j[:64])
+    assert np.all(np.linalg.norm(C, 2, axis=(1, 2)) < 1)
