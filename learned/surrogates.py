@@ -341,3 +341,30 @@ def _output_doc(kind: str, method: int) -> str:
         2: "C = tanh(Y) * (1-1e-6) / n (n x n)",
         3: "C = diag(tanh(y)) * (1-1e-6)",
     }[method]
+
+
+#: the shipped checkpoints, loaded on first use by :func:`shipped`
+SHIPPED = {
+    "ldmv": Path(__file__).resolve().parents[1] / "checkpoints" / "ldmv.pt",
+    "lpecmv": Path(__file__).resolve().parents[1] / "checkpoints" / "lpecmv.pt",
+}
+_LOADED: dict[str, Surrogate] = {}
+
+
+def shipped(kind: str) -> Surrogate:
+    """The shipped LDMV or LPECMV surrogate (``checkpoints/``), loaded once per process.
+
+    This is the hook ``selenv.scenarios.cooperative`` calls for ``fusion="ldmv"`` /
+    ``"lpecmv"`` (through a lazy ``"module:attr"`` reference, so ``selenv`` never imports
+    ``learned`` at import time).
+
+    Raises:
+        ValueError: unknown ``kind`` or a missing / invalid checkpoint (names the file).
+    """
+    if kind not in SHIPPED:
+        raise ValueError(f"kind must be one of {sorted(SHIPPED)}, got {kind!r}")
+    if kind not in _LOADED:
+        if not SHIPPED[kind].is_file():
+            raise ValueError(f"shipped checkpoint {SHIPPED[kind]} not found")
+        _LOADED[kind] = Surrogate.load(SHIPPED[kind])
+    return _LOADED[kind]

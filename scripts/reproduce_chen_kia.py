@@ -35,19 +35,23 @@ from tqdm import tqdm
 
 from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 
-METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv")
+METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv")
 LABELS = {
     "dead_reckoning": "dead reckoning (ZUPT-only)",
     "naive": "naive EKF",
     "ci": "CI",
     "dmv": "DMV",
     "pecmv": "PECMV",
+    "ldmv": "LDMV (learned)",
+    "lpecmv": "LPECMV (learned)",
 }
 #: the paper's Table III (real experiment, 10 runs): method -> (agent 1, agent 2) RMSE (m)
 PAPER_TABLE_III = {
     "dead_reckoning": (0.4732, 0.4902),
     "dmv": (0.1050, 0.3221),
     "pecmv": (0.1035, 0.2950),
+    "ldmv": (0.1158, 0.3528),
+    "lpecmv": (0.1125, 0.3027),
 }
 
 

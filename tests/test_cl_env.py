@@ -179,3 +179,20 @@ def test_exact_fusion_in_the_env_and_simulation_consistency(fusion: str) -> None
             sim.step()
             vals.append(sim.nees_position()[1])
     assert float(np.mean(vals)) < 2.6  # agent 2: inside or below the 95 % band (2 dof)
+
+
+def test_learned_surrogates_as_fusion_methods() -> None:
+    cfg = CLConfig(horizon=200)
+    for fusion in ("ldmv", "lpecmv"):
+        sim = CLSimulation(make_cl_problem(cfg, np.random.default_rng(0)), fusion)
+        nees = []
+        for _ in range(cfg.horizon):
+            sim.step()
+            nees.append(sim.nees_position())
+        assert np.all(np.isfinite(nees)) and np.mean(np.array(nees)[:, 1]) < 4.0
+    env = gym.make(ENV_ID, fusion="lpecmv", horizon=5)
+    assert np.isfinite(_play(env, make("greedy", ENV_ID), 0)[0])
+    other_R = CLSimulation(make_cl_problem(CLConfig(horizon=20, range_sigma=0.3), None), "ldmv")
+    with pytest.raises(ValueError, match="trained with R"):
+        for _ in range(20):
+            other_R.step()

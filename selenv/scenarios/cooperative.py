@@ -13,6 +13,7 @@ belief, *without* the cross-covariance, by one of the fusion methods:
 | ``ci`` | discorrelated bound eq. (4) with the weight minimising ``tr P`` (CI's trace criterion) |
 | ``dmv`` | DMV, eqs. (4)-(6) (:func:`selenv.core.fusion.dmv_update`) |
 | ``pecmv`` | PECMV, eqs. (7)-(9) (:func:`selenv.core.fusion.pecmv_update`) |
+| ``ldmv`` / ``lpecmv`` | the DMV / PECMV update with omega / C predicted by the shipped surrogate |
 
 with ``A = H_i P_i H_i^T``, ``B = H_j P_j H_j^T``. ``dead_reckoning`` processes nothing (the
 paper's "ZUPT-only" column; ins agents still get their velocity pseudo-measurements, see
@@ -53,7 +54,10 @@ __all__ = [
     "make_cl_problem",
 ]
 
-FUSION_METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv")
+FUSION_METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv")
+#: where the learned surrogates come from: a lazy ``"module:attr"`` (``learned`` sits above
+#: ``selenv`` and is imported only when ``ldmv`` / ``lpecmv`` is used)
+SURROGATE_HOOK = "learned.surrogates:shipped"
 TRACKS = ("rectangle", "circle", "lemniscate")
 _DEG = np.pi / 180.0
 
@@ -304,6 +308,21 @@ def make_cl_problem(
     )
 
 
+def _surrogate(kind: str, R: FloatArray) -> Any:
+    """The shipped surrogate via :data:`SURROGATE_HOOK`; its training ``R`` must match."""
+    import importlib
+
+    module, attr = SURROGATE_HOOK.split(":")
+    sur = getattr(importlib.import_module(module), attr)(kind)
+    R_trained = np.asarray(sur.meta.get("R"), dtype=float)
+    if R_trained.shape != R.shape or not np.allclose(R_trained, R):
+        raise ValueError(
+            f"the shipped {kind} surrogate was trained with R = {R_trained.tolist()}, but this "
+            f"measurement has R = {R.tolist()}; retrain it (train.train_surrogate) for this R"
+        )
+    return sur
+
+
 def _bound_update(
     P_i: FloatArray, A: FloatArray, B: FloatArray, H_i: FloatArray, R: FloatArray, w: float
 ) -> FloatArray:
@@ -357,6 +376,15 @@ def fuse_relative(
     if method == "pecmv":
         pecmv = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
         return np.asarray(pecmv.x), np.asarray(pecmv.P)
+    if method in ("ldmv", "lpecmv"):
+        sur = _surrogate(method, R)
+        if method == "ldmv":
+            w = float(sur.predict_omega(P_i, P_j, H_i, H_j).reshape(-1)[0])
+            d = fusion.dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, omega=w)
+            return np.asarray(d.x), np.asarray(d.P)
+        C = sur.predict_C(P_i, P_j, H_i, H_j).reshape(P_i.shape[0], P_j.shape[0])
+        pe = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, C=C)
+        return np.asarray(pe.x), np.asarray(pe.P)
     raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
 
 
