@@ -29,7 +29,7 @@ figures: $(STAMP)
 	$(PY) scripts/reproduce_kirchner.py && $(PY) scripts/reproduce_greiff.py && $(PY) scripts/reproduce_soubaras.py && $(PY) scripts/reproduce_chen_kia.py
 
 perf: $(STAMP)
-	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py && $(PY) benchmarks/bench_fusion.py
+	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py && $(PY) benchmarks/bench_fusion.py && $(PY) benchmarks/bench_surrogates.py
 
 clean:
 	rm -rf $(VENV) bench_results.json bench_plots .pytest_cache .ruff_cache .mypy_cache
