@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import load_script
 
 import selenv  # noqa: F401
 from selenv.agents import agents_for, make
@@ -118,15 +115,11 @@ def test_agents_refuse_the_wrong_env_or_mode() -> None:
 
 
 # -- scripts/reproduce_greiff.py --quick ----------------------------------------------------------
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_greiff.py"
 
 
 @pytest.fixture(scope="module")
 def repro(tmp_path_factory):
-    spec = importlib.util.spec_from_file_location("reproduce_greiff", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    module = load_script("reproduce_greiff")
     out = tmp_path_factory.mktemp("greiff")
     return out, module.main(["--quick", "--out", str(out), "--workers", "1"])
 

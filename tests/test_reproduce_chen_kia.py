@@ -2,22 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_chen_kia.py"
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    spec = importlib.util.spec_from_file_location("reproduce_chen_kia", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    module = load_script("reproduce_chen_kia")
     out = tmp_path_factory.mktemp("chen_kia")
     return out, module.main(["--quick", "--out", str(out), "--workers", "1"])
 

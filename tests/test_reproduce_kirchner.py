@@ -6,29 +6,15 @@ Example 1 is the paper's stationary target (position only, d = 2); its moving-ta
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_kirchner.py"
-
-
-def _load_script():
-    spec = importlib.util.spec_from_file_location("reproduce_kirchner", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("kirchner_figures")
-    results = _load_script().main(["--quick", "--out", str(out)])
+    results = load_script("reproduce_kirchner").main(["--quick", "--out", str(out)])
     return out, results
 
 

@@ -6,35 +6,24 @@ landmark gives the same filter as the env with ``k = N`` and the ``all`` agent.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import load_script
 
 import selenv  # noqa: F401
 from selenv.agents import make
 from selenv.scenarios.landmarks import LandmarkEKF
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_soubaras.py"
 ENV_ID = "selenv/LandmarkSelection-v0"
-
-
-def _load_script():
-    spec = importlib.util.spec_from_file_location("reproduce_soubaras", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("soubaras_figures")
-    results = _load_script().main(["--quick", "--out", str(out), "--workers", "1"])
+    results = load_script("reproduce_soubaras").main(
+        ["--quick", "--out", str(out), "--workers", "1"]
+    )
     return out, results
 
 
