@@ -34,6 +34,7 @@ from selenv.core.riccati import riccati_pass
 from selenv.scenarios.clustering import (
     ClusteringConfig,
     ClusteringProblem,
+    axis_to_full,
     clustering_cost,
     make_clustering_problem,
 )
@@ -41,24 +42,13 @@ from selenv.scenarios.clustering_filters import ClusterFilterBank, cluster_keys
 from selenv.scenarios.clustering_labels import canonical_labels, random_feasible_clustering
 
 
-def _axis_to_full(P: np.ndarray) -> np.ndarray:
-    s = (P.shape[0] - 1) // 2
-    out = np.zeros((4 * s + 2, 4 * s + 2))
-    for a in range(2):
-        idx = [
-            4 * s + a if j == 2 * s else 4 * (j // 2) + 2 * (j % 2) + a for j in range(2 * s + 1)
-        ]
-        out[np.ix_(idx, idx)] = P
-    return out
-
-
 def naive_full(problem: ClusteringProblem, bank: ClusterFilterBank, cands: np.ndarray) -> list:
     """Algorithm 1 literally, in the paper's full model, one candidate and cluster at a time."""
     tau = bank.history(bank.clusters[0]).shape[0] - 1
     maps = problem.selection_maps(bank.labels)
     P_l = sum(
-        Mu.T @ _axis_to_full(bank.history(k)[0]) @ Mu
-        + Ms.T @ _axis_to_full(bank.history(k)[0]) @ Ms / len(maps)
+        Mu.T @ axis_to_full(bank.history(k)[0]) @ Mu
+        + Ms.T @ axis_to_full(bank.history(k)[0]) @ Ms / len(maps)
         for k, (Mu, Ms) in zip(bank.clusters, maps, strict=True)
     )
     costs = []
@@ -67,7 +57,7 @@ def naive_full(problem: ClusteringProblem, bank: ClusterFilterBank, cands: np.nd
         posts = []
         for key, (Mu, Ms) in zip(keys, problem.selection_maps(labels), strict=True):
             if key in bank.clusters:  # Algorithm 1, steps 4-5: unchanged cluster kept
-                posts.append(_axis_to_full(bank.history(key)[-1]))
+                posts.append(axis_to_full(bank.history(key)[-1]))
                 continue
             A, Q, C, R = problem.full_model(key)
             P = Mu @ P_l @ Mu.T + Ms @ P_l @ Ms.T

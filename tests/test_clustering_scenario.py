@@ -10,6 +10,7 @@ from selenv.core.kalman import kf_predict, kf_update
 from selenv.core.riccati import riccati_pass, riccati_step
 from selenv.scenarios.clustering import (
     ClusteringConfig,
+    axis_to_full,
     canonical_labels,
     clustering_cost,
     make_clustering_problem,
@@ -20,23 +21,6 @@ from selenv.scenarios.clustering_filters import ClusterFilterBank, cluster_keys
 def _problem(n=6, n_max=14, seed=0, **kw):
     cfg = ClusteringConfig(n_agents=n, n_max_states=n_max, **kw)
     return make_clustering_problem(cfg, np.random.default_rng(seed))
-
-
-def _axis_to_full(P: np.ndarray) -> np.ndarray:
-    """Per-axis covariance (2s+1) -> full covariance (4s+2) in the paper's state order."""
-    s = (P.shape[0] - 1) // 2
-
-    def full(j: int, a: int) -> int:
-        if j == 2 * s:
-            return 4 * s + a
-        i, is_v = divmod(j, 2)
-        return 4 * i + 2 * is_v + a
-
-    out = np.zeros((4 * s + 2, 4 * s + 2))
-    for a in range(2):
-        idx = [full(j, a) for j in range(2 * s + 1)]
-        out[np.ix_(idx, idx)] = P
-    return out
 
 
 def _cost_full(problem, full_posteriors, keys):
@@ -75,7 +59,7 @@ def test_per_axis_filters_equal_the_full_model_and_cost_matches_definition() -> 
     labels = np.array([0, 1, 0, 2, 1, 2, 0])
     bank = ClusterFilterBank(prob, labels)
     keys = bank.clusters
-    Ps = [_axis_to_full(prob.axis_prior(len(k))) for k in keys]
+    Ps = [axis_to_full(prob.axis_prior(len(k))) for k in keys]
     models = [prob.full_model(k) for k in keys]
     for _ in range(12):
         bank.step()
@@ -83,7 +67,7 @@ def test_per_axis_filters_equal_the_full_model_and_cost_matches_definition() -> 
             x, Pm = kf_predict(np.zeros(A.shape[0]), Ps[c], A, Q)
             Ps[c] = kf_update(x, Pm, np.zeros(C.shape[0]), C, R).P
     for P_axis, P_full in zip(bank.posteriors(), Ps, strict=True):
-        np.testing.assert_allclose(_axis_to_full(P_axis), P_full, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(axis_to_full(P_axis), P_full, rtol=1e-9, atol=1e-12)
     J, J_G, J_C, J_L = _cost_full(prob, Ps, keys)
     got = bank.cost()
     assert got.J == pytest.approx(J, rel=1e-10)
@@ -100,7 +84,7 @@ def test_long_run_converges_to_the_riccati_steady_state() -> None:
         P_pred = solve_discrete_are(A.T, C.T, Q, R)  # steady prediction covariance
         S = C @ P_pred @ C.T + R
         P_post = P_pred - P_pred @ C.T @ np.linalg.solve(S, C @ P_pred)
-        np.testing.assert_allclose(_axis_to_full(P_axis), P_post, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(axis_to_full(P_axis), P_post, rtol=1e-6, atol=1e-9)
 
 
 def test_composed_prior_matches_the_selection_map_formula() -> None:
@@ -112,8 +96,8 @@ def test_composed_prior_matches_the_selection_map_formula() -> None:
     # Algorithm 1 step 1 with the paper's maps, on full covariances at the window start l
     maps = prob.selection_maps(old)
     P_l = sum(
-        Mu.T @ _axis_to_full(bank.history(key)[0]) @ Mu
-        + Ms.T @ _axis_to_full(bank.history(key)[0]) @ Ms / len(maps)
+        Mu.T @ axis_to_full(bank.history(key)[0]) @ Mu
+        + Ms.T @ axis_to_full(bank.history(key)[0]) @ Ms / len(maps)
         for key, (Mu, Ms) in zip(bank.clusters, maps, strict=True)
     )
     new = np.array([0, 1, 0, 2, 1, 2])
@@ -121,7 +105,7 @@ def test_composed_prior_matches_the_selection_map_formula() -> None:
         cluster_keys(canonical_labels(new)), prob.selection_maps(new), strict=True
     ):
         expected = Mu @ P_l @ Mu.T + Ms @ P_l @ Ms.T  # step 2, read per new cluster
-        np.testing.assert_allclose(_axis_to_full(bank._composed_prior(key)), expected, atol=1e-14)
+        np.testing.assert_allclose(axis_to_full(bank._composed_prior(key)), expected, atol=1e-14)
 
 
 def test_algorithm1_keeps_unchanged_clusters_and_recomputes_the_rest() -> None:

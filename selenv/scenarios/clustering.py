@@ -43,6 +43,7 @@ __all__ = [
     "ClusteringConfig",
     "ClusteringProblem",
     "CostBreakdown",
+    "axis_to_full",
     "canonical_labels",
     "clustering_cost",
     "make_clustering_problem",
@@ -144,6 +145,22 @@ def _check_sigma(sigma: Any, n: int) -> FloatArray:
             f" = {s[bad[0], bad[1]]}"
         )
     return s
+
+
+def axis_to_full(P: FloatArray) -> FloatArray:
+    """Per-axis covariance (2s+1, 2s+1) -> full covariance (4s+2, 4s+2) in eq. (6a)'s order.
+
+    Inverse of the per-axis reduction: per-axis state ``(p_1, v_1, ..., p_s, v_s, theta)``,
+    full state ``(p_1 (2), v_1 (2), ..., theta (2))``; the two axes are independent copies.
+    """
+    s = (P.shape[0] - 1) // 2
+    out = np.zeros((4 * s + 2, 4 * s + 2))
+    for a in range(2):
+        idx = [
+            4 * s + a if j == 2 * s else 4 * (j // 2) + 2 * (j % 2) + a for j in range(2 * s + 1)
+        ]
+        out[np.ix_(idx, idx)] = P
+    return out
 
 
 @dataclass(frozen=True, eq=False)
