@@ -323,15 +323,6 @@ def _surrogate(kind: str, R: FloatArray) -> Any:
     return sur
 
 
-def _bound_update(
-    P_i: FloatArray, A: FloatArray, B: FloatArray, H_i: FloatArray, R: FloatArray, w: float
-) -> FloatArray:
-    """``Pbar(w) = (I - Kbar H_i) P_i / w`` of the discorrelated bound eq. (4), Kalman form."""
-    S = A / w + B / (1 - w) + R
-    PHt = P_i @ H_i.T / w
-    return P_i / w - PHt @ np.linalg.solve(S, PHt.T)
-
-
 def fuse_relative(
     method: str,
     x_i: FloatArray,
@@ -359,17 +350,16 @@ def fuse_relative(
     if method == "naive":  # independence: the other agent's uncertainty is extra noise
         res = kf_update(x_i, P_i, z_eff, H_i, B + R, validate=False)
         return res.x, res.P
-    if method == "ci":  # bound (4) with the weight that minimises the trace (CI's criterion)
-        A = H_i @ P_i @ H_i.T
-        traces = lambda w: float(np.trace(_bound_update(P_i, A, B, H_i, R, w)))  # noqa: E731
-        best = minimize_scalar(traces, bounds=(1e-4, 1.0 - 1e-9), method="bounded")
-        if best.fun >= float(np.trace(P_i)):  # omega = 1: no update
-            return x_i.copy(), P_i.copy()
-        w = float(best.x)
-        res = kf_update(x_i, P_i / w, z_eff, H_i, B / (1 - w) + R, validate=False)
-        return res.x, res.P
     from selenv.core import fusion  # deferred: keeps scenarios importable without cvxpy
 
+    if method == "ci":  # bound (4) with the weight that minimises the trace (CI's criterion)
+        args = (P_i, P_j, H_i, H_j, R)
+        trace = lambda w: float(np.trace(fusion.dmv_update(*args, omega=w, validate=False).P))  # noqa: E731
+        best = minimize_scalar(trace, bounds=(1e-4, 1.0 - 1e-9), method="bounded")
+        if best.fun >= float(np.trace(P_i)):  # omega = 1: no update
+            return x_i.copy(), P_i.copy()
+        ci = fusion.dmv_update(*args, x_i=x_i, residual=residual, omega=float(best.x))
+        return np.asarray(ci.x), np.asarray(ci.P)
     if method == "dmv":
         dmv = fusion.dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
         return np.asarray(dmv.x), np.asarray(dmv.P)
