@@ -85,13 +85,14 @@ def _triu(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _triangle(P: FloatArray) -> FloatArray:
-    """(B, n(n+1)/2): ``log P_kk`` on the diagonal, correlations above it (row-major)."""
+    """(..., n(n+1)/2): ``log P_kk`` on the diagonal, correlations above it (row-major)."""
     iu, ju, diag = _triu(P.shape[-1])
     d = np.maximum(np.diagonal(P, axis1=-2, axis2=-1), _TINY)
     s = np.sqrt(d)  # divide by s_k and s_l in turn: s_k s_l could overflow or underflow
     with np.errstate(over="ignore"):
-        out = np.clip(P[:, iu, ju] / s[:, iu] / s[:, ju], -1.0, 1.0)  # finite: s >= 1e-150
-    out[:, diag] = np.log(d)
+        out = P[..., iu, ju] / s[..., iu] / s[..., ju]  # finite: s >= 1e-150
+    np.clip(out, -1.0, 1.0, out=out)
+    out[..., diag] = np.log(d)
     return out
 
 
@@ -134,13 +135,9 @@ def features(P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> FloatArray:
     for name, a in arrs.items():
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{name} must be finite (no NaN/inf)")
-    parts = [
-        _triangle(Pi),
-        _triangle(arrs["P_j"]),
-        _symlog(Hi.reshape(Bn, -1)),
-        _symlog(arrs["H_j"].reshape(Bn, -1)),
-    ]
-    return np.concatenate(parts, axis=1)
+    tri = _triangle(np.stack((Pi, arrs["P_j"]), axis=1)).reshape(Bn, -1)  # both in one pass
+    H = np.concatenate((Hi.reshape(Bn, -1), arrs["H_j"].reshape(Bn, -1)), axis=1)
+    return np.concatenate((tri, _symlog(H)), axis=1)
 
 
 _NAMES = ("P_i", "P_j", "H_i", "H_j")

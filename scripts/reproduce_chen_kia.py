@@ -58,6 +58,7 @@ PAPER_TABLE_III = {
 def run_one(task: tuple[int, int, str]) -> dict[str, Any]:
     """One Monte Carlo run of one method: errors, NEES and relative-update time per step."""
     seed, steps, method = task
+    t_run = time.perf_counter()
     cfg = CLConfig(horizon=steps)
     sim = CLSimulation(make_cl_problem(cfg, np.random.default_rng(seed)), method)
     err, nees = np.empty((steps, cfg.n_agents)), np.empty((steps, cfg.n_agents))
@@ -73,7 +74,8 @@ def run_one(task: tuple[int, int, str]) -> dict[str, Any]:
                 t_rel += time.perf_counter() - t0
                 n_rel += 1
         err[k], nees[k] = sim.position_errors(), sim.nees_position()
-    return {"err": err, "nees": nees, "t_rel": t_rel, "n_rel": n_rel}
+    t_run = time.perf_counter() - t_run
+    return {"err": err, "nees": nees, "t_rel": t_rel, "n_rel": n_rel, "t_run": t_run}
 
 
 def run_all(runs: int, steps: int, workers: int) -> dict[str, dict[str, Any]]:
@@ -96,6 +98,7 @@ def run_all(runs: int, steps: int, workers: int) -> dict[str, dict[str, Any]]:
             "rmse": np.sqrt(np.mean(err**2, axis=(0, 1))),
             "mean_nees": nees.mean(axis=(0, 1)),
             "ms_per_update": 1e3 * sum(c["t_rel"] for c in chunk) / n_rel if n_rel else 0.0,
+            "s_per_run": float(np.mean([c["t_run"] for c in chunk])),
         }
     return res
 
@@ -145,15 +148,16 @@ def format_tables(res: dict[str, dict[str, Any]], runs: int) -> str:
     lo, hi = nees_band(runs)
     lines = [
         "| method | RMSE agent 1 (m) | RMSE agent 2 (m) | paper agent 1 | paper agent 2 |"
-        " | mean NEES agent 1 | mean NEES agent 2 | ms per relative update |",
-        "|---|---:|---:|---:|---:|---|---:|---:|---:|",
+        " | mean NEES agent 1 | mean NEES agent 2 | ms per relative update | s per run |",
+        "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|",
     ]
     for m in METHODS:
         r = res[m]
         p = PAPER_TABLE_III.get(m, ("", ""))
         lines.append(
             f"| {LABELS[m]} | {r['rmse'][0]:.4f} | {r['rmse'][1]:.4f} | {p[0]} | {p[1]} | "
-            f"| {r['mean_nees'][0]:.2f} | {r['mean_nees'][1]:.2f} | {r['ms_per_update']:.3f} |"
+            f"| {r['mean_nees'][0]:.2f} | {r['mean_nees'][1]:.2f} | {r['ms_per_update']:.3f} "
+            f"| {r['s_per_run']:.2f} |"
         )
     lines.append(f"\n95 % NEES band for {runs} runs, 2 dof: [{lo:.2f}, {hi:.2f}]")
     return "\n".join(lines)

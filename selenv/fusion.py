@@ -1,10 +1,11 @@
-"""Public fusion API (CI, DMV, PECMV); a re-export of :mod:`selenv.core.fusion`."""
+"""Public fusion API (CI, DMV, PECMV, LDMV, LPECMV); a re-export of :mod:`selenv.core.fusion`."""
 
 from __future__ import annotations
 
 from selenv.core.fusion import (
     CI_METHODS,
     PECMV_METHODS,
+    SURROGATE_HOOK,
     CIResult,
     DMVResult,
     PECMVBatchResult,
@@ -14,6 +15,9 @@ from selenv.core.fusion import (
     dmv_omega_batch,
     dmv_update,
     joint_covariance_is_admissible,
+    ldmv_update,
+    load_surrogate,
+    lpecmv_update,
     pecmv_batch,
     pecmv_objective,
     pecmv_update,
@@ -22,6 +26,7 @@ from selenv.core.fusion import (
 __all__ = [
     "CI_METHODS",
     "PECMV_METHODS",
+    "SURROGATE_HOOK",
     "CIResult",
     "DMVResult",
     "PECMVBatchResult",
@@ -31,6 +36,9 @@ __all__ = [
     "dmv_omega_batch",
     "dmv_update",
     "joint_covariance_is_admissible",
+    "ldmv_update",
+    "load_surrogate",
+    "lpecmv_update",
     "pecmv_batch",
     "pecmv_objective",
     "pecmv_update",

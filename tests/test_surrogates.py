@@ -23,6 +23,7 @@ from learned.surrogate_data import (
     save_dataset,
 )
 from learned.surrogates import C_SCALE, Surrogate
+from selenv import fusion
 from selenv.core.fusion import dmv_update, pecmv_update
 from train import train_surrogate
 
@@ -283,3 +284,46 @@ def test_shipped_checkpoints_load_and_predict(data: SurrogateDataset) -> None:
     assert np.mean(np.abs(omega - data.omega[:64])) < 0.05
     C = lpecmv.predict_C(data.P_i[:64], data.P_j[:64], data.H_i[:64], data.H_j[:64])
     assert np.all(np.linalg.norm(C, 2, axis=(1, 2)) < 1)
+
+
+@pytest.mark.parametrize("activation", ["sigmoid", "tanh", "relu"])
+@pytest.mark.parametrize(
+    ("kind", "method"), [("ldmv", 3), ("lpecmv", 1), ("lpecmv", 2), ("lpecmv", 3)]
+)
+def test_numpy_forward_equals_torch_forward(
+    data: SurrogateDataset, kind: str, method: int, activation: str
+) -> None:
+    """predict_* run a numpy copy of the forward pass; it must be the torch module's."""
+    torch.manual_seed(3)
+    sur = Surrogate.create(kind, method=method, hidden=(16, 8), activation=activation)
+    X = data.features()
+    sur.set_normalisation(X)
+    with torch.no_grad():
+        ref = sur.net(torch.from_numpy(X.astype(np.float32))).numpy()
+    out = sur.forward_features(X)
+    assert out.shape == ref.shape
+    np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-6)
+
+
+def test_fusion_level_ldmv_lpecmv(nets: dict[Any, Surrogate], data: SurrogateDataset) -> None:
+    """selenv.fusion.ldmv_update / lpecmv_update = the exact updates with the prediction."""
+    k = 11
+    args = (data.P_i[k], data.P_j[k], data.H_i[k], data.H_j[k])
+    ldmv, lpecmv = nets["ldmv"], nets[3]
+    ldmv.meta["R"] = lpecmv.meta["R"] = data.R.tolist()
+    x, r = np.arange(N, dtype=float), np.array([0.3])
+    got = fusion.ldmv_update(*args, data.R, x_i=x, residual=r, surrogate=ldmv)
+    ref = dmv_update(*args, data.R, x_i=x, residual=r, omega=float(ldmv.predict_omega(*args)))
+    np.testing.assert_array_equal(got.P, ref.P)
+    np.testing.assert_array_equal(got.x, ref.x)
+    got_p = fusion.lpecmv_update(*args, data.R, surrogate=lpecmv)
+    ref_p = pecmv_update(*args, data.R, C=lpecmv.predict_C(*args))
+    np.testing.assert_array_equal(got_p.P, ref_p.P)
+    with pytest.raises(ValueError, match="trained with R"):
+        fusion.ldmv_update(*args, 4.0 * data.R, surrogate=ldmv)
+    with pytest.raises(ValueError, match="'lpecmv' surrogate"):
+        fusion.lpecmv_update(*args, data.R, surrogate=ldmv)
+    with pytest.raises(ValueError, match="P_j"):
+        fusion.ldmv_update(args[0], args[1][:3, :3], *args[2:], data.R, surrogate=ldmv)
+    shipped = fusion.ldmv_update(*args, data.R)  # the shipped checkpoint via the lazy hook
+    assert np.all(np.linalg.eigvalsh(shipped.P) > 0)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,12 +56,15 @@ class Config:
     workers: int = 0  # generation processes (0: all cores)
     val_fraction: float = 0.1
     test_fraction: float = 0.1
-    # training (0 / "": Table II)
+    # model and training (0 / "": Table II)
+    hidden: str = ""  # comma-separated hidden widths, e.g. "256,256,256"
+    activation: str = ""  # sigmoid | tanh | relu
     epochs: int = 200
     batch_size: int = 0
     lr: float = 0.0
     optimizer: str = ""  # sgd | adam ("": DEFAULT_OPTIMIZER)
     momentum: float = 0.0  # sgd only
+    lr_schedule: str = "constant"  # constant | onecycle (cosine one-cycle peaking at --lr)
     barrier_lambda: float = 1e-3  # method 1 only (eq. 14)
     patience: int = 20  # epochs without a better validation loss before stopping
     seed: int = 0
@@ -185,7 +189,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     # 2. model (input standardisation from the training split only)
     n, m = int(ds.header["n"]), int(ds.header["m"])
-    sur = Surrogate.create(cfg.kind, method=method, n=n, m=m)
+    try:
+        hidden = tuple(int(h) for h in cfg.hidden.split(",")) if cfg.hidden else None
+    except ValueError:
+        raise ValueError(f"--hidden must be comma-separated integers, got {cfg.hidden!r}") from None
+    sur = Surrogate.create(
+        cfg.kind, method=method, n=n, m=m, hidden=hidden, activation=cfg.activation or None
+    )
     sur.set_normalisation(X[train])
     net = sur.net
     if opt_name == "sgd":
@@ -194,6 +204,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         opt = torch.optim.Adam(net.parameters(), lr=lr)
     else:
         raise ValueError(f"--optimizer must be sgd or adam, got {opt_name!r}")
+    steps_per_epoch = -(-len(train) // batch_size)
+    if cfg.lr_schedule == "onecycle":
+        sched: torch.optim.lr_scheduler.LRScheduler | None = torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=lr, total_steps=max(1, cfg.epochs * steps_per_epoch)
+        )
+    elif cfg.lr_schedule == "constant":
+        sched = None
+    else:
+        raise ValueError(f"--lr-schedule must be constant or onecycle, got {cfg.lr_schedule!r}")
 
     def loss_fn(pred: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         if method == 1 and cfg.kind == "lpecmv":
@@ -215,6 +234,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             opt.zero_grad()
             loss.backward()
             opt.step()
+            if sched is not None:
+                sched.step()
             total += float(loss.detach()) * len(idx)
         net.eval()
         with torch.no_grad():
@@ -251,7 +272,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 "generation_seconds": round(gen_seconds, 1),
             },
             "training": {
+                "command": "python -m train.train_surrogate " + " ".join(argv or sys.argv[1:]),
                 "optimizer": opt_name,
+                "lr_schedule": cfg.lr_schedule,
                 "momentum": cfg.momentum if opt_name == "sgd" else None,
                 "lr": lr,
                 "batch_size": batch_size,
@@ -273,6 +296,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     meta = json.loads(out.with_suffix(".json").read_text())
     print(json.dumps({"checkpoint": str(out), "metrics": metrics}, indent=2))
     return meta
+
+
+def cli() -> None:
+    """Console-script entry point ``selenv-train-surrogate`` (same options as ``main``)."""
+    main()
 
 
 if __name__ == "__main__":

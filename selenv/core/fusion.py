@@ -15,6 +15,9 @@ overconfident. The estimators here:
                                     cross-covariance that maximises ``det P_i+``; closed form
                                     for m = 1, exact reduction to m dimensions for m > 1,
                                     cvxpy/Clarabel reference (``method="sdp"``)
+:func:`ldmv_update`,                LDMV / LPECMV (Sec. III): the same updates with ``omega`` /
+:func:`lpecmv_update`               ``C`` predicted by a learned surrogate (``learned/``,
+                                    loaded lazily through :data:`SURROGATE_HOOK`)
 :func:`dmv_omega_batch`,            vectorised labels ``w*`` / ``C*`` for a dataset (LDMV,
 :func:`pecmv_batch`                 LPECMV surrogate training)
 :func:`dmv_cost`,                   the objectives of eqs. (6) and (8a), and the
@@ -34,8 +37,9 @@ Bad input (non-symmetric, not positive definite, NaN/inf, mismatched shapes) rai
 ``ValueError`` naming the argument. The derivations are in ``shared/notes/fusion_math.md`` and
 in the docstrings of :mod:`~selenv.core.fusion_dmv` and :mod:`~selenv.core.fusion_pecmv`
 (the exact m-dimensional reduction of PECMV). Layout: ``fusion_ci``, ``fusion_dmv``,
-``fusion_pecmv``, ``fusion_sdp`` (conic solvers), ``fusion_batch`` (vectorised labels) and
-``fusion_common`` (validation, root finders).
+``fusion_pecmv``, ``fusion_learned`` (surrogate-driven updates), ``fusion_sdp`` (conic
+solvers), ``fusion_batch`` (vectorised labels) and ``fusion_common`` (validation, root
+finders).
 """
 
 from __future__ import annotations
@@ -44,11 +48,13 @@ from selenv.core.fusion_batch import PECMVBatchResult, dmv_omega_batch, pecmv_ba
 from selenv.core.fusion_ci import CI_METHODS, CIResult, covariance_intersection
 from selenv.core.fusion_common import joint_covariance_is_admissible
 from selenv.core.fusion_dmv import DMVResult, dmv_cost, dmv_update
+from selenv.core.fusion_learned import SURROGATE_HOOK, ldmv_update, load_surrogate, lpecmv_update
 from selenv.core.fusion_pecmv import PECMV_METHODS, PECMVResult, pecmv_objective, pecmv_update
 
 __all__ = [
     "CI_METHODS",
     "PECMV_METHODS",
+    "SURROGATE_HOOK",
     "CIResult",
     "DMVResult",
     "PECMVBatchResult",
@@ -58,6 +64,9 @@ __all__ = [
     "dmv_omega_batch",
     "dmv_update",
     "joint_covariance_is_admissible",
+    "ldmv_update",
+    "load_surrogate",
+    "lpecmv_update",
     "pecmv_batch",
     "pecmv_objective",
     "pecmv_update",

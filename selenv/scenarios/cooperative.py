@@ -55,9 +55,6 @@ __all__ = [
 ]
 
 FUSION_METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv")
-#: where the learned surrogates come from: a lazy ``"module:attr"`` (``learned`` sits above
-#: ``selenv`` and is imported only when ``ldmv`` / ``lpecmv`` is used)
-SURROGATE_HOOK = "learned.surrogates:shipped"
 TRACKS = ("rectangle", "circle", "lemniscate")
 _DEG = np.pi / 180.0
 
@@ -308,21 +305,6 @@ def make_cl_problem(
     )
 
 
-def _surrogate(kind: str, R: FloatArray) -> Any:
-    """The shipped surrogate via :data:`SURROGATE_HOOK`; its training ``R`` must match."""
-    import importlib
-
-    module, attr = SURROGATE_HOOK.split(":")
-    sur = getattr(importlib.import_module(module), attr)(kind)
-    R_trained = np.asarray(sur.meta.get("R"), dtype=float)
-    if R_trained.shape != R.shape or not np.allclose(R_trained, R):
-        raise ValueError(
-            f"the shipped {kind} surrogate was trained with R = {R_trained.tolist()}, but this "
-            f"measurement has R = {R.tolist()}; retrain it (train.train_surrogate) for this R"
-        )
-    return sur
-
-
 def fuse_relative(
     method: str,
     x_i: FloatArray,
@@ -367,14 +349,9 @@ def fuse_relative(
         pecmv = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
         return np.asarray(pecmv.x), np.asarray(pecmv.P)
     if method in ("ldmv", "lpecmv"):
-        sur = _surrogate(method, R)
-        if method == "ldmv":
-            w = float(sur.predict_omega(P_i, P_j, H_i, H_j).reshape(-1)[0])
-            d = fusion.dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, omega=w)
-            return np.asarray(d.x), np.asarray(d.P)
-        C = sur.predict_C(P_i, P_j, H_i, H_j).reshape(P_i.shape[0], P_j.shape[0])
-        pe = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, C=C)
-        return np.asarray(pe.x), np.asarray(pe.P)
+        update = fusion.ldmv_update if method == "ldmv" else fusion.lpecmv_update
+        res = update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
+        return np.asarray(res.x), np.asarray(res.P)
     raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
 
 

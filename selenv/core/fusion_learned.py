@@ -1,0 +1,133 @@
+"""LDMV and LPECMV: DMV / PECMV updates whose optimiser is predicted by a learned surrogate.
+
+Chen & Kia 2022, Sec. III: a network maps the features of eq. (13) to ``omega_hat`` (LDMV,
+replacing the minimisation of eq. 6) or to a contraction ``C_hat`` with ``||C_hat||_2 < 1``
+(LPECMV, replacing the MAXDET problem eq. 8, with ``X_hat = L_i C_hat L_j^T``, eq. 11). The
+update itself is the exact one of :func:`~selenv.core.fusion_dmv.dmv_update` /
+:func:`~selenv.core.fusion_pecmv.pecmv_update` with that optimiser plugged in, so the result is
+a valid DMV bound (any ``omega`` in [0, 1]) or an admissible joint covariance (Lemma III.1) even
+when the prediction is poor; only optimality is learned.
+
+The surrogates live in ``learned.surrogates`` (torch), above ``selenv`` in the import order.
+They are reached through the lazy hook :data:`SURROGATE_HOOK` (``"module:attr"``, imported on
+first use only), or passed in explicitly as any object with ``predict_omega`` / ``predict_C``
+and a ``meta`` dict holding the training ``"R"``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from selenv.core.fusion_dmv import DMVResult, dmv_update
+from selenv.core.fusion_pecmv import PECMVResult, pecmv_update
+
+__all__ = ["SURROGATE_HOOK", "Surrogate", "ldmv_update", "load_surrogate", "lpecmv_update"]
+
+#: where the shipped surrogates are loaded from: ``callable(kind) -> Surrogate``
+SURROGATE_HOOK = "learned.surrogates:shipped"
+
+
+class Surrogate(Protocol):
+    """What the fusion layer needs from a learned surrogate (``learned.surrogates.Surrogate``)."""
+
+    kind: str
+    meta: dict[str, Any]
+
+    def predict_omega(self, P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> Any:  # noqa: D102
+        ...
+
+    def predict_C(self, P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> Any:  # noqa: D102
+        ...
+
+
+def load_surrogate(
+    kind: str, surrogate: Surrogate | None = None, R: ArrayLike | None = None
+) -> Any:
+    """``surrogate`` or the shipped one of ``kind``, checked against the measurement noise ``R``.
+
+    The features of eq. (13) do not contain ``R``, so a surrogate is only valid for the ``R``
+    it was trained with (``meta["R"]``).
+
+    Raises:
+        ValueError: unknown ``kind``, a surrogate of the other kind, the hook's module is not
+            importable, or ``R`` differs from the training ``R`` (the message says how to
+            retrain).
+    """
+    if kind not in ("ldmv", "lpecmv"):
+        raise ValueError(f"kind must be 'ldmv' or 'lpecmv', got {kind!r}")
+    if surrogate is None:
+        module, attr = SURROGATE_HOOK.split(":")
+        try:
+            loader = getattr(importlib.import_module(module), attr)
+        except ImportError as exc:
+            raise ValueError(
+                f"fusion {kind!r} needs the learned surrogates ({SURROGATE_HOOK}): {exc}"
+            ) from None
+        surrogate = loader(kind)
+    if getattr(surrogate, "kind", None) != kind:
+        raise ValueError(f"surrogate must be an {kind!r} surrogate, got {surrogate.kind!r}")
+    if R is not None:
+        R = np.atleast_2d(np.asarray(R, dtype=np.float64))
+        R_trained = np.asarray(surrogate.meta.get("R"), dtype=np.float64)
+        if R_trained.shape != R.shape or not np.allclose(R_trained, R):
+            raise ValueError(
+                f"the {kind} surrogate was trained with R = {R_trained.tolist()}, but R = "
+                f"{R.tolist()}; retrain it for this R (python -m train.train_surrogate)"
+            )
+    return surrogate
+
+
+def ldmv_update(
+    P_i: ArrayLike,
+    P_j: ArrayLike,
+    H_i: ArrayLike,
+    H_j: ArrayLike,
+    R: ArrayLike,
+    *,
+    x_i: ArrayLike | None = None,
+    residual: ArrayLike | None = None,
+    surrogate: Surrogate | None = None,
+    validate: bool = True,
+) -> DMVResult:
+    """LDMV: the DMV update (eqs. 4-5) with ``omega = surrogate.predict_omega(...)``.
+
+    Shapes and the result as :func:`~selenv.core.fusion_dmv.dmv_update`; ``surrogate``
+    defaults to the shipped LDMV checkpoint (:data:`SURROGATE_HOOK`).
+
+    Raises:
+        ValueError: bad input (names the argument), a surrogate trained for another ``R``,
+            ``n`` or ``m``.
+    """
+    sur = load_surrogate("ldmv", surrogate, R)
+    w = float(np.asarray(sur.predict_omega(P_i, P_j, H_i, H_j)).reshape(-1)[0])
+    return dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, omega=w, validate=validate)
+
+
+def lpecmv_update(
+    P_i: ArrayLike,
+    P_j: ArrayLike,
+    H_i: ArrayLike,
+    H_j: ArrayLike,
+    R: ArrayLike,
+    *,
+    x_i: ArrayLike | None = None,
+    residual: ArrayLike | None = None,
+    surrogate: Surrogate | None = None,
+    validate: bool = True,
+) -> PECMVResult:
+    """LPECMV: the PECMV update (eq. 9) with ``X = L_i C_hat L_j^T``, ``C_hat`` predicted.
+
+    Shapes and the result as :func:`~selenv.core.fusion_pecmv.pecmv_update`; ``surrogate``
+    defaults to the shipped LPECMV checkpoint (method 3, :data:`SURROGATE_HOOK`).
+
+    Raises:
+        ValueError: bad input (names the argument), a surrogate trained for another ``R``,
+            ``n`` or ``m``.
+    """
+    sur = load_surrogate("lpecmv", surrogate, R)
+    C = np.asarray(sur.predict_C(P_i, P_j, H_i, H_j))
+    return pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, C=C, validate=validate)
