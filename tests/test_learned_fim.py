@@ -13,12 +13,13 @@ import torch
 from gymnasium import spaces
 
 import selenv  # noqa: F401  (registers the env ids and baseline agents)
-from learned.agent import DEFAULT_CHECKPOINT, SB3PolicyAgent, make_fim_ppo_agent
-from learned.fim_policy import CandidateScoringPolicy, make_maskable_ppo
+from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, make_ppo_agent
+from learned.rl.candidate_policy import CandidateScoringPolicy, make_maskable_ppo
 from selenv.agents import agents_for, make
 from selenv.envs.fim_selection import fim_observation_space
 from train import train_fim_ppo
 
+DEFAULT_CHECKPOINT = DEFAULT_CHECKPOINTS["selenv/FIMSelection-v0"]
 ENV_ID = "selenv/FIMSelection-v0"
 META_KEYS = {
     "env_id",
@@ -76,8 +77,7 @@ def test_short_training_writes_zip_and_metadata(tmp_path: Path) -> None:
     out = tmp_path / "ckpt" / "tiny.zip"
     meta = train_fim_ppo.main(
         [
-            "--n-candidates=10",
-            "--budget=3",
+            '--env-kwargs={"preset": "example2", "n_candidates": 10, "budget": 3}',
             "--total-timesteps=256",
             "--n-envs=2",
             "--n-steps=64",
@@ -105,8 +105,9 @@ def test_short_training_writes_zip_and_metadata(tmp_path: Path) -> None:
     assert meta["training"]["total_timesteps"] >= 256 and meta["training"]["seed"] == 0
     assert meta["training"]["wall_seconds"] > 0
     metrics = meta["metrics"]
-    for key in ("ppo_mean_objective", "greedy_mean_objective", "random_mean_objective"):
-        assert np.isfinite(metrics[key])
+    assert set(metrics["agents"]) == {"ppo", "greedy", "random"}
+    for res in metrics["agents"].values():
+        assert np.isfinite(res["mean_final_objective"]) and len(res["returns"]) == 2
     assert metrics["episodes"] == 2
     assert any((tmp_path / "runs").rglob("events.out.tfevents.*"))
     # the written checkpoint plays its env through the agent
@@ -184,7 +185,7 @@ def test_shipped_checkpoint_is_competitive_with_greedy() -> None:
     seeds = range(20_000, 20_005)
     scores = {}
     for name, agent in (
-        ("ppo", make_fim_ppo_agent()),
+        ("ppo", make_ppo_agent()),
         ("greedy", make("greedy", ENV_ID)),
         ("random", make("random", ENV_ID)),
     ):
@@ -201,7 +202,7 @@ def test_shipped_checkpoint_runs_on_another_pool_size() -> None:
 
 
 def test_registered_as_ppo() -> None:
-    # selenv registers the lazy factory; building it imports learned.agent and loads the file
+    # selenv registers the lazy factory; building it imports learned.rl.agent and loads the file
     assert "ppo" in agents_for(ENV_ID)
     agent = make("ppo", ENV_ID)
     assert isinstance(agent, SB3PolicyAgent) and agent.name == "ppo"
@@ -232,7 +233,7 @@ def test_metadata_disagreeing_with_model_is_rejected(tmp_path: Path) -> None:
     meta = json.loads(zip_path.with_suffix(".json").read_text())
     meta["obs_layout"].update(d=8, whitened_dim=16)
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match=r"copy\.zip.*whitened width is 14.*d=8"):
+    with pytest.raises(ValueError, match=r"copy\.zip.*width is 14.*d=8"):
         SB3PolicyAgent(zip_path)
     meta["obs_layout"] = {"m": 2, "d": 7, "whitened_dim": 15}
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
@@ -240,7 +241,7 @@ def test_metadata_disagreeing_with_model_is_rejected(tmp_path: Path) -> None:
         SB3PolicyAgent(zip_path)
     meta["obs_layout"] = {"m": 2, "d": 7, "whitened_dim": 14, "n_candidates_trained": 50}
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match=r"pool size is 200 .* n_candidates_trained=50"):
+    with pytest.raises(ValueError, match=r"200 candidates .* n_candidates_trained=50"):
         SB3PolicyAgent(zip_path)
     meta["obs_layout"]["n_candidates_trained"] = 200
     meta["env_id"] = "selenv/LandmarkSelection-v0"

@@ -350,8 +350,8 @@ def fuse_relative(
         return np.asarray(pecmv.x), np.asarray(pecmv.P)
     if method in ("ldmv", "lpecmv"):
         update = fusion.ldmv_update if method == "ldmv" else fusion.lpecmv_update
-        res = update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
-        return np.asarray(res.x), np.asarray(res.P)
+        learned = update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
+        return np.asarray(learned.x), np.asarray(learned.P)
     raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
 
 

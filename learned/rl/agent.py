@@ -1,15 +1,19 @@
 """A trained MaskablePPO checkpoint as a :class:`selenv.agents.Agent` (registry name ``ppo``).
 
 The checkpoint is a zip saved by SB3 with a JSON of its metadata next to it (same stem), as
-written by ``train/train_fim_ppo.py``. The policy's weights do not depend on the pool size, so
-one checkpoint plays any ``FIMSelection-v0`` pool with the same whitened width ``m d``::
+written by the ``train/*_ppo.py`` scripts: the env id it was trained on, the candidate view
+(:mod:`learned.rl.views`) that turns the env's observation into the policy's input, and the
+layout. The policy's weights do not depend on the number of candidates, so one checkpoint
+plays any instance of its env with the same per-candidate width::
 
-    agent = selenv.agents.make("ppo", "selenv/FIMSelection-v0")
+    agent = selenv.agents.make("ppo", "selenv/LandmarkSelection-v0")  # shipped checkpoint
+    agent = SB3PolicyAgent("my_run.zip", env_id="selenv/LandmarkSelection-v0")
     obs, info = env.reset(seed=0)
     agent.reset(env, seed=0)
     action = agent.act(obs, info)
 
-Every failure to load or to apply a checkpoint is a ``ValueError`` naming the file.
+Every failure to load or to apply a checkpoint (missing file, another env, another width) is
+a ``ValueError`` naming the file and what was expected.
 """
 
 from __future__ import annotations
@@ -22,21 +26,26 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from learned.fim_policy import CandidateScoringPolicy, obs_layout
+from learned.rl.candidate_policy import CandidateScoringPolicy, obs_layout
+from learned.rl.views import CandidateView, view_for
 from selenv.agents.base import Agent
-from selenv.envs.fim_selection import fim_observation_space
 
 __all__ = [
     "CHECKPOINT_DIR",
-    "DEFAULT_CHECKPOINT",
+    "DEFAULT_CHECKPOINTS",
     "SB3PolicyAgent",
     "load_metadata",
-    "make_fim_ppo_agent",
+    "make_ppo_agent",
 ]
 
 FIM_ENV_ID = "selenv/FIMSelection-v0"
-CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
-DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "fim_selection_ppo.zip"
+CHECKPOINT_DIR = Path(__file__).resolve().parents[2] / "checkpoints"
+#: env id -> the shipped checkpoint the ``ppo`` agent loads by default
+DEFAULT_CHECKPOINTS = {
+    FIM_ENV_ID: CHECKPOINT_DIR / "fim_selection_ppo.zip",
+    "selenv/LandmarkSelection-v0": CHECKPOINT_DIR / "landmark_selection_ppo.zip",
+    "selenv/CLScheduling-v0": CHECKPOINT_DIR / "cl_scheduling_ppo.zip",
+}
 
 #: objects of the saved model that acting does not need (and that may not unpickle elsewhere)
 _CUSTOM_OBJECTS: dict[str, Any] = {
@@ -50,8 +59,8 @@ def load_metadata(checkpoint: str | Path) -> dict[str, Any]:
     """Read and check the JSON metadata next to ``checkpoint`` (``foo.zip`` -> ``foo.json``).
 
     Raises:
-        ValueError: the JSON is missing, unreadable, or lacks ``obs_layout`` with integer
-            ``m``, ``d`` and ``whitened_dim = m d``.
+        ValueError: the JSON is missing, unreadable, or lacks ``obs_layout`` with an integer
+            ``whitened_dim`` (and ``whitened_dim = m d`` when ``m``, ``d`` are given).
     """
     path = Path(checkpoint).with_suffix(".json")
     if not path.is_file():
@@ -61,17 +70,16 @@ def load_metadata(checkpoint: str | Path) -> dict[str, Any]:
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"checkpoint metadata {path} is not valid JSON: {exc}") from exc
     layout = meta.get("obs_layout") if isinstance(meta, dict) else None
-    if not isinstance(layout, dict) or not all(
-        isinstance(layout.get(k), int) for k in ("m", "d", "whitened_dim")
-    ):
+    if not isinstance(layout, dict) or not isinstance(layout.get("whitened_dim"), int):
         raise ValueError(
-            f"checkpoint metadata {path} lacks obs_layout with integer m, d, whitened_dim "
+            f"checkpoint metadata {path} lacks obs_layout with an integer whitened_dim "
             f"(got {layout!r})"
         )
-    if layout["whitened_dim"] != layout["m"] * layout["d"]:
+    m, d = layout.get("m"), layout.get("d")
+    if m is not None and d is not None and layout["whitened_dim"] != m * d:
         raise ValueError(
             f"checkpoint metadata {path}: obs_layout whitened_dim={layout['whitened_dim']} "
-            f"!= m*d = {layout['m']}*{layout['d']}"
+            f"!= m*d = {m}*{d}"
         )
     return meta
 
@@ -80,23 +88,41 @@ class SB3PolicyAgent(Agent):
     """Acts with a MaskablePPO :class:`CandidateScoringPolicy` checkpoint (greedy in its logits).
 
     Args:
-        checkpoint: path of the SB3 zip; default ``checkpoints/fim_selection_ppo.zip``.
+        checkpoint: path of the SB3 zip; default: the shipped one of ``env_id``
+            (:data:`DEFAULT_CHECKPOINTS`).
+        env_id: the env the agent will play; the checkpoint must have been trained on it.
         deterministic: take the most likely action (default) rather than sample one.
 
     Raises:
-        ValueError: the checkpoint or its JSON is missing or unreadable, or they disagree.
+        ValueError: the checkpoint or its JSON is missing or unreadable, they disagree, or
+            the checkpoint was trained on another env.
     """
 
     name = "ppo"
 
-    def __init__(self, checkpoint: str | Path | None = None, deterministic: bool = True) -> None:
-        from sb3_contrib import MaskablePPO  # deferred: keeps `import learned.agent` light
+    def __init__(
+        self,
+        checkpoint: str | Path | None = None,
+        env_id: str = FIM_ENV_ID,
+        deterministic: bool = True,
+    ) -> None:
+        from sb3_contrib import MaskablePPO  # deferred: keeps `import learned.rl.agent` light
 
-        self.checkpoint = Path(checkpoint) if checkpoint is not None else DEFAULT_CHECKPOINT
+        if checkpoint is None:
+            if env_id not in DEFAULT_CHECKPOINTS:
+                raise ValueError(f"no shipped checkpoint for {env_id!r}; pass checkpoint=")
+            checkpoint = DEFAULT_CHECKPOINTS[env_id]
+        self.checkpoint = Path(checkpoint)
+        self.env_id = env_id
         self.deterministic = deterministic
         if not self.checkpoint.is_file():
             raise ValueError(f"checkpoint {self.checkpoint} not found")
         self.metadata = load_metadata(self.checkpoint)
+        trained_on = self.metadata.get("env_id", FIM_ENV_ID)
+        if trained_on != env_id:
+            raise ValueError(
+                f"checkpoint {self.checkpoint} was trained on {trained_on!r}, not {env_id!r}"
+            )
         try:
             model = MaskablePPO.load(self.checkpoint, device="cpu", custom_objects=_CUSTOM_OBJECTS)
         except Exception as exc:  # zip, pickle and torch errors alike
@@ -111,41 +137,36 @@ class SB3PolicyAgent(Agent):
         meta_layout = self.metadata["obs_layout"]
         if layout["whitened_dim"] != meta_layout["whitened_dim"]:
             raise ValueError(
-                f"checkpoint {self.checkpoint}: the model's whitened width is "
-                f"{layout['whitened_dim']} but its metadata says obs_layout "
-                f"m={meta_layout['m']}, d={meta_layout['d']}, "
-                f"whitened_dim={meta_layout['whitened_dim']}"
+                f"checkpoint {self.checkpoint}: the model's per-candidate width is "
+                f"{layout['whitened_dim']} but its metadata says {self._expected()}"
             )
         trained_n = meta_layout.get("n_candidates_trained", layout["n"])
         if trained_n != layout["n"]:
             raise ValueError(
-                f"checkpoint {self.checkpoint}: the model's pool size is {layout['n']} but its "
+                f"checkpoint {self.checkpoint}: the model has {layout['n']} candidates but its "
                 f"metadata says obs_layout n_candidates_trained={trained_n!r}"
-            )
-        env_id = self.metadata.get("env_id", FIM_ENV_ID)
-        if env_id != FIM_ENV_ID:
-            raise ValueError(
-                f"checkpoint {self.checkpoint} was trained on {env_id!r}, not {FIM_ENV_ID!r}"
             )
         self.whitened_dim = layout["whitened_dim"]
         self._policies: dict[int, CandidateScoringPolicy] = {layout["n"]: policy}
+        self.view: CandidateView | None = None
 
     # -- shape checks and N-independent rebuilds ---------------------------------------------
     def _expected(self) -> str:
         lay = self.metadata["obs_layout"]
-        return f"m={lay['m']}, d={lay['d']} (whitened_dim={lay['whitened_dim']}), 4 features"
+        md = f"m={lay['m']}, d={lay['d']}, " if "m" in lay and "d" in lay else ""
+        return f"{md}whitened_dim={lay['whitened_dim']}, 4 features"
 
     def check_space(self, observation_space: spaces.Space, env: Any = None) -> int:
-        """Check ``observation_space`` against the checkpoint; return its pool size ``N``.
+        """Check a candidate-view ``observation_space`` against the checkpoint; return ``N``.
 
         Raises:
-            ValueError: another whitened width or feature layout, naming both.
+            ValueError: another per-candidate width or layout, naming both.
         """
         try:
             layout = obs_layout(observation_space)
         except ValueError as exc:
             raise ValueError(
-                f"checkpoint {self.checkpoint} expects a FIMSelection observation with "
+                f"checkpoint {self.checkpoint} expects candidate observations with "
                 f"{self._expected()}: {exc}"
             ) from exc
         if layout["whitened_dim"] != self.whitened_dim:
@@ -160,14 +181,13 @@ class SB3PolicyAgent(Agent):
             )
         return layout["n"]
 
-    def policy_for(self, n: int) -> CandidateScoringPolicy:
-        """The checkpoint's policy for a pool of ``n`` candidates (rebuilt once per new ``n``)."""
+    def policy_for(self, observation_space: spaces.Dict) -> CandidateScoringPolicy:
+        """The checkpoint's policy for this candidate space (rebuilt once per new ``N``)."""
+        n = self.check_space(observation_space)
         if n not in self._policies:
             src = next(iter(self._policies.values()))
             params = src._get_constructor_parameters()
-            lay = self.metadata["obs_layout"]
-            obs_space = fim_observation_space(n, lay["m"], lay["d"])
-            params.update(observation_space=obs_space, action_space=spaces.Discrete(n))
+            params.update(observation_space=observation_space, action_space=spaces.Discrete(n))
             policy = CandidateScoringPolicy(**params)
             policy.load_state_dict(src.state_dict())
             policy.set_training_mode(False)
@@ -176,25 +196,34 @@ class SB3PolicyAgent(Agent):
 
     # -- Agent protocol ------------------------------------------------------------------------
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
-        """Check the env's observation layout against the checkpoint (``ValueError`` if not)."""
+        """Build the env's candidate view and check it against the checkpoint."""
         super().reset(env, seed)
-        self.policy_for(self.check_space(env.observation_space, env))
+        self.view = view_for(self.env_id, env)
+        try:
+            space = self.view.space(env.observation_space)
+        except ValueError as exc:
+            raise ValueError(f"checkpoint {self.checkpoint}: {exc}") from exc
+        self.check_space(space, env)
+        self._policy = self.policy_for(space)
 
     def act(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> int:
-        """The policy's action with the env's mask (``info["action_mask"]``) applied."""
-        n, width = np.shape(obs["whitened"])
+        """The policy's action on the candidate view, with the env's mask applied."""
+        if self.view is None:
+            raise ValueError("call reset(env) before act()")
+        cand = self.view(obs)
+        width = np.shape(cand["whitened"])[1]
         if width != self.whitened_dim:
             raise ValueError(
                 f"checkpoint {self.checkpoint} expects {self._expected()}; "
                 f"got an observation with whitened width {width}"
             )
-        mask = np.asarray(info.get("action_mask", obs["action_mask"]), dtype=bool)
-        action, _ = self.policy_for(n).predict(
-            obs, action_masks=mask, deterministic=self.deterministic
-        )
+        mask = np.asarray(cand["action_mask"], dtype=bool)
+        if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:
+            mask = np.asarray(info["action_mask"], dtype=bool)
+        action, _ = self._policy.predict(cand, action_masks=mask, deterministic=self.deterministic)
         return int(action)
 
 
-def make_fim_ppo_agent(**kwargs: Any) -> SB3PolicyAgent:
-    """Registry factory of the ``ppo`` agent (``checkpoint=``, ``deterministic=``)."""
+def make_ppo_agent(**kwargs: Any) -> SB3PolicyAgent:
+    """Registry factory of the ``ppo`` agent (``env_id=``, ``checkpoint=``, ``deterministic=``)."""
     return SB3PolicyAgent(**kwargs)

@@ -1,0 +1,109 @@
+"""PettingZoo -> SB3 with parameter sharing: a multi-agent env played turn by turn by one policy.
+
+SB3 trains single-agent ``gymnasium`` envs. :class:`SharedPolicyEnv` turns a PettingZoo
+``ParallelEnv`` whose agents share one observation / action space into one: each Gymnasium
+step is **one agent's** decision, the agents taking their turns in the order of
+``penv.agents``. When every live agent of the round has decided, the joint action goes to
+``penv.step``. The same network therefore acts for every agent (parameter sharing; the agent's
+own observation is all it sees), and MaskablePPO trains it unchanged::
+
+    from selenv.multiagent import fim_selection_v0
+    env = SharedPolicyEnv(fim_selection_v0.parallel_env(mode="cooperative"))
+    model = make_maskable_ppo(env)       # learned.rl.candidate_policy
+
+Reward: the team reward of the joint step (shared rewards: the fusion centre's log-det gain)
+on the Gymnasium step that completes the round, 0 on the others; the episode return is the
+team return. Observations within a round are those of the round's start (simultaneous moves).
+``info["objective"]`` and ``info["action_mask"]`` are the current agent's; ``info["agent"]``
+names it. :meth:`SharedPolicyEnv.action_masks` serves MaskablePPO.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from pettingzoo import ParallelEnv
+
+__all__ = ["SharedPolicyEnv"]
+
+
+class SharedPolicyEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+    """A ``ParallelEnv`` with homogeneous agents as a turn-based single-agent env.
+
+    Args:
+        penv: the PettingZoo parallel env; every agent must have the same observation and
+            action spaces (checked).
+
+    Raises:
+        ValueError: agents with different spaces (parameter sharing needs one space).
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+
+    def __init__(self, penv: ParallelEnv) -> None:
+        self.penv = penv
+        agents = list(penv.possible_agents)
+        obs_spaces = [penv.observation_space(a) for a in agents]
+        act_spaces = [penv.action_space(a) for a in agents]
+        if any(s != obs_spaces[0] for s in obs_spaces) or any(
+            s != act_spaces[0] for s in act_spaces
+        ):
+            raise ValueError(
+                "parameter sharing needs one observation and action space for all agents; "
+                f"got {dict(zip(agents, obs_spaces, strict=True))}"
+            )
+        self.observation_space = obs_spaces[0]
+        self.action_space = act_spaces[0]
+        self._obs: dict[str, Any] = {}
+        self._infos: dict[str, Any] = {}
+        self._pending: dict[str, int] = {}
+        self._turn: list[str] = []
+
+    @property
+    def agent(self) -> str:
+        """The agent whose decision the current observation is for."""
+        return self._turn[0]
+
+    def _info(self) -> dict[str, Any]:
+        info = dict(self._infos.get(self.agent, {}))
+        info["agent"] = self.agent
+        info["action_mask"] = self.action_masks()
+        return info
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Reset the multi-agent env; the first live agent decides first."""
+        super().reset(seed=seed)
+        self._obs, self._infos = self.penv.reset(seed=seed, options=options)
+        self._pending = {}
+        self._turn = list(self.penv.agents)
+        return self._obs[self.agent], self._info()
+
+    def action_masks(self) -> np.ndarray:
+        """The current agent's mask."""
+        return np.asarray(self._obs[self.agent]["action_mask"], dtype=bool)
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Record the current agent's action; step the multi-agent env when the round is full."""
+        if not self._turn:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        self._pending[self._turn.pop(0)] = int(action)
+        reward, terminated, truncated = 0.0, False, False
+        if not self._turn:  # the round is complete: one joint step
+            obs, rewards, terms, truncs, infos = self.penv.step(self._pending)
+            self._pending = {}
+            reward = float(np.mean(list(rewards.values()))) if rewards else 0.0
+            self._obs.update(obs)
+            self._infos.update(infos)
+            self._turn = list(self.penv.agents)
+            if not self._turn:
+                terminated = any(terms.values()) or not any(truncs.values())
+                truncated = not terminated
+                last = next(iter(obs)) if obs else None
+                info = dict(infos.get(last, {})) if last is not None else {}
+                obs_last = obs[last] if last is not None else self.observation_space.sample()
+                return obs_last, reward, terminated, truncated, info
+        return self._obs[self.agent], reward, terminated, truncated, self._info()

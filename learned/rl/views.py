@@ -1,0 +1,155 @@
+"""Candidate views: every selection env's observation as a set of candidates, one per action.
+
+:class:`~learned.rl.candidate_policy.CandidateScoringPolicy` reads a ``Dict`` observation with
+one row per action (the ``FIMSelection-v0`` layout)::
+
+    gain        (N,)      a non-negative marginal gain of taking the action now (0: unknown)
+    whitened    (N, W)    per-candidate numeric features (symlog-squashed by the policy)
+    features    (N, 4)    per-candidate flags / static features in [-1, 1]
+    selected    (N,)      1 if the candidate was already used
+    budget_left (1,)      fraction of the decision budget left
+    action_mask (N,)      allowed actions
+
+``FIMSelection-v0`` and ``LandmarkSelection-v0`` already observe this layout (identity view).
+``CLScheduling-v0`` is rewritten by :class:`CLView`: the ``P`` directed pairs plus the stop
+action are the candidates. A view is a pure function of the observation, so the same view is
+applied in training (:class:`CandidateViewWrapper`) and when a checkpoint acts
+(:mod:`learned.rl.agent`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+__all__ = ["VIEWS", "CLView", "CandidateView", "CandidateViewWrapper", "IdentityView", "view_for"]
+
+N_FEATURES = 4
+
+
+def candidate_space(n: int, width: int) -> spaces.Dict:
+    """The candidate ``Dict`` space for ``n`` candidates with ``width`` numeric features each."""
+    return spaces.Dict(
+        {
+            "action_mask": spaces.MultiBinary(n),
+            "budget_left": spaces.Box(0.0, 1.0, (1,), np.float32),
+            "features": spaces.Box(-1.0, 1.0, (n, N_FEATURES), np.float32),
+            "gain": spaces.Box(0.0, np.inf, (n,), np.float32),
+            "selected": spaces.MultiBinary(n),
+            "whitened": spaces.Box(-np.inf, np.inf, (n, width), np.float32),
+        }
+    )
+
+
+class CandidateView:
+    """Base class: ``space(env_space)`` and ``__call__(obs)`` rewrite an env's observations."""
+
+    name = "base"
+
+    def space(self, env_space: spaces.Space) -> spaces.Dict:  # noqa: D102
+        raise NotImplementedError
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:  # noqa: D102
+        raise NotImplementedError
+
+
+class IdentityView(CandidateView):
+    """The env already observes candidates (``FIMSelection-v0``, ``LandmarkSelection-v0``)."""
+
+    name = "identity"
+
+    def space(self, env_space: spaces.Space) -> spaces.Dict:  # noqa: D102
+        if not isinstance(env_space, spaces.Dict):
+            raise ValueError(f"expected a Dict observation space, got {env_space}")
+        return env_space
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:  # noqa: D102
+        return obs
+
+
+class CLView(CandidateView):
+    """``CLScheduling-v0``: candidates = the ``P`` directed pairs ``(i, j)`` + stop (last).
+
+    Pair ``p = (i, j)``: ``gain`` = the env's ``pair_gain`` (naive-EKF information gain, a
+    proxy of the fused one); ``whitened`` = ``[log det P_i, log det P_j, log std_i, log std_j]``
+    (agent ``i`` measures, ``j`` is measured: the fused gain depends on how the two compare);
+    ``features`` = ``[0, time, 0, 0]``. Stop: gain 0, whitened 0, features ``[1, time, 0, 0]``.
+    """
+
+    name = "cl_pairs"
+    WIDTH = 4
+
+    def __init__(self, pairs: tuple[tuple[int, int], ...]) -> None:
+        self.pairs = tuple(pairs)
+        self.i = np.array([p[0] for p in self.pairs], dtype=np.intp)
+        self.j = np.array([p[1] for p in self.pairs], dtype=np.intp)
+
+    def space(self, env_space: spaces.Space) -> spaces.Dict:  # noqa: D102
+        n_pairs = len(self.pairs)
+        if not isinstance(env_space, spaces.Dict) or env_space["pair_gain"].shape != (n_pairs,):
+            raise ValueError(f"expected a CLScheduling observation with {n_pairs} pairs")
+        return candidate_space(n_pairs + 1, self.WIDTH)
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:  # noqa: D102
+        P = len(self.pairs)
+        logdet = np.asarray(obs["logdet"], dtype=np.float32)
+        log_std = np.log(np.maximum(np.asarray(obs["pos_std"], dtype=np.float32), 1e-12))
+        whitened = np.zeros((P + 1, self.WIDTH), np.float32)
+        whitened[:P] = np.stack(
+            [logdet[self.i], logdet[self.j], log_std[self.i], log_std[self.j]], axis=1
+        )
+        features = np.zeros((P + 1, N_FEATURES), np.float32)
+        features[P, 0] = 1.0
+        features[:, 1] = float(np.asarray(obs["time"]).reshape(-1)[0])
+        gain = np.zeros(P + 1, np.float32)
+        gain[:P] = obs["pair_gain"]
+        mask = np.asarray(obs["action_mask"], dtype=np.int8)
+        selected = np.zeros(P + 1, np.int8)
+        selected[:P] = 1 - mask[:P]
+        return {
+            "action_mask": mask,
+            "budget_left": np.asarray(obs["budget_left"], dtype=np.float32),
+            "features": features,
+            "gain": gain,
+            "selected": selected,
+            "whitened": whitened,
+        }
+
+
+#: env id -> factory of its view from the (unwrapped) env
+VIEWS: dict[str, Any] = {
+    "selenv/FIMSelection-v0": lambda env: IdentityView(),
+    "selenv/LandmarkSelection-v0": lambda env: IdentityView(),
+    "selenv/CLScheduling-v0": lambda env: CLView(env.unwrapped.pairs),
+}
+
+
+def view_for(env_id: str, env: gym.Env[Any, Any]) -> CandidateView:
+    """The candidate view of ``env`` (made by ``gymnasium.make(env_id)``).
+
+    Raises:
+        ValueError: no view for ``env_id`` (the message lists the supported ids).
+    """
+    if env_id not in VIEWS:
+        raise ValueError(f"no candidate view for {env_id!r}; supported: {sorted(VIEWS)}")
+    view: CandidateView = VIEWS[env_id](env)
+    return view
+
+
+class CandidateViewWrapper(gym.ObservationWrapper[Any, Any, Any]):
+    """Apply a :class:`CandidateView` to a Gymnasium env; forwards ``action_masks()``."""
+
+    def __init__(self, env: gym.Env[Any, Any], view: CandidateView) -> None:
+        super().__init__(env)
+        self.view = view
+        self.observation_space = view.space(env.observation_space)
+
+    def observation(self, observation: Any) -> dict[str, np.ndarray]:  # noqa: D102
+        return self.view(observation)
+
+    def action_masks(self) -> np.ndarray:
+        """The wrapped env's mask (MaskablePPO reads it through the VecEnv)."""
+        return np.asarray(self.env.unwrapped.action_masks(), dtype=bool)  # type: ignore[attr-defined]

@@ -1,0 +1,223 @@
+"""RL glue (learned.rl): candidate views, PettingZoo -> SB3 parameter sharing, training scripts,
+the policy-as-agent adapter on every env it serves."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+from pettingzoo.test import parallel_api_test  # noqa: F401  (the wrapped env passes it)
+
+from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
+from learned.rl.candidate_policy import make_maskable_ppo, obs_layout
+from learned.rl.marl import SharedPolicyEnv
+from learned.rl.views import CandidateViewWrapper, CLView, view_for
+from selenv.agents import make
+from selenv.agents.fim import CooperativeGreedyPolicy
+from selenv.multiagent import fim_selection_v0
+from train import train_cl_ppo, train_fim_marl, train_landmark_ppo
+
+CL_ID = "selenv/CLScheduling-v0"
+LM_ID = "selenv/LandmarkSelection-v0"
+FIM_ID = "selenv/FIMSelection-v0"
+TINY = ["--n-envs=2", "--n-steps=64", "--batch-size=64", "--n-epochs=1", "--no-progress"]
+
+
+def _play(agent, env, seed: int) -> tuple[float, float]:
+    obs, info = env.reset(seed=seed)
+    agent.reset(env, seed=seed)
+    total, done = 0.0, False
+    while not done:
+        obs, r, terminated, truncated, info = env.step(agent.act(obs, info))
+        total += float(r)
+        done = terminated or truncated
+    return total, float(info["objective"])
+
+
+# -- candidate views --------------------------------------------------------------------------
+def test_cl_view_rows_are_the_pairs() -> None:
+    env = gym.make(CL_ID, n_agents=3, horizon=5)
+    obs, _ = env.reset(seed=0)
+    view = view_for(CL_ID, env)
+    assert isinstance(view, CLView)
+    cand = view(obs)
+    space = view.space(env.observation_space)
+    assert space.contains(cand)
+    P = len(env.unwrapped.pairs)
+    assert cand["whitened"].shape == (P + 1, 4) and obs_layout(space)["n"] == P + 1
+    for p, (i, j) in enumerate(env.unwrapped.pairs):
+        assert cand["whitened"][p, 0] == pytest.approx(obs["logdet"][i])
+        assert cand["whitened"][p, 1] == pytest.approx(obs["logdet"][j])
+        assert cand["gain"][p] == pytest.approx(obs["pair_gain"][p])
+    assert cand["features"][P, 0] == 1.0 and np.all(cand["features"][:P, 0] == 0.0)
+    assert np.array_equal(cand["action_mask"], obs["action_mask"])
+    with pytest.raises(ValueError, match="no candidate view"):
+        view_for("selenv/ReceiverClustering-v0", env)
+
+
+def test_view_wrapper_passes_gym_and_sb3_checks() -> None:
+    from stable_baselines3.common.env_checker import check_env
+
+    # budget 1: each step opens with every action allowed (the checkers act unmasked)
+    env = gym.make(CL_ID, n_agents=2, budget=1, fusion="naive", horizon=5)
+    wrapped = CandidateViewWrapper(env, view_for(CL_ID, env))
+    with pytest.warns(UserWarning, match="unconventional shape"):  # (N, F) candidate rows
+        check_env(wrapped, skip_render_check=True)
+    obs, _ = wrapped.reset(seed=1)
+    assert np.array_equal(wrapped.action_masks(), obs["action_mask"].astype(bool))
+
+
+# -- multi-agent parameter sharing ------------------------------------------------------------
+@pytest.mark.parametrize("mode", ["cooperative", "independent"])
+def test_shared_policy_env_reproduces_greedy(mode: str) -> None:
+    """Greedy played turn by turn through the wrapper == greedy on the parallel env."""
+    kwargs = {"n_candidates": 10, "budgets": 3, "mode": mode}
+    penv = fim_selection_v0.parallel_env(**kwargs)
+    greedy = CooperativeGreedyPolicy()
+    obs, infos = penv.reset(seed=4)
+    while penv.agents:
+        obs, _, _, _, infos = penv.step(greedy.act(obs, penv.agents))
+    expected = next(iter(infos.values()))["objective"]
+    env = SharedPolicyEnv(fim_selection_v0.parallel_env(**kwargs))
+    o, info = env.reset(seed=4)
+    total, done, agents_seen = 0.0, False, set()
+    start = info["objective"]
+    while not done:
+        agents_seen.add(info["agent"])
+        gain = np.where(env.action_masks(), o["gain"], -np.inf)
+        o, r, terminated, truncated, info = env.step(int(np.argmax(gain)))
+        total += r
+        done = terminated or truncated
+    assert info["objective"] == pytest.approx(expected)
+    assert total == pytest.approx(expected - start)  # the return is the team's gain
+    assert agents_seen == {"agent_0", "agent_1"}  # one policy decided for both agents
+
+
+def test_shared_policy_env_rejects_heterogeneous_agents() -> None:
+    penv = fim_selection_v0.parallel_env(n_candidates=10, budgets=3)
+    spaces_ = {"agent_0": spaces.Discrete(3), "agent_1": spaces.Discrete(4)}
+    penv.action_space = lambda a: spaces_[a]  # type: ignore[method-assign]
+    with pytest.raises(ValueError, match="one observation and action space"):
+        SharedPolicyEnv(penv)
+
+
+# -- training scripts end to end (tiny budgets) -----------------------------------------------
+def test_landmark_training_script(tmp_path: Path) -> None:
+    out = tmp_path / "lm.zip"
+    meta = train_landmark_ppo.main(
+        [
+            *TINY,
+            "--total-timesteps=128",
+            "--vec-env=dummy",
+            '--env-kwargs={"n_landmarks": 8, "k": 2, "horizon": 5}',
+            "--eval-episodes=1",
+            "--baselines=greedy",
+            f"--out={out}",
+            f"--tensorboard-dir={tmp_path / 'runs'}",
+        ]
+    )
+    assert json.loads(out.with_suffix(".json").read_text()) == meta
+    assert meta["env_id"] == LM_ID and meta["view"] == "identity"
+    assert set(meta["metrics"]["agents"]) == {"ppo", "greedy"}
+    assert any((tmp_path / "runs").rglob("events.out.tfevents.*"))
+
+
+def test_cl_training_script_with_subprocess_envs(tmp_path: Path) -> None:
+    out = tmp_path / "cl.zip"
+    meta = train_cl_ppo.main(
+        [
+            *TINY,
+            "--total-timesteps=128",
+            "--vec-env=subproc",
+            '--env-kwargs={"n_agents": 3, "budget": 1, "horizon": 6}',
+            "--eval-episodes=1",
+            "--baselines=greedy,random",
+            f"--out={out}",
+            "--tensorboard-dir=",
+        ]
+    )
+    assert meta["view"] == "cl_pairs" and meta["obs_layout"]["n_candidates_trained"] == 7
+    agent = SB3PolicyAgent(out, env_id=CL_ID)
+    for n_agents in (3, 4):  # the policy does not depend on the number of pairs
+        env = gym.make(CL_ID, n_agents=n_agents, budget=1, horizon=4)
+        assert np.isfinite(_play(agent, env, seed=3)[1])
+    with pytest.raises(ValueError, match=r"cl\.zip was trained on 'selenv/CLScheduling-v0'"):
+        SB3PolicyAgent(out, env_id=LM_ID)
+
+
+def test_marl_training_script(tmp_path: Path) -> None:
+    out = tmp_path / "marl.zip"
+    meta = train_fim_marl.main(
+        [
+            *TINY,
+            "--total-timesteps=128",
+            '--env-kwargs={"preset": "example3", "n_candidates": 8, "budgets": 2}',
+            "--eval-episodes=2",
+            f"--out={out}",
+            "--tensorboard-dir=",
+        ]
+    )
+    finals = meta["metrics"]["mean_final_objective"]
+    assert set(finals) == {
+        "shared_ppo_cooperative",
+        "shared_ppo_independent",
+        "cooperative_greedy",
+        "independent_greedy",
+    }
+    assert all(np.isfinite(v) for v in finals.values())
+    assert meta["marl"]["path"] == "learned.rl.marl.SharedPolicyEnv"
+
+
+def test_training_learns_a_toy_problem_with_known_optimum() -> None:
+    """On a 6-candidate, budget-2 FIM pool PPO must beat random and approach brute force."""
+    kwargs = {"n_candidates": 2, "budget": 2, "sensors": ["camera"]}
+    env = gym.make(FIM_ID, **kwargs)
+    model = make_maskable_ppo(env, seed=0, n_steps=256, batch_size=128, learning_rate=3e-3)
+    model.learn(6_000)
+    seeds = range(100, 130)
+
+    def final(policy) -> float:
+        out = []
+        for s in seeds:
+            obs, info = env.reset(seed=s)
+            done = False
+            while not done:
+                a = policy(obs)
+                obs, _, terminated, truncated, info = env.step(a)
+                done = terminated or truncated
+            out.append(info["objective"])
+        return float(np.mean(out))
+
+    ppo = final(lambda o: int(model.predict(o, action_masks=o["action_mask"].astype(bool),
+                                            deterministic=True)[0]))  # fmt: skip
+    rng = np.random.default_rng(0)
+    rand = final(lambda o: int(rng.choice(np.flatnonzero(o["action_mask"]))))
+    bf = make("brute_force", FIM_ID)
+
+    def best() -> float:
+        out = []
+        for s in seeds:
+            out.append(_play(bf, env, s)[1])
+        return float(np.mean(out))
+
+    opt = best()
+    assert ppo > rand
+    assert ppo >= opt - 0.25 * (opt - rand), (ppo, rand, opt)
+
+
+# -- shipped checkpoints ----------------------------------------------------------------------
+@pytest.mark.parametrize("env_id", sorted(DEFAULT_CHECKPOINTS))
+def test_shipped_checkpoint_loads_and_acts(env_id: str) -> None:
+    if not DEFAULT_CHECKPOINTS[env_id].is_file():
+        pytest.fail(f"shipped checkpoint {DEFAULT_CHECKPOINTS[env_id]} is missing")
+    agent = make("ppo", env_id)
+    kwargs = {"horizon": 5} if env_id != FIM_ID else {}
+    env = gym.make(env_id, **kwargs)
+    ret, obj = _play(agent, env, seed=11)
+    assert np.isfinite(ret) and np.isfinite(obj)
+    meta = json.loads(DEFAULT_CHECKPOINTS[env_id].with_suffix(".json").read_text())
+    assert meta["env_id"] == env_id and meta["metrics"]
