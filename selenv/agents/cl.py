@@ -103,3 +103,13 @@ register_agent(AgentSpec("greedy", _ID, GreedySchedule, "best previewed fused lo
 register_agent(AgentSpec("round_robin", _ID, RoundRobinSchedule, "pairs in cyclic order"))
 register_agent(AgentSpec("random", _ID, lambda: _MaskedChoice("random"), "random available pairs"))
 register_agent(AgentSpec("all", _ID, lambda: _MaskedChoice("all"), "every available pair"))
+# the learned policy lives above this layer: a lazy "module:attr" factory, imported on use
+register_agent(
+    AgentSpec(
+        "ppo",
+        _ID,
+        "learned.rl.agent:make_ppo_agent",
+        "MaskablePPO pair-scoring policy (checkpoints/cl_scheduling_ppo.zip)",
+        kwargs={"env_id": CL_ENV_ID},
+    )
+)

@@ -115,6 +115,7 @@ register_agent(
         (FIM_ENV_ID,),
         "learned.rl.agent:make_ppo_agent",
         "MaskablePPO candidate-scoring policy (checkpoints/fim_selection_ppo.zip)",
+        kwargs={"env_id": FIM_ENV_ID},
     )
 )
 

@@ -134,3 +134,13 @@ register_agent(AgentSpec("greedy", _ID, _solver(greedy_whitened, "greedy"), "blo
 register_agent(AgentSpec("swap", _ID, _solver(swap_whitened, "swap"), "greedy + swap search"))
 register_agent(AgentSpec("random", _ID, RandomMaskedAgent, "uniform random landmarks"))
 register_agent(AgentSpec("all", _ID, AllLandmarksAgent, "every landmark (needs k = N)"))
+# the learned policy lives above this layer: a lazy "module:attr" factory, imported on use
+register_agent(
+    AgentSpec(
+        "ppo",
+        _ID,
+        "learned.rl.agent:make_ppo_agent",
+        "MaskablePPO candidate-scoring policy (checkpoints/landmark_selection_ppo.zip)",
+        kwargs={"env_id": LANDMARK_ENV_ID},
+    )
+)
