@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 
-METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv")
+METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv", "lpecmv_full")
 LABELS = {
     "dead_reckoning": "dead reckoning (ZUPT-only)",
     "naive": "naive EKF",
@@ -43,7 +43,8 @@ LABELS = {
     "dmv": "DMV",
     "pecmv": "PECMV",
     "ldmv": "LDMV (learned)",
-    "lpecmv": "LPECMV (learned)",
+    "lpecmv": "LPECMV (learned, method 3)",
+    "lpecmv_full": "LPECMV (learned, method 1)",
 }
 #: the paper's Table III (real experiment, 10 runs): method -> (agent 1, agent 2) RMSE (m)
 PAPER_TABLE_III = {

@@ -183,7 +183,7 @@ def test_exact_fusion_in_the_env_and_simulation_consistency(fusion: str) -> None
 
 def test_learned_surrogates_as_fusion_methods() -> None:
     cfg = CLConfig(horizon=200)
-    for fusion in ("ldmv", "lpecmv"):
+    for fusion in ("ldmv", "lpecmv", "lpecmv_full"):
         sim = CLSimulation(make_cl_problem(cfg, np.random.default_rng(0)), fusion)
         nees = []
         for _ in range(cfg.horizon):

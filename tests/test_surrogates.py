@@ -303,6 +303,12 @@ def test_numpy_forward_equals_torch_forward(
     out = sur.forward_features(X)
     assert out.shape == ref.shape
     np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-6)
+    # the cached numpy views follow in-place updates and replaced parameters
+    with torch.no_grad():
+        sur.net.body[0].weight.mul_(2.0)
+        sur.net.body[2].bias = torch.nn.Parameter(sur.net.body[2].bias + 0.5)
+        ref2 = sur.net(torch.from_numpy(X.astype(np.float32))).numpy()
+    np.testing.assert_allclose(sur.forward_features(X), ref2, rtol=1e-5, atol=1e-6)
 
 
 def test_fusion_level_ldmv_lpecmv(nets: dict[Any, Surrogate], data: SurrogateDataset) -> None:
@@ -323,7 +329,12 @@ def test_fusion_level_ldmv_lpecmv(nets: dict[Any, Surrogate], data: SurrogateDat
         fusion.ldmv_update(*args, 4.0 * data.R, surrogate=ldmv)
     with pytest.raises(ValueError, match="'lpecmv' surrogate"):
         fusion.lpecmv_update(*args, data.R, surrogate=ldmv)
+    with pytest.raises(ValueError, match="variant"):
+        fusion.lpecmv_update(*args, data.R, variant="nope")
     with pytest.raises(ValueError, match="P_j"):
         fusion.ldmv_update(args[0], args[1][:3, :3], *args[2:], data.R, surrogate=ldmv)
     shipped = fusion.ldmv_update(*args, data.R)  # the shipped checkpoint via the lazy hook
     assert np.all(np.linalg.eigvalsh(shipped.P) > 0)
+    full = fusion.lpecmv_update(*args, data.R, variant="lpecmv_full")  # method 1, full C
+    assert full.log_det <= data.log_det_pecmv[k] + 1e-9  # C* maximises eq. (8a)
+    assert np.linalg.norm(full.C, 2) < 1.0

@@ -25,7 +25,14 @@ from numpy.typing import ArrayLike
 from selenv.core.fusion_dmv import DMVResult, dmv_update
 from selenv.core.fusion_pecmv import PECMVResult, pecmv_update
 
-__all__ = ["SURROGATE_HOOK", "Surrogate", "ldmv_update", "load_surrogate", "lpecmv_update"]
+__all__ = [
+    "SHIPPED_KINDS",
+    "SURROGATE_HOOK",
+    "Surrogate",
+    "ldmv_update",
+    "load_surrogate",
+    "lpecmv_update",
+]
 
 #: where the shipped surrogates are loaded from: ``callable(kind) -> Surrogate``
 SURROGATE_HOOK = "learned.surrogates:shipped"
@@ -44,10 +51,17 @@ class Surrogate(Protocol):
         ...
 
 
+#: shipped surrogate names -> the network kind they hold
+SHIPPED_KINDS = {"ldmv": "ldmv", "lpecmv": "lpecmv", "lpecmv_full": "lpecmv"}
+
+
 def load_surrogate(
     kind: str, surrogate: Surrogate | None = None, R: ArrayLike | None = None
 ) -> Any:
     """``surrogate`` or the shipped one of ``kind``, checked against the measurement noise ``R``.
+
+    ``kind``: ``"ldmv"``, ``"lpecmv"`` (method 3, diagonal ``C``: the paper's choice) or
+    ``"lpecmv_full"`` (method 1, full ``C``, norm-capped below 1 by ``predict_C``).
 
     The features of eq. (13) do not contain ``R``, so a surrogate is only valid for the ``R``
     it was trained with (``meta["R"]``).
@@ -57,8 +71,8 @@ def load_surrogate(
             importable, or ``R`` differs from the training ``R`` (the message says how to
             retrain).
     """
-    if kind not in ("ldmv", "lpecmv"):
-        raise ValueError(f"kind must be 'ldmv' or 'lpecmv', got {kind!r}")
+    if kind not in SHIPPED_KINDS:
+        raise ValueError(f"kind must be one of {sorted(SHIPPED_KINDS)}, got {kind!r}")
     if surrogate is None:
         module, attr = SURROGATE_HOOK.split(":")
         try:
@@ -68,8 +82,10 @@ def load_surrogate(
                 f"fusion {kind!r} needs the learned surrogates ({SURROGATE_HOOK}): {exc}"
             ) from None
         surrogate = loader(kind)
-    if getattr(surrogate, "kind", None) != kind:
-        raise ValueError(f"surrogate must be an {kind!r} surrogate, got {surrogate.kind!r}")
+    if getattr(surrogate, "kind", None) != SHIPPED_KINDS[kind]:
+        raise ValueError(
+            f"surrogate must be an {SHIPPED_KINDS[kind]!r} surrogate, got {surrogate.kind!r}"
+        )
     if R is not None:
         R = np.atleast_2d(np.asarray(R, dtype=np.float64))
         R_trained = np.asarray(surrogate.meta.get("R"), dtype=np.float64)
@@ -117,17 +133,21 @@ def lpecmv_update(
     x_i: ArrayLike | None = None,
     residual: ArrayLike | None = None,
     surrogate: Surrogate | None = None,
+    variant: str = "lpecmv",
     validate: bool = True,
 ) -> PECMVResult:
     """LPECMV: the PECMV update (eq. 9) with ``X = L_i C_hat L_j^T``, ``C_hat`` predicted.
 
     Shapes and the result as :func:`~selenv.core.fusion_pecmv.pecmv_update`; ``surrogate``
-    defaults to the shipped LPECMV checkpoint (method 3, :data:`SURROGATE_HOOK`).
+    defaults to the shipped LPECMV checkpoint :data:`SURROGATE_HOOK` of ``variant``:
+    ``"lpecmv"`` (method 3, diagonal ``C``) or ``"lpecmv_full"`` (method 1, full ``C``).
 
     Raises:
         ValueError: bad input (names the argument), a surrogate trained for another ``R``,
             ``n`` or ``m``.
     """
-    sur = load_surrogate("lpecmv", surrogate, R)
+    if variant not in ("lpecmv", "lpecmv_full"):
+        raise ValueError(f"variant must be 'lpecmv' or 'lpecmv_full', got {variant!r}")
+    sur = load_surrogate(variant, surrogate, R)
     C = np.asarray(sur.predict_C(P_i, P_j, H_i, H_j))
     return pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, C=C, validate=validate)

@@ -14,6 +14,7 @@ belief, *without* the cross-covariance, by one of the fusion methods:
 | ``dmv`` | DMV, eqs. (4)-(6) (:func:`selenv.core.fusion.dmv_update`) |
 | ``pecmv`` | PECMV, eqs. (7)-(9) (:func:`selenv.core.fusion.pecmv_update`) |
 | ``ldmv`` / ``lpecmv`` | the DMV / PECMV update with omega / C predicted by the shipped surrogate |
+| ``lpecmv_full`` | PECMV with the full-``C`` surrogate (method 1) instead of the diagonal one |
 
 with ``A = H_i P_i H_i^T``, ``B = H_j P_j H_j^T``. ``dead_reckoning`` processes nothing (the
 paper's "ZUPT-only" column; ins agents still get their velocity pseudo-measurements, see
@@ -54,7 +55,9 @@ __all__ = [
     "make_cl_problem",
 ]
 
-FUSION_METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv")
+FUSION_METHODS = (
+    "dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv", "lpecmv_full",
+)  # fmt: skip
 TRACKS = ("rectangle", "circle", "lemniscate")
 _DEG = np.pi / 180.0
 
@@ -348,10 +351,12 @@ def fuse_relative(
     if method == "pecmv":
         pecmv = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
         return np.asarray(pecmv.x), np.asarray(pecmv.P)
-    if method in ("ldmv", "lpecmv"):
-        update = fusion.ldmv_update if method == "ldmv" else fusion.lpecmv_update
-        learned = update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
-        return np.asarray(learned.x), np.asarray(learned.P)
+    if method == "ldmv":
+        ld = fusion.ldmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
+        return np.asarray(ld.x), np.asarray(ld.P)
+    if method in ("lpecmv", "lpecmv_full"):
+        lp = fusion.lpecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, variant=method)
+        return np.asarray(lp.x), np.asarray(lp.P)
     raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
 
 
