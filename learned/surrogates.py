@@ -315,9 +315,9 @@ class Surrogate:
         y64 = y.astype(np.float64)
         Bn, n = y64.shape[0], self.n
         if self.method == 3:
-            C = np.zeros((Bn, n * n))
-            C[:, :: n + 1] = y64  # the diagonal of each row-major n x n block
-            C = C.reshape(Bn, n, n)
+            flat = np.zeros((Bn, n * n))
+            flat[:, :: n + 1] = y64  # the diagonal of each row-major n x n block
+            C = flat.reshape(Bn, n, n)
         else:
             C = y64.reshape(Bn, n, n)
         if self.method == 1 and Bn:

@@ -31,9 +31,9 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     ``n_agents`` walkers localise with local filters (Chen & Kia 2022 setting, see
     :mod:`selenv.scenarios.cooperative`); agent 0 ranges to beacons. Every step each directed
     pair ``(i, j)`` can yield a relative range that agent ``i`` would process with agent ``j``'s
-    belief using the ``fusion`` method (``naive``, ``ci``, ``dmv``, ``pecmv``) without the
-    cross-covariance. A processing budget allows only ``budget`` of them per step: the agent
-    picks them one at a time, or stops early.
+    belief using the ``fusion`` method (``naive``, ``ci``, ``dmv``, ``pecmv``, or the learned
+    ``ldmv``, ``lpecmv``, ``lpecmv_full``) without the cross-covariance. A processing budget
+    allows only ``budget`` of them per step: the agent picks them one at a time, or stops early.
 
     ## Action Space
     ``Discrete(P + 1)`` with ``P = n_agents (n_agents - 1)`` directed pairs (the order of
