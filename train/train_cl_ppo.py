@@ -17,7 +17,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from learned.rl.training import PPOConfig, parse_config, train
+from learned.config import parse_config
+from learned.rl.training import PPOConfig, train
 from learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/CLScheduling-v0"

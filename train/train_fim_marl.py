@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from learned.config import parse_config
 from learned.rl.marl import SharedPolicyEnv
-from learned.rl.training import PPOConfig, parse_config, train
+from learned.rl.training import PPOConfig, train
 from selenv.agents.fim import CooperativeGreedyPolicy
 from selenv.multiagent import fim_selection_v0
 

@@ -16,7 +16,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from learned.rl.training import PPOConfig, parse_config, train
+from learned.config import parse_config
+from learned.rl.training import PPOConfig, train
 
 ENV_ID = "selenv/FIMSelection-v0"
 

@@ -19,8 +19,6 @@ then test metrics and the checkpoint ``<out>.pt`` with its metadata ``<out>.json
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -33,6 +31,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm.auto import tqdm
 
+from learned.config import parse_config
 from learned.surrogate_data import SurrogateDataset, generate_dataset, load_dataset, save_dataset
 from learned.surrogates import C_SCALE, KINDS, METHODS, TABLE_II, Surrogate, barrier_loss
 from selenv.core.fusion import dmv_update, pecmv_update
@@ -77,15 +76,7 @@ class Config:
 
 def parse_args(argv: list[str] | None = None) -> Config:
     """Build a :class:`Config` from the command line (one option per field)."""
-    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
-    for f in dataclasses.fields(Config):
-        flag = "--" + f.name.replace("_", "-")
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default)
-        else:
-            typ = {"int": int, "float": float, "str": str}[str(f.type)]
-            parser.add_argument(flag, type=typ, default=f.default)
-    return Config(**vars(parser.parse_args(argv)))
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0])
 
 
 def targets(ds: SurrogateDataset, kind: str, method: int) -> np.ndarray:

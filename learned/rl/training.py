@@ -17,7 +17,6 @@ A script defines a :class:`PPOConfig` subclass with its env's defaults and calls
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
@@ -25,7 +24,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -42,9 +41,7 @@ from learned.rl.candidate_policy import make_maskable_ppo, obs_layout
 from selenv.agents import Agent
 from selenv.bench.runner import AgentResult, run_episode
 
-__all__ = ["PPOConfig", "TqdmCallback", "evaluate", "parse_config", "train"]
-
-C = TypeVar("C", bound="PPOConfig")
+__all__ = ["PPOConfig", "TqdmCallback", "evaluate", "train"]
 
 
 @dataclass
@@ -86,19 +83,6 @@ class PPOConfig:
         if not isinstance(out, dict):
             raise ValueError(f"--env-kwargs must be a JSON object, got {self.env_kwargs!r}")
         return out
-
-
-def parse_config(cls: type[C], argv: list[str] | None, description: str) -> C:
-    """Build a ``cls`` instance from the command line (one option per dataclass field)."""
-    parser = argparse.ArgumentParser(description=description)
-    for f in dataclasses.fields(cls):
-        flag = "--" + f.name.replace("_", "-")
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default)
-        else:
-            typ = {"int": int, "float": float, "str": str}[str(f.type)]
-            parser.add_argument(flag, type=typ, default=f.default)
-    return cls(**vars(parser.parse_args(argv)))
 
 
 class TqdmCallback(BaseCallback):
