@@ -26,7 +26,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check . && $(VENV)/bin/mypy
 
 figures: $(STAMP)
-	$(PY) scripts/reproduce_kirchner.py && $(PY) scripts/reproduce_greiff.py && $(PY) scripts/reproduce_soubaras.py && $(PY) scripts/reproduce_chen_kia.py
+	$(PY) scripts/reproduce_kirchner.py && $(PY) scripts/reproduce_greiff.py && $(PY) scripts/reproduce_soubaras.py && $(PY) scripts/reproduce_chen_kia.py && $(PY) scripts/reproduce_chen_kia_surrogates.py
 
 perf: $(STAMP)
 	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py && $(PY) benchmarks/bench_fusion.py && $(PY) benchmarks/bench_surrogates.py
