@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 
 from selenv import __version__
-from selenv.agents import AGENTS, agents_for
+from selenv.agents import AGENTS, agents_for, parse_spec
 from selenv.envs import ENV_IDS
 
 if TYPE_CHECKING:
@@ -150,7 +150,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         names = [n.strip() for n in args.agents.split(",") if n.strip()]
         if not names:
             return _error("--agents is empty")
-        bad = [n for n in names if n not in AGENTS]
+        bad = [n for n in names if parse_spec(n)[0] not in AGENTS]
         if bad:
             return _error(f"unknown agent(s) {bad}; known agents: {', '.join(sorted(AGENTS))}")
     several = len(env_ids) > 1
@@ -160,7 +160,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
             _note(f"skipping {env_id}: no registered agent applies to it")
             continue
         if several and names is not None:
-            skip = [n for n in names if env_id not in AGENTS[n]]
+            skip = [n for n in names if env_id not in AGENTS[parse_spec(n)[0]]]
             if skip:
                 _note(f"skipping {', '.join(skip)} on {env_id}: does not apply to it")
         try:

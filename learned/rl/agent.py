@@ -45,6 +45,7 @@ DEFAULT_CHECKPOINTS = {
     FIM_ENV_ID: CHECKPOINT_DIR / "fim_selection_ppo.zip",
     "selenv/LandmarkSelection-v0": CHECKPOINT_DIR / "landmark_selection_ppo.zip",
     "selenv/CLScheduling-v0": CHECKPOINT_DIR / "cl_scheduling_ppo.zip",
+    "selenv/ReceiverClustering-v0": CHECKPOINT_DIR / "receiver_clustering_ppo.zip",
 }
 
 #: objects of the saved model that acting does not need (and that may not unpickle elsewhere)
@@ -206,7 +207,7 @@ class SB3PolicyAgent(Agent):
         self.check_space(space, env)
         self._policy = self.policy_for(space)
 
-    def act(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> int:
+    def act(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> Any:
         """The policy's action on the candidate view, with the env's mask applied."""
         if self.view is None:
             raise ValueError("call reset(env) before act()")
@@ -218,10 +219,10 @@ class SB3PolicyAgent(Agent):
                 f"got an observation with whitened width {width}"
             )
         mask = np.asarray(cand["action_mask"], dtype=bool)
-        if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:
+        if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:  # env's own
             mask = np.asarray(info["action_mask"], dtype=bool)
         action, _ = self._policy.predict(cand, action_masks=mask, deterministic=self.deterministic)
-        return int(action)
+        return self.view.env_action(obs, int(action))
 
 
 def make_ppo_agent(**kwargs: Any) -> SB3PolicyAgent:

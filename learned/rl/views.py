@@ -12,9 +12,10 @@ one row per action (the ``FIMSelection-v0`` layout)::
 
 ``FIMSelection-v0`` and ``LandmarkSelection-v0`` already observe this layout (identity view).
 ``CLScheduling-v0`` is rewritten by :class:`CLView`: the ``P`` directed pairs plus the stop
-action are the candidates. A view is a pure function of the observation, so the same view is
-applied in training (:class:`CandidateViewWrapper`) and when a checkpoint acts
-(:mod:`learned.rl.agent`).
+action are the candidates; ``ReceiverClustering-v0`` by :class:`ClusteringEditView`: the local
+edits (move, leave, swap, no-op) of the current clustering. A view is a pure function of the
+observation, so the same view is applied in training (:class:`CandidateViewWrapper`) and when
+a checkpoint acts (:mod:`learned.rl.agent`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,15 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["VIEWS", "CLView", "CandidateView", "CandidateViewWrapper", "IdentityView", "view_for"]
+__all__ = [
+    "VIEWS",
+    "CLView",
+    "CandidateView",
+    "CandidateViewWrapper",
+    "ClusteringEditView",
+    "IdentityView",
+    "view_for",
+]
 
 N_FEATURES = 4
 
@@ -45,9 +54,17 @@ def candidate_space(n: int, width: int) -> spaces.Dict:
 
 
 class CandidateView:
-    """Base class: ``space(env_space)`` and ``__call__(obs)`` rewrite an env's observations."""
+    """Base class: ``space(env_space)`` and ``__call__(obs)`` rewrite an env's observations.
+
+    ``env_action(obs, a)`` maps a candidate index back to the env's action (identity unless the
+    env's action encoding differs from the candidates, as in receiver clustering's assignment
+    mode).
+    """
 
     name = "base"
+
+    def env_action(self, obs: dict[str, np.ndarray], action: int) -> Any:  # noqa: D102
+        return action
 
     def space(self, env_space: spaces.Space) -> spaces.Dict:  # noqa: D102
         raise NotImplementedError
@@ -119,11 +136,89 @@ class CLView(CandidateView):
         }
 
 
+class ClusteringEditView(CandidateView):
+    """``ReceiverClustering-v0``: candidates = the local edits of the current clustering.
+
+    The ``1 + n^2 + n(n-1)/2`` edits of the env's ``action_mode="edit"`` (no-op; receiver
+    ``i`` joins ``j``'s cluster, or leaves to a singleton when ``i = j``; swap ``i < j``), each
+    described without evaluating the cost: ``whitened`` = ``[log sigma_i (2), log sigma_j (2),
+    mean log sigma of i's cluster (2), of j's cluster (2), |C_i| / max, |C_j| / max,
+    log position var_i, log position var_j, time]`` and ``features`` = ``[no-op, move, swap,
+    leave]``; ``gain`` is 0 (unknown). The mask is :func:`selenv.envs.receiver_clustering.
+    edit_mask` of the observed labels, so the view also serves the default
+    ``action_mode="assignment"``: :meth:`env_action` then returns the edited labels.
+    """
+
+    name = "clustering_edits"
+    WIDTH = 13
+
+    def __init__(self, n: int, max_size: int, action_mode: str) -> None:
+        from selenv.envs.receiver_clustering import edit_action_count
+
+        self.n, self.max_size, self.action_mode = int(n), int(max_size), action_mode
+        self.count = edit_action_count(self.n)
+        iu, ju = np.triu_indices(self.n, k=1)
+        mi, mj = np.divmod(np.arange(self.n * self.n), self.n)
+        self.i = np.concatenate([[0], mi, iu]).astype(np.intp)
+        self.j = np.concatenate([[0], mj, ju]).astype(np.intp)
+        kind = np.zeros((self.count, N_FEATURES), np.float32)
+        kind[0, 0] = 1.0
+        kind[1 : 1 + self.n * self.n, 1] = 1.0
+        kind[1 + self.n * self.n :, 2] = 1.0
+        kind[1 : 1 + self.n * self.n, 3] = (mi == mj).astype(np.float32)
+        self.kind = kind
+
+    def space(self, env_space: spaces.Space) -> spaces.Dict:  # noqa: D102
+        if not isinstance(env_space, spaces.Dict) or env_space["sigma"].shape != (self.n, 2):
+            raise ValueError(f"expected a ReceiverClustering observation with {self.n} receivers")
+        return candidate_space(self.count, self.WIDTH)
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:  # noqa: D102
+        from selenv.envs.receiver_clustering import edit_mask
+
+        labels = np.asarray(obs["assignment"], dtype=np.intp)
+        ls = np.log(np.maximum(np.asarray(obs["sigma"], dtype=np.float32), 1e-6))  # (n, 2)
+        sizes = np.bincount(labels, minlength=labels.max() + 1).astype(np.float32)
+        sums = np.zeros((sizes.size, 2), np.float32)
+        np.add.at(sums, labels, ls)
+        cl_mean = (sums / sizes[:, None])[labels]  # (n, 2) mean log sigma of own cluster
+        size = sizes[labels] / self.max_size
+        lpv = np.log(np.maximum(np.asarray(obs["position_var"], dtype=np.float32), 1e-12))
+        t = float(np.asarray(obs["time"]).reshape(-1)[0])
+        i, j = self.i, self.j
+        w = np.concatenate(
+            [ls[i], ls[j], cl_mean[i], cl_mean[j], size[i, None], size[j, None],
+             lpv[i, None], lpv[j, None], np.full((self.count, 1), t, np.float32)],
+            axis=1,
+        ).astype(np.float32)  # fmt: skip
+        w[0] = 0.0
+        mask = edit_mask(labels, self.max_size).astype(np.int8)
+        features = self.kind.copy()
+        return {
+            "action_mask": mask,
+            "budget_left": np.array([1.0 - t], np.float32),
+            "features": features,
+            "gain": np.zeros(self.count, np.float32),
+            "selected": np.zeros(self.count, np.int8),
+            "whitened": w,
+        }
+
+    def env_action(self, obs: dict[str, np.ndarray], action: int) -> Any:  # noqa: D102
+        if self.action_mode == "edit":
+            return action
+        from selenv.envs.receiver_clustering import apply_edit
+
+        return apply_edit(np.asarray(obs["assignment"], dtype=np.int64), int(action))
+
+
 #: env id -> factory of its view from the (unwrapped) env
 VIEWS: dict[str, Any] = {
     "selenv/FIMSelection-v0": lambda env: IdentityView(),
     "selenv/LandmarkSelection-v0": lambda env: IdentityView(),
     "selenv/CLScheduling-v0": lambda env: CLView(env.unwrapped.pairs),
+    "selenv/ReceiverClustering-v0": lambda env: ClusteringEditView(
+        env.unwrapped.n, env.unwrapped.max_size, env.unwrapped.action_mode
+    ),
 }
 
 

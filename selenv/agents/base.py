@@ -31,6 +31,7 @@ __all__ = [
     "PlanAgent",
     "agents_for",
     "make",
+    "parse_spec",
     "register_agent",
 ]
 
@@ -120,12 +121,25 @@ def agents_for(env_id: str) -> list[str]:
     return ordered + others
 
 
+def parse_spec(spec: str) -> tuple[str, dict[str, Any]]:
+    """Split an agent spec: ``"ppo:runs/my.zip"`` -> ``("ppo", {"checkpoint": "runs/my.zip"})``.
+
+    A plain name gives ``(name, {})``. The part after the first ``:`` is passed to the agent's
+    factory as ``checkpoint`` (used by learned agents to load a file instead of the shipped
+    checkpoint).
+    """
+    name, sep, arg = spec.partition(":")
+    return (name, {"checkpoint": arg}) if sep and arg else (name, {})
+
+
 def make(name: str, env_id: str, **kwargs: Any) -> Agent:
-    """Build agent ``name`` for ``env_id``.
+    """Build agent ``name`` (or a ``"name:checkpoint"`` spec, see :func:`parse_spec`).
 
     Raises:
         ValueError: unknown agent, or an agent that does not apply to ``env_id``.
     """
+    name, extra = parse_spec(name)
+    kwargs = {**extra, **kwargs}
     if name not in AGENTS:
         raise ValueError(f"unknown agent {name!r}; known agents: {sorted(AGENTS)}")
     if env_id not in AGENTS[name]:

@@ -190,3 +190,13 @@ register_agent(
         "single_cluster", _ID, _fixed("single_cluster"), "all in one cluster (unconstrained bound)"
     )
 )
+# the learned policy lives above this layer: a lazy "module:attr" factory, imported on use
+register_agent(
+    AgentSpec(
+        "ppo",
+        _ID,
+        "learned.rl.agent:make_ppo_agent",
+        "MaskablePPO edit-scoring policy (checkpoints/receiver_clustering_ppo.zip)",
+        kwargs={"env_id": CLUSTERING_ENV_ID},
+    )
+)

@@ -24,7 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 import selenv
-from selenv.agents import AGENTS, Agent, agents_for, make
+from selenv.agents import AGENTS, Agent, agents_for, make, parse_spec
 from selenv.envs import ENV_IDS
 
 __all__ = [
@@ -230,13 +230,13 @@ def _check_agents(
     names = list(dict.fromkeys(agent_names))  # drop duplicates, keep order
     if not names:
         raise BenchError("no agent given")
-    unknown = [n for n in names if n not in AGENTS]
+    unknown = [n for n in names if parse_spec(n)[0] not in AGENTS]
     if unknown:
         raise BenchError(f"unknown agent(s) {unknown}; known agents: {sorted(AGENTS)}")
     inapplicable = {
-        n: f"does not apply to {env_id} (applies to {', '.join(sorted(AGENTS[n]))})"
+        n: f"does not apply to {env_id} (applies to {', '.join(sorted(AGENTS[parse_spec(n)[0]]))})"
         for n in names
-        if env_id not in AGENTS[n]
+        if env_id not in AGENTS[parse_spec(n)[0]]
     }
     if inapplicable and not skip_inapplicable:
         bad = ", ".join(f"{n!r} {why}" for n, why in inapplicable.items())
