@@ -13,16 +13,29 @@ from gymnasium import spaces
 from pettingzoo.test import parallel_api_test  # noqa: F401  (the wrapped env passes it)
 
 from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
-from learned.rl.candidate_policy import make_maskable_ppo, obs_layout
+from learned.rl.candidate_policy import (
+    MASKED_LOGIT,
+    CandidateScoringPPOPolicy,
+    make_maskable_ppo,
+    make_ppo,
+    obs_layout,
+)
 from learned.rl.marl import SharedPolicyEnv
 from learned.rl.views import CandidateViewWrapper, CLView, view_for
 from selenv.agents import make
 from selenv.agents.fim import CooperativeGreedyPolicy
 from selenv.multiagent import fim_selection_v0
-from train import train_cl_ppo, train_fim_marl, train_landmark_ppo
+from train import (
+    train_cl_ppo,
+    train_clustering_ppo,
+    train_fim_marl,
+    train_fim_ppo,
+    train_landmark_ppo,
+)
 
 CL_ID = "selenv/CLScheduling-v0"
 LM_ID = "selenv/LandmarkSelection-v0"
+CLU_ID = "selenv/ReceiverClustering-v0"
 FIM_ID = "selenv/FIMSelection-v0"
 TINY = ["--n-envs=2", "--n-steps=64", "--batch-size=64", "--n-epochs=1", "--no-progress"]
 
@@ -56,7 +69,31 @@ def test_cl_view_rows_are_the_pairs() -> None:
     assert cand["features"][P, 0] == 1.0 and np.all(cand["features"][:P, 0] == 0.0)
     assert np.array_equal(cand["action_mask"], obs["action_mask"])
     with pytest.raises(ValueError, match="no candidate view"):
-        view_for("selenv/ReceiverClustering-v0", env)
+        view_for("selenv/Unknown-v0", env)
+
+
+def test_clustering_view_matches_the_edit_encoding() -> None:
+    """The view's mask is the env's edit mask; in assignment mode its actions are the edits."""
+    from selenv.envs.receiver_clustering import apply_edit
+
+    edit = gym.make(CLU_ID, n_agents=9, horizon=5, action_mode="edit")
+    obs, _ = edit.reset(seed=2)
+    view = view_for(CLU_ID, edit)
+    cand = view(obs)
+    assert view.space(edit.observation_space).contains(cand)
+    assert np.array_equal(cand["action_mask"].astype(bool), edit.unwrapped.action_masks())
+    n = 9
+    a_move, a_swap = 1 + 2 * n + 5, 1 + n * n + 3  # receiver 2 -> 5's cluster; swap pair 3
+    assert cand["features"][a_move, 1] == 1.0 and cand["features"][a_swap, 2] == 1.0
+    np.testing.assert_allclose(cand["whitened"][a_move, 0:2], np.log(obs["sigma"][2]), rtol=1e-6)
+    np.testing.assert_allclose(cand["whitened"][a_move, 2:4], np.log(obs["sigma"][5]), rtol=1e-6)
+    assign = gym.make(CLU_ID, n_agents=9, horizon=5)
+    obs_a, _ = assign.reset(seed=2)
+    view_a = view_for(CLU_ID, assign)
+    allowed = np.flatnonzero(view_a(obs_a)["action_mask"])
+    labels = view_a.env_action(obs_a, int(allowed[-1]))
+    assert np.array_equal(labels, apply_edit(obs_a["assignment"], int(allowed[-1])))
+    assign.step(labels)  # a feasible clustering the env accepts
 
 
 def test_view_wrapper_passes_gym_and_sb3_checks() -> None:
@@ -149,6 +186,27 @@ def test_cl_training_script_with_subprocess_envs(tmp_path: Path) -> None:
         SB3PolicyAgent(out, env_id=LM_ID)
 
 
+def test_clustering_training_script(tmp_path: Path) -> None:
+    out = tmp_path / "clu.zip"
+    meta = train_clustering_ppo.main(
+        [
+            *TINY,
+            "--total-timesteps=128",
+            "--vec-env=dummy",
+            '--env-kwargs={"n_agents": 9, "horizon": 10}',
+            "--eval-episodes=1",
+            "--eval-horizon=8",
+            "--baselines=fixed_random",
+            f"--out={out}",
+            "--tensorboard-dir=",
+        ]
+    )
+    assert meta["view"] == "clustering_edits" and meta["eval_env_kwargs"]["horizon"] == 8
+    assert set(meta["metrics"]["agents"]) == {"ppo", "fixed_random"}
+    agent = SB3PolicyAgent(out, env_id=CLU_ID)  # plays the default (assignment) encoding
+    assert np.isfinite(_play(agent, gym.make(CLU_ID, n_agents=12, horizon=4), seed=5)[1])
+
+
 def test_marl_training_script(tmp_path: Path) -> None:
     out = tmp_path / "marl.zip"
     meta = train_fim_marl.main(
@@ -170,6 +228,48 @@ def test_marl_training_script(tmp_path: Path) -> None:
     }
     assert all(np.isfinite(v) for v in finals.values())
     assert meta["marl"]["path"] == "learned.rl.marl.SharedPolicyEnv"
+
+
+def test_plain_ppo_never_samples_a_masked_candidate() -> None:
+    """PPO has no action_masks argument: the policy masks its logits from the observation."""
+    env = gym.make(FIM_ID, n_candidates=6, budget=3)
+    model = make_ppo(env, "ppo", seed=0, n_steps=32, batch_size=32)
+    assert isinstance(model.policy, CandidateScoringPPOPolicy)
+    obs, _ = env.reset(seed=1)
+    for a in (0, 4):
+        obs, *_ = env.step(a)
+    obs_t, _ = model.policy.obs_to_tensor(obs)
+    dist = model.policy.get_distribution(obs_t)
+    probs = dist.distribution.probs.detach().numpy()[0]
+    masked = obs["action_mask"] == 0
+    assert masked.sum() >= 2 and probs[masked].max() < 1e-12  # at least the two picks
+    np.testing.assert_allclose(probs.sum(), 1.0, rtol=1e-6)
+    assert float(dist.distribution.logits.detach()[0, masked].max()) <= MASKED_LOGIT / 2
+    with pytest.raises(ValueError, match="algo must be one of"):
+        make_ppo(env, "a2c")
+
+
+def test_fim_training_script_with_plain_ppo(tmp_path: Path) -> None:
+    out = tmp_path / "fim_plain.zip"
+    meta = train_fim_ppo.main(
+        [
+            *TINY,
+            "--algo=ppo",
+            "--total-timesteps=128",
+            '--env-kwargs={"n_candidates": 8, "budget": 3}',
+            "--eval-episodes=1",
+            "--baselines=random",
+            f"--out={out}",
+            "--tensorboard-dir=",
+        ]
+    )
+    assert meta["training"]["algorithm"] == "PPO"
+    assert meta["architecture"]["policy"].endswith("CandidateScoringPPOPolicy")
+    agent = SB3PolicyAgent(out, env_id=FIM_ID)
+    assert not agent.masked
+    assert np.isfinite(_play(agent, gym.make(FIM_ID, n_candidates=12, budget=4), seed=2)[1])
+    with pytest.raises(ValueError, match="--algo must be one of"):
+        train_fim_ppo.main([*TINY, "--algo=dqn", f"--out={out}"])
 
 
 def test_training_learns_a_toy_problem_with_known_optimum() -> None:
@@ -221,3 +321,32 @@ def test_shipped_checkpoint_loads_and_acts(env_id: str) -> None:
     assert np.isfinite(ret) and np.isfinite(obj)
     meta = json.loads(DEFAULT_CHECKPOINTS[env_id].with_suffix(".json").read_text())
     assert meta["env_id"] == env_id and meta["metrics"]
+
+
+def test_bench_runs_a_checkpoint_path(tmp_path: Path) -> None:
+    """`selenv bench --agents ppo:PATH` plays that file next to the heuristics."""
+    from selenv.cli import main as cli_main
+
+    ckpt = DEFAULT_CHECKPOINTS[FIM_ID]
+    out = tmp_path / "bench.json"
+    code = cli_main(
+        [
+            "bench",
+            FIM_ID,
+            "--agents",
+            f"greedy,ppo:{ckpt}",
+            "--episodes",
+            "1",
+            "--env-kwargs",
+            '{"n_candidates": 10, "budget": 3}',
+            "--json",
+            str(out),
+            "--no-progress",
+        ]
+    )
+    assert code == 0
+    res = json.loads(out.read_text())
+    assert set(res["agents"]) == {"greedy", f"ppo:{ckpt}"}
+    assert len(res["agents"][f"ppo:{ckpt}"]["returns"]) == 1
+    assert cli_main(["bench", FIM_ID, "--agents", f"ppo:{tmp_path / 'no.zip'}",
+                     "--episodes", "1", "--no-progress"]) == 0  # fmt: skip

@@ -1,4 +1,4 @@
-"""A trained MaskablePPO checkpoint as a :class:`selenv.agents.Agent` (registry name ``ppo``).
+"""A trained (Maskable)PPO checkpoint as a :class:`selenv.agents.Agent` (registry name ``ppo``).
 
 The checkpoint is a zip saved by SB3 with a JSON of its metadata next to it (same stem), as
 written by the ``train/*_ppo.py`` scripts: the env id it was trained on, the candidate view
@@ -26,7 +26,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from learned.rl.candidate_policy import CandidateScoringPolicy, obs_layout
+from learned.rl.candidate_policy import (
+    ALGORITHMS,
+    CandidateScoringPolicy,
+    CandidateScoringPPOPolicy,
+    obs_layout,
+)
 from learned.rl.views import CandidateView, view_for
 from selenv.agents.base import Agent
 
@@ -86,7 +91,7 @@ def load_metadata(checkpoint: str | Path) -> dict[str, Any]:
 
 
 class SB3PolicyAgent(Agent):
-    """Acts with a MaskablePPO :class:`CandidateScoringPolicy` checkpoint (greedy in its logits).
+    """Acts with a MaskablePPO or PPO candidate-scoring checkpoint (greedy in its logits).
 
     Args:
         checkpoint: path of the SB3 zip; default: the shipped one of ``env_id``
@@ -107,8 +112,6 @@ class SB3PolicyAgent(Agent):
         env_id: str = FIM_ENV_ID,
         deterministic: bool = True,
     ) -> None:
-        from sb3_contrib import MaskablePPO  # deferred: keeps `import learned.rl.agent` light
-
         if checkpoint is None:
             if env_id not in DEFAULT_CHECKPOINTS:
                 raise ValueError(f"no shipped checkpoint for {env_id!r}; pass checkpoint=")
@@ -124,16 +127,25 @@ class SB3PolicyAgent(Agent):
             raise ValueError(
                 f"checkpoint {self.checkpoint} was trained on {trained_on!r}, not {env_id!r}"
             )
+        algo_name = self.metadata.get("training", {}).get("algorithm", "MaskablePPO")
+        by_name = {algo.__name__: (algo, pol) for algo, pol in ALGORITHMS.values()}
+        if algo_name not in by_name:
+            raise ValueError(
+                f"checkpoint {self.checkpoint}: metadata training.algorithm={algo_name!r}, "
+                f"expected one of {sorted(by_name)}"
+            )
+        algorithm, expected_policy = by_name[algo_name]
         try:
-            model = MaskablePPO.load(self.checkpoint, device="cpu", custom_objects=_CUSTOM_OBJECTS)
+            model = algorithm.load(self.checkpoint, device="cpu", custom_objects=_CUSTOM_OBJECTS)
         except Exception as exc:  # zip, pickle and torch errors alike
             raise ValueError(f"cannot load checkpoint {self.checkpoint}: {exc}") from exc
         policy = model.policy
-        if not isinstance(policy, CandidateScoringPolicy):
+        if not isinstance(policy, expected_policy):
             raise ValueError(
                 f"checkpoint {self.checkpoint} holds a {type(policy).__name__}, "
-                "expected a CandidateScoringPolicy"
+                f"expected a {expected_policy.__name__} ({algo_name})"
             )
+        self.masked = isinstance(policy, CandidateScoringPolicy)  # MaskablePPO's policy
         layout = obs_layout(policy.observation_space)
         meta_layout = self.metadata["obs_layout"]
         if layout["whitened_dim"] != meta_layout["whitened_dim"]:
@@ -148,7 +160,9 @@ class SB3PolicyAgent(Agent):
                 f"metadata says obs_layout n_candidates_trained={trained_n!r}"
             )
         self.whitened_dim = layout["whitened_dim"]
-        self._policies: dict[int, CandidateScoringPolicy] = {layout["n"]: policy}
+        self._policies: dict[int, CandidateScoringPolicy | CandidateScoringPPOPolicy] = {
+            layout["n"]: policy
+        }
         self.view: CandidateView | None = None
 
     # -- shape checks and N-independent rebuilds ---------------------------------------------
@@ -182,14 +196,16 @@ class SB3PolicyAgent(Agent):
             )
         return layout["n"]
 
-    def policy_for(self, observation_space: spaces.Dict) -> CandidateScoringPolicy:
+    def policy_for(
+        self, observation_space: spaces.Dict
+    ) -> CandidateScoringPolicy | CandidateScoringPPOPolicy:
         """The checkpoint's policy for this candidate space (rebuilt once per new ``N``)."""
         n = self.check_space(observation_space)
         if n not in self._policies:
             src = next(iter(self._policies.values()))
             params = src._get_constructor_parameters()
             params.update(observation_space=observation_space, action_space=spaces.Discrete(n))
-            policy = CandidateScoringPolicy(**params)
+            policy = type(src)(**params)
             policy.load_state_dict(src.state_dict())
             policy.set_training_mode(False)
             self._policies[n] = policy
@@ -221,7 +237,13 @@ class SB3PolicyAgent(Agent):
         mask = np.asarray(cand["action_mask"], dtype=bool)
         if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:  # env's own
             mask = np.asarray(info["action_mask"], dtype=bool)
-        action, _ = self._policy.predict(cand, action_masks=mask, deterministic=self.deterministic)
+        if self.masked:
+            action, _ = self._policy.predict(  # type: ignore[call-arg]
+                cand, action_masks=mask, deterministic=self.deterministic
+            )
+        else:  # plain PPO: the policy masks its logits from the observation's mask
+            cand = {**cand, "action_mask": mask.astype(cand["action_mask"].dtype)}
+            action, _ = self._policy.predict(cand, deterministic=self.deterministic)
         return self.view.env_action(obs, int(action))
 
 

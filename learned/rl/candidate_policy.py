@@ -1,4 +1,4 @@
-"""A permutation-equivariant candidate-scoring policy for MaskablePPO on ``FIMSelection-v0``.
+"""A permutation-equivariant candidate-scoring policy for MaskablePPO / PPO on every env.
 
 The policy is SB3 extended by composition: a features extractor (:class:`CandidateScorer`)
 runs one shared MLP over every candidate of the pool and returns one score per candidate
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from functools import partial
 from itertools import pairwise
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -34,18 +34,24 @@ import torch as th
 from gymnasium import spaces
 from sb3_contrib import MaskablePPO
 from sb3_contrib.common.maskable.policies import MaskableMultiInputActorCriticPolicy
+from stable_baselines3 import PPO
+from stable_baselines3.common.policies import MultiInputActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 __all__ = [
+    "ALGORITHMS",
+    "MASKED_LOGIT",
     "OBS_KEYS",
     "CandidatePolicyHeads",
     "CandidateScorer",
+    "CandidateScoringPPOPolicy",
     "CandidateScoringPolicy",
     "ScoreSlice",
     "make_maskable_ppo",
+    "make_ppo",
     "obs_layout",
 ]
 
@@ -55,6 +61,8 @@ OBS_KEYS = ("gain", "whitened", "features", "selected", "budget_left", "action_m
 N_STATIC_FEATURES = 4
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU}
+#: logit of a masked candidate (the value MaskablePPO's masked categorical uses)
+MASKED_LOGIT = -1e8
 
 
 def obs_layout(observation_space: spaces.Space) -> dict[str, int]:
@@ -178,6 +186,9 @@ class CandidateScorer(BaseFeaturesExtractor):
         mx = th.where(mask.any(dim=1, keepdim=True), mx, th.zeros_like(mx))
         pooled = th.cat([mean, mx], dim=-1)  # (B, 2 hidden)
         scores = self.score_head(h).squeeze(-1) + self.gain_skip * rel
+        # masked candidates get MaskablePPO's own masked logit, so plain PPO (which has no
+        # action_masks argument) never samples them and MaskablePPO is unchanged
+        scores = scores.masked_fill(~mask, MASKED_LOGIT)
         return th.cat([scores, pooled], dim=-1)
 
 
@@ -218,8 +229,8 @@ class CandidatePolicyHeads(nn.Module):
         return self.value_net(features[..., features.shape[-1] - self.pooled_dim :])
 
 
-class CandidateScoringPolicy(MaskableMultiInputActorCriticPolicy):
-    """MaskablePPO policy whose logits are :class:`CandidateScorer`'s per-candidate scores.
+class _CandidateScoringMixin:
+    """Shared by the MaskablePPO and PPO policies: logits = per-candidate scores.
 
     Defaults: ``features_extractor_class=CandidateScorer``, ``net_arch=dict(pi=[], vf=[64])``.
     The value net is an MLP on the pooled embedding only, so no weight depends on ``N``.
@@ -247,7 +258,7 @@ class CandidateScoringPolicy(MaskableMultiInputActorCriticPolicy):
         n = obs_layout(observation_space)["n"]
         if action_space.n != n:
             raise ValueError(f"action space Discrete({action_space.n}) != pool size {n}")
-        super().__init__(
+        super().__init__(  # type: ignore[call-arg]  # the SB3 policy base (see the subclasses)
             observation_space,
             action_space,
             lr_schedule,
@@ -260,45 +271,82 @@ class CandidateScoringPolicy(MaskableMultiInputActorCriticPolicy):
         )
 
     def _build_mlp_extractor(self) -> None:
-        extractor = self.pi_features_extractor
-        assert isinstance(extractor, CandidateScorer)
-        vf = list(self.net_arch.get("vf", [])) if isinstance(self.net_arch, dict) else []
-        self.mlp_extractor = CandidatePolicyHeads(  # type: ignore[assignment]
-            self.features_dim, extractor.pooled_dim, vf, self.activation_fn
-        )
+        _build_heads(self)
 
     def _build(self, lr_schedule: Schedule) -> None:
         """Build the heads and optimiser; ``action_net`` slices the scores (no weights)."""
-        self._build_mlp_extractor()
-        heads = self.mlp_extractor
-        if not isinstance(heads, CandidatePolicyHeads):
-            raise TypeError(f"expected CandidatePolicyHeads, got {type(heads).__name__}")
-        self.action_net = ScoreSlice(heads.pooled_dim)
-        self.value_net = nn.Linear(self.mlp_extractor.latent_dim_vf, 1)
-        if self.ortho_init:
-            extractors = {self.pi_features_extractor, self.vf_features_extractor}
-            for module, gain in [
-                *[(e, np.sqrt(2)) for e in extractors],
-                (self.mlp_extractor, np.sqrt(2)),
-                (self.value_net, 1.0),
-            ]:
-                module.apply(partial(self.init_weights, gain=gain))
-            # small score head: the untrained policy is close to uniform (plus the gain skip)
-            for e in extractors:
-                self.init_weights(e.score_head, gain=0.01)  # type: ignore[arg-type]
-        self.optimizer = self.optimizer_class(
-            self.parameters(),
-            lr=lr_schedule(1),  # type: ignore[call-arg]
-            **self.optimizer_kwargs,
-        )
+        _build_policy(self, lr_schedule)
 
 
-def make_maskable_ppo(env: gym.Env[Any, Any] | VecEnv, **ppo_kwargs: Any) -> MaskablePPO:
-    """MaskablePPO with :class:`CandidateScoringPolicy` and defaults for the FIM selection task.
+def _build_heads(policy: Any) -> None:
+    """``policy.mlp_extractor`` = :class:`CandidatePolicyHeads` (an SB3 actor-critic policy)."""
+    extractor = policy.pi_features_extractor
+    if not isinstance(extractor, CandidateScorer):
+        raise TypeError(f"expected a CandidateScorer, got {type(extractor).__name__}")
+    vf = list(policy.net_arch.get("vf", [])) if isinstance(policy.net_arch, dict) else []
+    policy.mlp_extractor = CandidatePolicyHeads(
+        policy.features_dim, extractor.pooled_dim, vf, policy.activation_fn
+    )
 
-    ``gamma=1`` because the undiscounted return is the objective. Any keyword of
-    :class:`sb3_contrib.MaskablePPO` overrides a default; ``policy_kwargs`` are merged.
+
+def _build_policy(policy: Any, lr_schedule: Schedule) -> None:
+    """SB3's ``_build`` for the candidate policies: heads, score slice, value net, optimiser."""
+    _build_heads(policy)
+    heads = policy.mlp_extractor
+    policy.action_net = ScoreSlice(heads.pooled_dim)
+    policy.value_net = nn.Linear(heads.latent_dim_vf, 1)
+    if policy.ortho_init:
+        extractors = {policy.pi_features_extractor, policy.vf_features_extractor}
+        for module, gain in [
+            *[(e, np.sqrt(2)) for e in extractors],
+            (heads, np.sqrt(2)),
+            (policy.value_net, 1.0),
+        ]:
+            module.apply(partial(policy.init_weights, gain=gain))
+        # small score head: the untrained policy is close to uniform (plus the gain skip)
+        for e in extractors:
+            policy.init_weights(e.score_head, gain=0.01)
+    policy.optimizer = policy.optimizer_class(
+        policy.parameters(), lr=lr_schedule(1), **policy.optimizer_kwargs
+    )
+
+
+class CandidateScoringPolicy(_CandidateScoringMixin, MaskableMultiInputActorCriticPolicy):
+    """MaskablePPO policy whose logits are :class:`CandidateScorer`'s per-candidate scores."""
+
+
+class CandidateScoringPPOPolicy(_CandidateScoringMixin, MultiInputActorCriticPolicy):
+    """Plain-PPO twin of :class:`CandidateScoringPolicy` (same weights, same ``state_dict``).
+
+    PPO passes no ``action_masks``; the scorer masks the logits itself from the observation's
+    ``action_mask`` (:data:`MASKED_LOGIT`), so a masked candidate is never sampled.
     """
+
+
+#: ``algo`` name -> (SB3 algorithm, policy class)
+ALGORITHMS: dict[str, tuple[type[Any], type[Any]]] = {
+    "maskable_ppo": (MaskablePPO, CandidateScoringPolicy),
+    "ppo": (PPO, CandidateScoringPPOPolicy),
+}
+
+
+def make_ppo(
+    env: gym.Env[Any, Any] | VecEnv, algo: str = "maskable_ppo", **ppo_kwargs: Any
+) -> MaskablePPO | PPO:
+    """MaskablePPO (``algo="maskable_ppo"``) or PPO (``"ppo"``) with the candidate-scoring policy.
+
+    Defaults are those of the FIM selection task; ``gamma=1`` because the undiscounted return
+    is the objective. Any keyword of the algorithm overrides a default; ``policy_kwargs`` are
+    merged. Plain PPO never samples a masked action either (the policy masks its logits from
+    the observation's ``action_mask``), but only MaskablePPO also uses the env's
+    ``action_masks()`` and drops masked actions from the entropy.
+
+    Raises:
+        ValueError: unknown ``algo``.
+    """
+    if algo not in ALGORITHMS:
+        raise ValueError(f"algo must be one of {sorted(ALGORITHMS)}, got {algo!r}")
+    algorithm, policy = ALGORITHMS[algo]
     policy_kwargs = {
         "net_arch": dict(pi=[], vf=[64]),
         "features_extractor_kwargs": {"hidden": [64, 64], "activation": "tanh"},
@@ -319,4 +367,10 @@ def make_maskable_ppo(env: gym.Env[Any, Any] | VecEnv, **ppo_kwargs: Any) -> Mas
         "verbose": 0,
         **ppo_kwargs,
     }
-    return MaskablePPO(CandidateScoringPolicy, env, policy_kwargs=policy_kwargs, **kwargs)
+    model: MaskablePPO | PPO = algorithm(policy, env, policy_kwargs=policy_kwargs, **kwargs)
+    return model
+
+
+def make_maskable_ppo(env: gym.Env[Any, Any] | VecEnv, **ppo_kwargs: Any) -> MaskablePPO:
+    """:func:`make_ppo` with ``algo="maskable_ppo"`` (the default of every training script)."""
+    return cast(MaskablePPO, make_ppo(env, "maskable_ppo", **ppo_kwargs))

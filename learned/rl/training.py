@@ -1,4 +1,4 @@
-"""The MaskablePPO training loop shared by the ``train/*_ppo.py`` scripts.
+"""The MaskablePPO / PPO training loop shared by the ``train/*_ppo.py`` scripts.
 
 A script defines a :class:`PPOConfig` subclass with its env's defaults and calls
 :func:`train`, which reads top to bottom:
@@ -6,7 +6,8 @@ A script defines a :class:`PPOConfig` subclass with its env's defaults and calls
 1. envs: ``n_envs`` copies of ``make_env()`` (the env wrapped in its candidate view,
    :mod:`learned.rl.views`), in one process (``vec_env="dummy"``) or in worker processes
    (``"subproc"``, :class:`~stable_baselines3.common.vec_env.SubprocVecEnv`);
-2. model: :func:`~learned.rl.candidate_policy.make_maskable_ppo` (candidate-scoring policy);
+2. model: :func:`~learned.rl.candidate_policy.make_ppo` (candidate-scoring policy) with
+   ``algo="maskable_ppo"`` (default: masks from the env's ``action_masks()``) or ``"ppo"``;
 3. training with a tqdm bar and TensorBoard logs (``runs/``);
 4. checkpoint ``<out>.zip`` + metadata ``<out>.json`` (env id and kwargs, candidate view,
    layout, architecture, hyper-parameters, versions);
@@ -37,7 +38,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from tqdm.auto import tqdm
 
 import selenv
-from learned.rl.candidate_policy import make_maskable_ppo, obs_layout
+from learned.rl.candidate_policy import ALGORITHMS, make_ppo, obs_layout
 from selenv.agents import Agent
 from selenv.bench.runner import AgentResult, run_episode
 
@@ -50,6 +51,7 @@ class PPOConfig:
 
     env_kwargs: str = "{}"  # JSON of gymnasium.make keyword arguments
     # training
+    algo: str = "maskable_ppo"  # maskable_ppo | ppo
     total_timesteps: int = 100_000
     seed: int = 0
     n_envs: int = 8
@@ -89,7 +91,8 @@ class TqdmCallback(BaseCallback):
     """A tqdm bar over the timesteps (SB3's ``progress_bar=True`` needs ``rich``)."""
 
     def _on_training_start(self) -> None:
-        self.bar = tqdm(total=self.locals["total_timesteps"], unit="step", desc="MaskablePPO")
+        desc = type(self.model).__name__
+        self.bar = tqdm(total=self.locals["total_timesteps"], unit="step", desc=desc)
 
     def _on_step(self) -> bool:
         self.bar.update(self.training_env.num_envs)
@@ -156,6 +159,8 @@ def train(
         raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
     if cfg.eval_episodes < 0:
         raise ValueError(f"--eval-episodes must be >= 0, got {cfg.eval_episodes}")
+    if cfg.algo not in ALGORITHMS:
+        raise ValueError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
     if cfg.vec_env not in ("dummy", "subproc"):
         raise ValueError(f"--vec-env must be dummy or subproc, got {cfg.vec_env!r}")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -176,8 +181,9 @@ def train(
 
     # 2. model
     hidden = [int(h) for h in cfg.hidden.split(",")]
-    model = make_maskable_ppo(
+    model = make_ppo(
         venv,
+        cfg.algo,
         seed=cfg.seed,
         learning_rate=cfg.learning_rate,
         n_steps=cfg.n_steps,
@@ -214,7 +220,7 @@ def train(
             "n_candidates_trained": layout["n"],
         },
         "architecture": {
-            "policy": "learned.rl.candidate_policy.CandidateScoringPolicy",
+            "policy": f"learned.rl.candidate_policy.{type(model.policy).__name__}",
             "features_extractor": "learned.rl.candidate_policy.CandidateScorer",
             "hidden": hidden,
             "activation": cfg.activation,
@@ -225,7 +231,7 @@ def train(
         },
         "training": {
             **dataclasses.asdict(cfg),
-            "algorithm": "MaskablePPO",
+            "algorithm": type(model).__name__,
             "timesteps_done": int(model.num_timesteps),
             "wall_seconds": round(wall, 1),
         },

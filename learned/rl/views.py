@@ -144,9 +144,12 @@ class ClusteringEditView(CandidateView):
     described without evaluating the cost: ``whitened`` = ``[log sigma_i (2), log sigma_j (2),
     mean log sigma of i's cluster (2), of j's cluster (2), |C_i| / max, |C_j| / max,
     log position var_i, log position var_j, time]`` and ``features`` = ``[no-op, move, swap,
-    leave]``; ``gain`` is 0 (unknown). The mask is :func:`selenv.envs.receiver_clustering.
-    edit_mask` of the observed labels, so the view also serves the default
-    ``action_mode="assignment"``: :meth:`env_action` then returns the edited labels.
+    leave]``; ``gain`` is 1 for the no-op and 0 for every edit (unknown: no cost is evaluated),
+    so a policy with a positive gain skip starts close to "keep the clustering" and learns
+    which edits pay for their filter re-initialisation. The mask is
+    :func:`selenv.envs.receiver_clustering.edit_mask` of the observed labels, so the view also
+    serves the default ``action_mode="assignment"``: :meth:`env_action` then returns the
+    edited labels.
     """
 
     name = "clustering_edits"
@@ -167,6 +170,8 @@ class ClusteringEditView(CandidateView):
         kind[1 + self.n * self.n :, 2] = 1.0
         kind[1 : 1 + self.n * self.n, 3] = (mi == mj).astype(np.float32)
         self.kind = kind
+        self.gain = np.zeros(self.count, np.float32)
+        self.gain[0] = 1.0  # the no-op: see the class docstring
 
     def space(self, env_space: spaces.Space) -> spaces.Dict:  # noqa: D102
         if not isinstance(env_space, spaces.Dict) or env_space["sigma"].shape != (self.n, 2):
@@ -198,7 +203,7 @@ class ClusteringEditView(CandidateView):
             "action_mask": mask,
             "budget_left": np.array([1.0 - t], np.float32),
             "features": features,
-            "gain": np.zeros(self.count, np.float32),
+            "gain": self.gain.copy(),
             "selected": np.zeros(self.count, np.int8),
             "whitened": w,
         }
