@@ -194,6 +194,8 @@ def test_clustering_training_script(tmp_path: Path) -> None:
             "--total-timesteps=128",
             "--vec-env=dummy",
             '--env-kwargs={"n_agents": 9, "horizon": 10}',
+            "--rank-states=0",  # PPO from scratch (the ranking stage: test_rl_ranking.py)
+            "--verify-top-k=",
             "--eval-episodes=1",
             "--eval-horizon=8",
             "--baselines=fixed_random",
@@ -202,6 +204,7 @@ def test_clustering_training_script(tmp_path: Path) -> None:
         ]
     )
     assert meta["view"] == "clustering_edits" and meta["eval_env_kwargs"]["horizon"] == 8
+    assert meta["pretraining"] == {"method": None}
     assert set(meta["metrics"]["agents"]) == {"ppo", "fixed_random"}
     agent = SB3PolicyAgent(out, env_id=CLU_ID)  # plays the default (assignment) encoding
     assert np.isfinite(_play(agent, gym.make(CLU_ID, n_agents=12, horizon=4), seed=5)[1])

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -98,6 +98,11 @@ class SB3PolicyAgent(Agent):
             (:data:`DEFAULT_CHECKPOINTS`).
         env_id: the env the agent will play; the checkpoint must have been trained on it.
         deterministic: take the most likely action (default) rather than sample one.
+        verify_top_k: 0 (default) plays the policy's action. ``k > 0`` uses the policy as a
+            proposal: its ``k`` highest-scoring allowed actions are costed exactly by the
+            view's :meth:`~learned.rl.views.CandidateView.verify` (only
+            ``ReceiverClustering-v0``: ``k`` Algorithm 1 evaluations per decision) and the
+            best improving one is played.
 
     Raises:
         ValueError: the checkpoint or its JSON is missing or unreadable, they disagree, or
@@ -111,7 +116,11 @@ class SB3PolicyAgent(Agent):
         checkpoint: str | Path | None = None,
         env_id: str = FIM_ENV_ID,
         deterministic: bool = True,
+        verify_top_k: int = 0,
     ) -> None:
+        if isinstance(verify_top_k, bool) or not isinstance(verify_top_k, int) or verify_top_k < 0:
+            raise ValueError(f"verify_top_k must be an int >= 0, got {verify_top_k!r}")
+        self.verify_top_k = verify_top_k
         if checkpoint is None:
             if env_id not in DEFAULT_CHECKPOINTS:
                 raise ValueError(f"no shipped checkpoint for {env_id!r}; pass checkpoint=")
@@ -216,6 +225,11 @@ class SB3PolicyAgent(Agent):
         """Build the env's candidate view and check it against the checkpoint."""
         super().reset(env, seed)
         self.view = view_for(self.env_id, env)
+        if self.verify_top_k and type(self.view).verify is CandidateView.verify:
+            raise ValueError(
+                f"verify_top_k={self.verify_top_k}: the {self.view.name!r} view of "
+                f"{self.env_id} has no exact verification (use verify_top_k=0)"
+            )
         try:
             space = self.view.space(env.observation_space)
         except ValueError as exc:
@@ -237,6 +251,8 @@ class SB3PolicyAgent(Agent):
         mask = np.asarray(cand["action_mask"], dtype=bool)
         if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:  # env's own
             mask = np.asarray(info["action_mask"], dtype=bool)
+        if self.verify_top_k:
+            return self.view.env_action(obs, self._verified(obs, cand, mask))
         if self.masked:
             action, _ = self._policy.predict(  # type: ignore[call-arg]
                 cand, action_masks=mask, deterministic=self.deterministic
@@ -245,6 +261,27 @@ class SB3PolicyAgent(Agent):
             cand = {**cand, "action_mask": mask.astype(cand["action_mask"].dtype)}
             action, _ = self._policy.predict(cand, deterministic=self.deterministic)
         return self.view.env_action(obs, int(action))
+
+    def scores(self, cand: dict[str, np.ndarray]) -> np.ndarray:
+        """The policy's per-candidate scores (action logits before masking), ``(N,)``."""
+        import torch as th
+
+        policy = self._policy
+        obs_t, _ = policy.obs_to_tensor(cand)
+        with th.no_grad():
+            feats = cast(th.Tensor, policy.extract_features(obs_t, policy.pi_features_extractor))
+        n = np.shape(cand["action_mask"])[0]
+        return np.asarray(feats[0, :n].cpu().numpy(), dtype=np.float64)
+
+    def _verified(self, obs: dict[str, np.ndarray], cand: dict[str, np.ndarray], mask: Any) -> int:
+        """The best of the policy's ``verify_top_k`` highest-scoring allowed candidates."""
+        allowed = np.flatnonzero(mask)
+        if allowed.size == 0:
+            raise ValueError("no allowed action to verify (empty action mask)")
+        s = self.scores({**cand, "action_mask": np.asarray(mask, cand["action_mask"].dtype)})
+        k = min(self.verify_top_k, allowed.size)
+        top = allowed[np.argsort(-s[allowed], kind="stable")[:k]]
+        return int(self.view.verify(self.env, obs, top))  # type: ignore[union-attr]
 
 
 def make_ppo_agent(**kwargs: Any) -> SB3PolicyAgent:

@@ -110,7 +110,10 @@ class TqdmCallback(BaseCallback):
 def evaluate(
     make_env: Callable[[], gym.Env[Any, Any]], agents: dict[str, Agent], seeds: list[int]
 ) -> dict[str, dict[str, Any]]:
-    """Each agent on one episode per seed: returns, final objectives, decision seconds."""
+    """Each agent on one episode per seed: returns, final objectives, decision seconds.
+
+    Envs that count objective evaluations also give ``cost_evaluations_per_decision``.
+    """
     out: dict[str, dict[str, Any]] = {}
     for name, agent in agents.items():
         env = make_env()
@@ -126,6 +129,8 @@ def evaluate(
             "returns": [round(r, 5) for r in res.returns],
             "decision_seconds_mean": res.decision_seconds / max(res.decisions, 1),
         }
+        if res.cost_evaluations is not None:
+            out[name]["cost_evaluations_per_decision"] = res.cost_evaluations_per_decision
     return out
 
 
@@ -138,6 +143,8 @@ def train(
     view: str,
     tb_name: str,
     extra_meta: dict[str, Any] | None = None,
+    pretrain: Callable[[Any], dict[str, Any]] | None = None,
+    policy_variants: dict[str, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Train, save ``cfg.out`` (+ JSON), evaluate against ``cfg.baselines``; return the metadata.
 
@@ -149,6 +156,11 @@ def train(
         view: name of the candidate view (metadata; the agent re-applies it).
         tb_name: TensorBoard run name.
         extra_meta: merged into the metadata.
+        pretrain: called with the fresh model before PPO (e.g. the ranking fit of
+            :mod:`learned.rl.ranking`); its returned dict is stored as ``meta["pretraining"]``.
+        policy_variants: further agents evaluated from the saved checkpoint, name ->
+            keyword arguments of :class:`~learned.rl.agent.SB3PolicyAgent` (e.g.
+            ``{"ppo_top4": {"verify_top_k": 4}}``).
     """
     from learned.rl.agent import SB3PolicyAgent  # the adapter sits above this module's users
     from selenv.agents import make as make_agent
@@ -157,6 +169,8 @@ def train(
     out = Path(cfg.out)
     if out.suffix != ".zip":
         raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
+    if cfg.total_timesteps < 0:
+        raise ValueError(f"--total-timesteps must be >= 0, got {cfg.total_timesteps}")
     if cfg.eval_episodes < 0:
         raise ValueError(f"--eval-episodes must be >= 0, got {cfg.eval_episodes}")
     if cfg.algo not in ALGORITHMS:
@@ -201,10 +215,12 @@ def train(
         },
     )
 
-    # 3. train
+    # 3. (optional pre-training, then) PPO
     start = time.perf_counter()
+    pretraining = pretrain(model) if pretrain is not None else None
     callbacks: list[BaseCallback] = [TqdmCallback()] if cfg.progress else []
-    model.learn(cfg.total_timesteps, callback=callbacks, tb_log_name=tb_name)
+    if cfg.total_timesteps > 0:  # 0: keep the pre-trained policy as it is
+        model.learn(cfg.total_timesteps, callback=callbacks, tb_log_name=tb_name)
     wall = time.perf_counter() - start
     venv.close()
 
@@ -235,6 +251,7 @@ def train(
             "timesteps_done": int(model.num_timesteps),
             "wall_seconds": round(wall, 1),
         },
+        "pretraining": pretraining,
         "metrics": None,
         "selenv_version": selenv.__version__,
         "torch_version": torch.__version__,
@@ -249,6 +266,8 @@ def train(
     if cfg.eval_episodes:
         seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
         agents: dict[str, Agent] = {"ppo": SB3PolicyAgent(out, env_id=env_id)}
+        for name, kw in (policy_variants or {}).items():
+            agents[name] = SB3PolicyAgent(out, env_id=env_id, **kw)
         for name in [b.strip() for b in cfg.baselines.split(",") if b.strip()]:
             agents[name] = make_agent(name, env_id)
         meta["metrics"] = {

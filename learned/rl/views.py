@@ -72,6 +72,17 @@ class CandidateView:
     def __call__(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:  # noqa: D102
         raise NotImplementedError
 
+    def verify(self, env: gym.Env[Any, Any], obs: dict[str, np.ndarray], actions: Any) -> int:
+        """Cost the candidate ``actions`` exactly in ``env`` and return the best one.
+
+        Only views of envs with a cheap exact objective oracle implement it (the policy then
+        acts as a learned proposal for a small local search).
+
+        Raises:
+            ValueError: the view has no verification.
+        """
+        raise ValueError(f"the {self.name!r} candidate view has no exact verification")
+
 
 class IdentityView(CandidateView):
     """The env already observes candidates (``FIMSelection-v0``, ``LandmarkSelection-v0``)."""
@@ -143,17 +154,21 @@ class ClusteringEditView(CandidateView):
     ``i`` joins ``j``'s cluster, or leaves to a singleton when ``i = j``; swap ``i < j``), each
     described without evaluating the cost: ``whitened`` = ``[log sigma_i (2), log sigma_j (2),
     mean log sigma of i's cluster (2), of j's cluster (2), |C_i| / max, |C_j| / max,
-    log position var_i, log position var_j, time]`` and ``features`` = ``[no-op, move, swap,
-    leave]``; ``gain`` is 1 for the no-op and 0 for every edit (unknown: no cost is evaluated),
-    so a policy with a positive gain skip starts close to "keep the clustering" and learns
-    which edits pay for their filter re-initialisation. The mask is
+    log position var_i, log position var_j, time, log(pv_i / max pv), log(pv_j / max pv),
+    log(cv_i / max cv), log(cv_j / max cv)]`` (``pv`` a receiver's position variance, ``cv``
+    the mean ``pv`` of its cluster: ``J_L`` and ``J_C`` are maxima over receivers and
+    clusters, so the edits that matter touch the worst ones) and ``features`` =
+    ``[no-op, move, swap, leave]``; ``gain`` is 1 for the no-op and 0 for every edit
+    (unknown: no cost is evaluated), so a policy with a positive gain skip starts close to
+    "keep the clustering" and learns which edits pay for their filter re-initialisation. The
+    mask is
     :func:`selenv.envs.receiver_clustering.edit_mask` of the observed labels, so the view also
     serves the default ``action_mode="assignment"``: :meth:`env_action` then returns the
     edited labels.
     """
 
     name = "clustering_edits"
-    WIDTH = 13
+    WIDTH = 17
 
     def __init__(self, n: int, max_size: int, action_mode: str) -> None:
         from selenv.envs.receiver_clustering import edit_action_count
@@ -188,12 +203,18 @@ class ClusteringEditView(CandidateView):
         np.add.at(sums, labels, ls)
         cl_mean = (sums / sizes[:, None])[labels]  # (n, 2) mean log sigma of own cluster
         size = sizes[labels] / self.max_size
-        lpv = np.log(np.maximum(np.asarray(obs["position_var"], dtype=np.float32), 1e-12))
+        pv = np.maximum(np.asarray(obs["position_var"], dtype=np.float64), 1e-12)
+        lpv = np.log(pv)
+        cv = np.zeros(sizes.size)
+        np.add.at(cv, labels, pv)
+        lcv = np.log(cv / sizes)[labels]  # (n,) log mean position var of own cluster
+        rel_pv, rel_cv = lpv - lpv.max(), lcv - lcv.max()
         t = float(np.asarray(obs["time"]).reshape(-1)[0])
         i, j = self.i, self.j
         w = np.concatenate(
             [ls[i], ls[j], cl_mean[i], cl_mean[j], size[i, None], size[j, None],
-             lpv[i, None], lpv[j, None], np.full((self.count, 1), t, np.float32)],
+             lpv[i, None], lpv[j, None], np.full((self.count, 1), t),
+             rel_pv[i, None], rel_pv[j, None], rel_cv[i, None], rel_cv[j, None]],
             axis=1,
         ).astype(np.float32)  # fmt: skip
         w[0] = 0.0
@@ -214,6 +235,25 @@ class ClusteringEditView(CandidateView):
         from selenv.envs.receiver_clustering import apply_edit
 
         return apply_edit(np.asarray(obs["assignment"], dtype=np.int64), int(action))
+
+    def verify(self, env: gym.Env[Any, Any], obs: dict[str, np.ndarray], actions: Any) -> int:
+        """The lowest-``J`` edit among ``actions`` if it beats keeping the clustering, else 0.
+
+        ``J`` of each edited clustering is Algorithm 1's cost (the no-op keeps the current one).
+
+        Costs ``len(actions)`` evaluations (minus a no-op) through the env's filter bank, which
+        counts them (``info["cost_evaluations"]``), exactly as the greedy search does.
+        """
+        from selenv.envs.receiver_clustering import apply_edit
+
+        bank = env.unwrapped.bank  # type: ignore[attr-defined]
+        labels = np.asarray(obs["assignment"], dtype=np.int64)
+        edits = [int(a) for a in np.asarray(actions).ravel() if int(a) != 0]
+        if not edits:
+            return 0
+        costs = bank.evaluate(np.stack([apply_edit(labels, a) for a in edits]))
+        j = int(np.argmin(costs))
+        return edits[j] if costs[j] < bank.cost().J else 0
 
 
 #: env id -> factory of its view from the (unwrapped) env

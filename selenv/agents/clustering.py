@@ -196,7 +196,16 @@ register_agent(
         "ppo",
         _ID,
         "learned.rl.agent:make_ppo_agent",
-        "MaskablePPO edit-scoring policy (checkpoints/receiver_clustering_ppo.zip)",
+        "edit-ranking policy, its top edit (checkpoints/receiver_clustering_ppo.zip)",
         kwargs={"env_id": CLUSTERING_ENV_ID},
+    )
+)
+register_agent(
+    AgentSpec(
+        "ppo_top4",
+        _ID,
+        "learned.rl.agent:make_ppo_agent",
+        "edit-ranking policy's 4 best edits costed, best improving one played",
+        kwargs={"env_id": CLUSTERING_ENV_ID, "verify_top_k": 4},
     )
 )

@@ -35,12 +35,16 @@ def format_table(result: EnvBenchResult) -> str:
 
     The first line names the env and the settings; then one row per agent: mean return ± std,
     mean final objective, gap of the mean return to the best agent's (% of ``|best|``), mean
-    decision time in milliseconds and the number of episodes. Skipped agents show the reason.
+    decision time in milliseconds and the number of episodes; for envs that count objective
+    evaluations (``info["cost_evaluations"]``) also the evaluations per decision. Skipped
+    agents show the reason.
     """
     title = f"{result.env_id}  (episodes={result.episodes}, seed={result.seed}"
     if result.env_kwargs:
         title += f", env_kwargs={json.dumps(result.env_kwargs)}"
     title += ")"
+    counted = any(r.cost_evaluations is not None for r in result.agents.values())
+    header = (*_HEADER, "cost evals/decision") if counted else _HEADER
     rows: list[tuple[str, ...]] = []
     skipped: list[tuple[str, str]] = []
     for name, res in result.agents.items():
@@ -55,10 +59,11 @@ def format_table(result: EnvBenchResult) -> str:
                 _num(result.gap_percent(name), ".2f"),
                 _num(1e3 * res.decision_seconds_mean, ".3g"),
                 str(len(res.returns)),
+                *([_num(res.cost_evaluations_per_decision, ".3g")] if counted else []),
             )
         )
-    width_rows = [_HEADER, *rows]
-    widths = [max(len(r[i]) for r in width_rows) for i in range(len(_HEADER))]
+    width_rows = [header, *rows]
+    widths = [max(len(r[i]) for r in width_rows) for i in range(len(header))]
     width_name = max([widths[0], *(len(n) for n, _ in skipped)])
     widths[0] = width_name
 
@@ -67,7 +72,7 @@ def format_table(result: EnvBenchResult) -> str:
         parts += [c.rjust(w) for c, w in zip(cells[1:], widths[1:], strict=True)]
         return "  ".join(parts).rstrip()
 
-    out = [title, line(_HEADER), "  ".join("-" * w for w in widths)]
+    out = [title, line(header), "  ".join("-" * w for w in widths)]
     out += [line(r) for r in rows]
     out += [f"{name.ljust(widths[0])}  skipped: {why}" for name, why in skipped]
     return "\n".join(out)

@@ -64,6 +64,9 @@ class AgentResult:
         final_objectives: ``info["objective"]`` after the last step of each episode.
         decision_seconds: total wall time spent in ``agent.act``.
         decisions: number of ``agent.act`` calls.
+        cost_evaluations: objective evaluations the agent's searches made, summed over the
+            episodes, for envs that count them (``info["cost_evaluations"]`` after the last
+            step, e.g. Algorithm 1 calls of ``ReceiverClustering-v0``); ``None`` otherwise.
         skipped: why the agent was not run (``None`` when it ran).
     """
 
@@ -72,6 +75,7 @@ class AgentResult:
     final_objectives: list[float] = field(default_factory=list)
     decision_seconds: float = 0.0
     decisions: int = 0
+    cost_evaluations: int | None = None
     skipped: str | None = None
 
     @property
@@ -99,10 +103,20 @@ class AgentResult:
         """Mean wall time of one ``agent.act`` call, over every decision of every episode."""
         return self.decision_seconds / self.decisions if self.decisions else float("nan")
 
+    @property
+    def cost_evaluations_per_decision(self) -> float | None:
+        """Mean objective evaluations per decision (``None`` if the env does not count them)."""
+        if self.cost_evaluations is None or not self.decisions:
+            return None
+        return self.cost_evaluations / self.decisions
+
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict: the contract keys, or ``{"skipped": reason}``."""
         if self.skipped is not None:
             return {"skipped": self.skipped}
+        extra: dict[str, Any] = {}
+        if self.cost_evaluations is not None:
+            extra["cost_evaluations_per_decision"] = self.cost_evaluations_per_decision
         return {
             "returns": [float(r) for r in self.returns],
             "mean_return": self.mean_return,
@@ -112,6 +126,7 @@ class AgentResult:
             "std_final_objective": self.std_final_objective,
             "decision_seconds_mean": self.decision_seconds_mean,
             "decisions": self.decisions,
+            **extra,
         }
 
 
@@ -215,6 +230,8 @@ def run_episode(
     if "objective" not in info:
         env_id = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
         raise RuntimeError(f"{env_id} does not report info['objective'] (see DESIGN.md)")
+    if "cost_evaluations" in info:
+        result.cost_evaluations = (result.cost_evaluations or 0) + int(info["cost_evaluations"])
     return total, float(info["objective"])
 
 

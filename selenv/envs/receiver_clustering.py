@@ -196,7 +196,8 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
 
     ## Rewards
     ``-J`` after the filter step; ``info["objective"]`` is ``J`` (with ``J_G``, ``J_C``,
-    ``J_L``, ``n_clusters``, ``changed``, ``k``).
+    ``J_L``, ``n_clusters``, ``changed``, ``k``, and ``cost_evaluations``: candidate
+    clusterings costed by Algorithm 1 in this episode so far, by the agent's searches).
 
     ## Starting State
     ``sigma ~ U(0, 1]`` per receiver and channel (new draw per reset unless ``sigma`` is
@@ -367,4 +368,5 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
             "changed": changed,
             "k": bank.k,
             "action_mask": self.action_masks(),
+            "cost_evaluations": bank.n_cost_evaluations,
         }
