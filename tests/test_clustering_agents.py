@@ -135,3 +135,25 @@ def test_reproduction_writes_figures_and_orders_the_methods(repro) -> None:
     assert set(res["table2"]) and all(len(r["k_star"]) == 3 for r in res["table2"].values())
     f4 = res["fig4"]
     assert f4["m"][-1] < f4["m"][0] == 15  # N_max = 42: the GA merges clusters
+
+
+def test_bench_counts_cost_evaluations_per_decision() -> None:
+    """info["cost_evaluations"] reaches the bench: GA 20 per generation, a fixed clustering 0."""
+    from selenv.bench import format_table, run_bench
+
+    res = run_bench(
+        "selenv/ReceiverClustering-v0",
+        ["ga", "fixed_random", "greedy"],
+        episodes=2,
+        env_kwargs={"n_agents": 9, "horizon": 10},
+        progress=False,
+    )
+    ga, fixed, greedy = (res.agents[a] for a in ("ga", "fixed_random", "greedy"))
+    # one initial population (20) then one generation of 20 per step (10 per episode)
+    assert ga.cost_evaluations == 2 * (20 + 10 * 20)
+    assert ga.cost_evaluations_per_decision == pytest.approx(22.0)
+    assert fixed.cost_evaluations == 0
+    # greedy searches every 5th step, costing every allowed edit of the labels it sees
+    assert greedy.cost_evaluations is not None and greedy.cost_evaluations > 0
+    assert res.to_json()["agents"]["ga"]["cost_evaluations_per_decision"] == pytest.approx(22.0)
+    assert "cost evals/decision" in format_table(res).splitlines()[1]

@@ -72,6 +72,25 @@ def test_cl_view_rows_are_the_pairs() -> None:
         view_for("selenv/Unknown-v0", env)
 
 
+def test_cl_fused_view_carries_greedys_previewed_gains() -> None:
+    env = gym.make(CL_ID, n_agents=3, budget=2, horizon=5)
+    obs, info = env.reset(seed=3)
+    view = view_for(CL_ID, env, "cl_pairs_fused")
+    assert view.name == "cl_pairs_fused"
+    cand = view(obs)
+    allowed = np.flatnonzero(obs["action_mask"][:-1])
+    assert allowed.size > 0
+    expect = [max(env.unwrapped.preview_gain(int(p)), 0.0) for p in allowed]
+    np.testing.assert_allclose(cand["gain"][allowed], expect, rtol=1e-6)
+    assert cand["gain"][-1] == 0.0  # stop
+    greedy = make("greedy", CL_ID)
+    greedy.reset(env, seed=3)
+    g = cand["gain"][:-1]
+    assert greedy.act(obs, info) == (int(np.argmax(g)) if g.max() > 0 else len(g))
+    with pytest.raises(ValueError, match="no candidate view 'nope'"):
+        view_for(CL_ID, env, "nope")
+
+
 def test_clustering_view_matches_the_edit_encoding() -> None:
     """The view's mask is the env's edit mask; in assignment mode its actions are the edits."""
     from selenv.envs.receiver_clustering import apply_edit
@@ -324,6 +343,18 @@ def test_shipped_checkpoint_loads_and_acts(env_id: str) -> None:
     assert np.isfinite(ret) and np.isfinite(obj)
     meta = json.loads(DEFAULT_CHECKPOINTS[env_id].with_suffix(".json").read_text())
     assert meta["env_id"] == env_id and meta["metrics"]
+
+
+def test_shipped_proxy_cl_checkpoint_uses_its_own_view() -> None:
+    """The metadata's view is re-applied: the proxy policy reads the naive gains, no previews."""
+    ckpt = DEFAULT_CHECKPOINTS[CL_ID].with_name("cl_scheduling_ppo_proxy.zip")
+    agent = SB3PolicyAgent(ckpt, env_id=CL_ID)
+    env = gym.make(CL_ID, n_agents=3, budget=1, horizon=3)
+    ret, obj = _play(agent, env, seed=4)
+    assert agent.view.name == "cl_pairs" and np.isfinite(ret) and np.isfinite(obj)
+    shipped = SB3PolicyAgent(env_id=CL_ID)
+    shipped.reset(env, seed=0)
+    assert shipped.view.name == "cl_pairs_fused"
 
 
 def test_bench_runs_a_checkpoint_path(tmp_path: Path) -> None:

@@ -73,7 +73,7 @@ def test_ranking_fit_learns_the_oracle_order() -> None:
     after = fit_ranking(model.policy, data, epochs=40, learning_rate=3e-3, val_fraction=0.0,
                         progress=False)  # fmt: skip
     assert after["cross_entropy"] < before["cross_entropy"] - 0.5
-    assert after["regret"] < 0.5 * before["regret"]
+    assert after["regret"] < 0.6 * before["regret"]
     assert after["top1"] > before["top1"]
     with pytest.raises(ValueError, match="every obs entry"):
         RankingData({"gain": data.obs["gain"][:3]}, data.deltas)

@@ -1,8 +1,12 @@
 """Train MaskablePPO on ``selenv/CLScheduling-v0`` (which relative measurements to fuse).
 
 The env's observation is rewritten by :class:`learned.rl.views.CLView`: the directed pairs
-(and the stop action) become candidates with the pair's information-gain proxy and the two
-agents' uncertainties, so the policy does not depend on the number of pairs. Evaluation: the
+(and the stop action) become candidates with the pair's gain and the two agents'
+uncertainties, so the policy does not depend on the number of pairs. The gain is, by default
+(``--view cl_pairs_fused``), the exact previewed decrease of the objective by the pair's fused
+update -- the quantity the greedy agent maximises, so with the gain skip the untrained policy
+is a softened greedy -- or (``--view cl_pairs``) the env's cheap naive-EKF proxy, which
+needs no preview (``checkpoints/cl_scheduling_ppo_proxy.zip``). Evaluation: the
 saved checkpoint against ``greedy`` (previews every pair's fused update), ``round_robin`` and
 ``random`` with the same fusion, on held-out seeds.
 
@@ -34,16 +38,19 @@ class Config(PPOConfig):
     vec_env: str = "subproc"
     n_steps: int = 256
     batch_size: int = 256
-    gain_skip_init: float = 1.0
+    gain_skip_init: float = 2.0
     out: str = "checkpoints/cl_scheduling_ppo.zip"
     eval_episodes: int = 20
     baselines: str = "greedy,round_robin,random"
+    # cl_pairs_fused (previewed fused gains, the shipped run) | cl_pairs (naive-EKF proxy:
+    # checkpoints/cl_scheduling_ppo_proxy.zip, trained with --view cl_pairs --gain-skip-init 1)
+    view: str = "cl_pairs_fused"
 
 
-def make_env(kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
-    """One training env: the CL env in its pairs-as-candidates view."""
+def make_env(kwargs: dict[str, Any], view: str = "cl_pairs") -> gym.Env[Any, Any]:
+    """One training env: the CL env in its pairs-as-candidates view (``cl_pairs[_fused]``)."""
     env = gym.make(ENV_ID, **kwargs)
-    return CandidateViewWrapper(env, view_for(ENV_ID, env))
+    return CandidateViewWrapper(env, view_for(ENV_ID, env, view))
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -53,9 +60,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     return train(
         cfg,
         env_id=ENV_ID,
-        make_env=lambda: make_env(kwargs),
+        make_env=lambda: make_env(kwargs, cfg.view),
         make_eval_env=lambda: gym.make(ENV_ID, **kwargs),
-        view="cl_pairs",
+        view=cfg.view,
         tb_name="cl_ppo",
     )
 

@@ -224,7 +224,7 @@ class SB3PolicyAgent(Agent):
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
         """Build the env's candidate view and check it against the checkpoint."""
         super().reset(env, seed)
-        self.view = view_for(self.env_id, env)
+        self.view = view_for(self.env_id, env, self.metadata.get("view"))
         if self.verify_top_k and type(self.view).verify is CandidateView.verify:
             raise ValueError(
                 f"verify_top_k={self.verify_top_k}: the {self.view.name!r} view of "

@@ -20,6 +20,7 @@ a checkpoint acts (:mod:`learned.rl.agent`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -102,16 +103,27 @@ class CLView(CandidateView):
     """``CLScheduling-v0``: candidates = the ``P`` directed pairs ``(i, j)`` + stop (last).
 
     Pair ``p = (i, j)``: ``gain`` = the env's ``pair_gain`` (naive-EKF information gain, a
-    proxy of the fused one); ``whitened`` = ``[log det P_i, log det P_j, log std_i, log std_j]``
-    (agent ``i`` measures, ``j`` is measured: the fused gain depends on how the two compare);
-    ``features`` = ``[0, time, 0, 0]``. Stop: gain 0, whitened 0, features ``[1, time, 0, 0]``.
+    proxy of the fused one) or, with ``previewer`` (view ``"cl_pairs_fused"``), the exact
+    objective decrease of the pair's fused update, ``max(previewer(p), 0)`` with
+    ``previewer = env.unwrapped.preview_gain`` (what the ``greedy`` agent maximises; one
+    previewed update per available pair and decision); ``whitened`` = ``[log det P_i,
+    log det P_j, log std_i, log std_j]`` (agent ``i`` measures, ``j`` is measured: the fused
+    gain depends on how the two compare); ``features`` = ``[0, time, 0, 0]``. Stop: gain 0,
+    whitened 0, features ``[1, time, 0, 0]``.
     """
 
     name = "cl_pairs"
     WIDTH = 4
 
-    def __init__(self, pairs: tuple[tuple[int, int], ...]) -> None:
+    def __init__(
+        self,
+        pairs: tuple[tuple[int, int], ...],
+        previewer: Callable[[int], float] | None = None,
+    ) -> None:
         self.pairs = tuple(pairs)
+        self.previewer = previewer
+        if previewer is not None:
+            self.name = "cl_pairs_fused"
         self.i = np.array([p[0] for p in self.pairs], dtype=np.intp)
         self.j = np.array([p[1] for p in self.pairs], dtype=np.intp)
 
@@ -133,8 +145,12 @@ class CLView(CandidateView):
         features[P, 0] = 1.0
         features[:, 1] = float(np.asarray(obs["time"]).reshape(-1)[0])
         gain = np.zeros(P + 1, np.float32)
-        gain[:P] = obs["pair_gain"]
         mask = np.asarray(obs["action_mask"], dtype=np.int8)
+        if self.previewer is None:
+            gain[:P] = obs["pair_gain"]
+        else:
+            for p in np.flatnonzero(mask[:P]):
+                gain[p] = max(self.previewer(int(p)), 0.0)
         selected = np.zeros(P + 1, np.int8)
         selected[:P] = 1 - mask[:P]
         return {
@@ -256,27 +272,37 @@ class ClusteringEditView(CandidateView):
         return edits[j] if costs[j] < bank.cost().J else 0
 
 
-#: env id -> factory of its view from the (unwrapped) env
-VIEWS: dict[str, Any] = {
-    "selenv/FIMSelection-v0": lambda env: IdentityView(),
-    "selenv/LandmarkSelection-v0": lambda env: IdentityView(),
-    "selenv/CLScheduling-v0": lambda env: CLView(env.unwrapped.pairs),
-    "selenv/ReceiverClustering-v0": lambda env: ClusteringEditView(
-        env.unwrapped.n, env.unwrapped.max_size, env.unwrapped.action_mode
-    ),
+#: env id -> {view name -> factory of the view from the env}; the first name is the default
+VIEWS: dict[str, dict[str, Callable[[Any], CandidateView]]] = {
+    "selenv/FIMSelection-v0": {"identity": lambda env: IdentityView()},
+    "selenv/LandmarkSelection-v0": {"identity": lambda env: IdentityView()},
+    "selenv/CLScheduling-v0": {
+        "cl_pairs": lambda env: CLView(env.unwrapped.pairs),
+        "cl_pairs_fused": lambda env: CLView(env.unwrapped.pairs, env.unwrapped.preview_gain),
+    },
+    "selenv/ReceiverClustering-v0": {
+        "clustering_edits": lambda env: ClusteringEditView(
+            env.unwrapped.n, env.unwrapped.max_size, env.unwrapped.action_mode
+        )
+    },
 }
 
 
-def view_for(env_id: str, env: gym.Env[Any, Any]) -> CandidateView:
-    """The candidate view of ``env`` (made by ``gymnasium.make(env_id)``).
+def view_for(env_id: str, env: gym.Env[Any, Any], name: str | None = None) -> CandidateView:
+    """Candidate view ``name`` (default: the env's first) of ``env`` (``gymnasium.make(env_id)``).
 
     Raises:
-        ValueError: no view for ``env_id`` (the message lists the supported ids).
+        ValueError: no view for ``env_id``, or no view ``name`` for it (the message lists the
+            supported ones).
     """
     if env_id not in VIEWS:
         raise ValueError(f"no candidate view for {env_id!r}; supported: {sorted(VIEWS)}")
-    view: CandidateView = VIEWS[env_id](env)
-    return view
+    views = VIEWS[env_id]
+    if name is None:
+        name = next(iter(views))
+    if name not in views:
+        raise ValueError(f"no candidate view {name!r} for {env_id}; supported: {sorted(views)}")
+    return views[name](env)
 
 
 class CandidateViewWrapper(gym.ObservationWrapper[Any, Any, Any]):

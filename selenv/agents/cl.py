@@ -16,7 +16,6 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.agents.base import Agent, AgentSpec, register_agent
-from selenv.core.linalg import logdet_spd
 from selenv.envs.cl_scheduling import CLSchedulingEnv
 
 __all__ = ["CL_ENV_ID", "GreedySchedule", "RoundRobinSchedule"]
@@ -43,16 +42,11 @@ class GreedySchedule(Agent):
     def act(self, obs: Any, info: dict[str, Any]) -> int:
         """Best pair by previewed objective decrease, or stop (index ``P``) if none helps."""
         base = self.base
-        sim, mask = base.sim, np.asarray(info["action_mask"], dtype=bool)
+        mask = np.asarray(info["action_mask"], dtype=bool)
         stop = base.n_pairs
         best, best_gain = stop, 0.0
         for p in np.flatnonzero(mask[:-1]):
-            i = base.pairs[p][0]
-            _, P_new = sim.preview(int(p))
-            if base.objective == "logdet":
-                gain = float(logdet_spd(sim.P[i], "P_i") - logdet_spd(P_new, "P_new"))
-            else:
-                gain = float(np.trace(sim.P[i][:2, :2]) - np.trace(P_new[:2, :2]))
+            gain = base.preview_gain(int(p))
             if gain > best_gain:
                 best, best_gain = int(p), gain
         return best

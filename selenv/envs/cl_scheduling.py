@@ -200,6 +200,20 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         self._available = sim.available()
         self._done_pairs = set()
 
+    def preview_gain(self, p: int) -> float:
+        """Decrease of the objective if pair ``p`` were processed now (previewed, no change).
+
+        One ``fusion`` update of agent ``i``'s belief with pair ``p``'s measurement, undone:
+        ``log det P_i - log det P_i+`` (``objective="logdet"``) or the drop of its horizontal
+        position variance (``"trace"``); negative when the update would raise it.
+        """
+        sim = self.sim
+        i = self.pairs[p][0]
+        _, P_new = sim.preview(int(p))
+        if self.objective == "logdet":
+            return float(logdet_spd(sim.P[i], "P_i") - logdet_spd(P_new, "P_new"))
+        return float(np.trace(sim.P[i][:2, :2]) - np.trace(P_new[:2, :2]))
+
     def _pair_gains(self) -> np.ndarray:
         sim = self.sim
         out = np.zeros(self.n_pairs)
