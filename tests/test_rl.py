@@ -196,7 +196,7 @@ def test_cl_training_script_with_subprocess_envs(tmp_path: Path) -> None:
             "--tensorboard-dir=",
         ]
     )
-    assert meta["view"] == "cl_pairs" and meta["obs_layout"]["n_candidates_trained"] == 7
+    assert meta["view"] == "cl_pairs_fused" and meta["obs_layout"]["n_candidates_trained"] == 7
     agent = SB3PolicyAgent(out, env_id=CL_ID)
     for n_agents in (3, 4):  # the policy does not depend on the number of pairs
         env = gym.make(CL_ID, n_agents=n_agents, budget=1, horizon=4)

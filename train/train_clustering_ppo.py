@@ -15,8 +15,9 @@ describes every edit by the receivers' noise levels, the clusters' composition a
    stage 1 exists; ``--rank-states 0 --total-timesteps 40000`` reproduces that run.
 
 Evaluation on held-out seeds (default assignment encoding): ``ppo`` (the policy's top edit:
-no cost evaluation at all), ``ppo_top4`` (its 4 best edits costed, the best improving one
-played: 4 evaluations per step) against ``ga`` (20 per step), ``greedy`` and ``fixed_random``.
+no cost evaluation at all), ``ppo_top4`` / ``ppo_top8`` (its 4 / 8 best edits costed, the
+best improving one played: <= 4 / 8 evaluations per step) against ``ga`` (20 per step),
+``greedy`` and ``fixed_random``.
 
     python -m train.train_clustering_ppo   # -> checkpoints/receiver_clustering_ppo.zip
 """
@@ -64,7 +65,7 @@ class Config(PPOConfig):
     rank_explore: float = 0.2  # random edit probability on the labelling trajectories
     rank_workers: int = 2
     rank_horizon: int = 500  # episode length of the labelling trajectories
-    verify_top_k: str = "4"  # evaluated variants ppo_topK (comma-separated K; empty: none)
+    verify_top_k: str = "4,8"  # evaluated variants ppo_topK (comma-separated K; empty: none)
 
 
 def make_env(kwargs: dict[str, Any]) -> gym.Env[Any, Any]:

@@ -200,12 +200,13 @@ register_agent(
         kwargs={"env_id": CLUSTERING_ENV_ID},
     )
 )
-register_agent(
-    AgentSpec(
-        "ppo_top4",
-        _ID,
-        "learned.rl.agent:make_ppo_agent",
-        "edit-ranking policy's 4 best edits costed, best improving one played",
-        kwargs={"env_id": CLUSTERING_ENV_ID, "verify_top_k": 4},
+for _k in (4, 8):
+    register_agent(
+        AgentSpec(
+            f"ppo_top{_k}",
+            _ID,
+            "learned.rl.agent:make_ppo_agent",
+            f"edit-ranking policy's {_k} best edits costed, best improving one played",
+            kwargs={"env_id": CLUSTERING_ENV_ID, "verify_top_k": _k},
+        )
     )
-)
