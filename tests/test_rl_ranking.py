@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from learned.rl.agent import SB3PolicyAgent
+from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from learned.rl.candidate_policy import make_maskable_ppo
 from learned.rl.ranking import (
     RankingData,
@@ -20,9 +20,21 @@ from learned.rl.ranking import (
 from learned.rl.views import CandidateViewWrapper, view_for
 from selenv.agents import make
 from selenv.envs.receiver_clustering import apply_edit, edit_mask
-from train import train_clustering_ppo
+from train import train_clustering_dagger, train_clustering_ppo
 
 CLU_ID = "selenv/ReceiverClustering-v0"
+FIM_ID = "selenv/FIMSelection-v0"
+
+
+def _play_final(agent: SB3PolicyAgent) -> float:
+    env = gym.make(CLU_ID, n_agents=9, horizon=4)
+    obs, info = env.reset(seed=2)
+    agent.reset(env, seed=2)
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
+        done = terminated or truncated
+    return float(info["objective"])
 
 
 def test_listnet_targets_closed_form() -> None:
@@ -90,7 +102,7 @@ def test_clustering_script_ranks_then_verifies(tmp_path: Path) -> None:
             '--env-kwargs={"n_agents": 9, "horizon": 10}',
             "--rank-states=30",
             "--rank-epochs=2",
-            "--rank-workers=1",
+            "--rank-workers=2",  # spawned worker processes
             "--rank-horizon=20",
             "--eval-episodes=1",
             "--eval-horizon=10",
@@ -113,6 +125,36 @@ def test_clustering_script_ranks_then_verifies(tmp_path: Path) -> None:
     labels = top2.act(obs, info)
     j_new = float(env.unwrapped.bank.evaluate(labels)[0])
     assert j_new <= env.unwrapped.bank.cost().J  # never plays a worsening edit
+    # DAgger: the trained policy drives the labelling trajectories, the exact costs label them
+    dagger = collect_clustering_ranking({"n_agents": 9, "horizon": 12}, 6, seed=3, workers=1,
+                                        label_every=2, explore=0.0, progress=False,
+                                        behaviour=str(out), behaviour_top_k=2)  # fmt: skip
+    assert len(dagger) == 6 and np.all(dagger.deltas[:, 0] == 0.0)
+    assert np.array_equal(np.isfinite(dagger.deltas), dagger.obs["action_mask"].astype(bool))
+    # the DAgger script: the checkpoint drives, the exact costs label, the logits are refitted
+    dag = train_clustering_dagger.main(
+        [
+            f"--checkpoint={out}",
+            f"--out={tmp_path / 'dagger.zip'}",
+            '--env-kwargs={"n_agents": 9, "horizon": 10}',
+            "--states=8",
+            "--epochs=1",
+            "--workers=1",
+            "--no-progress",
+            "--eval-episodes=1",
+            "--verify-top-k=2",
+            "--baselines=",
+        ]
+    )
+    assert dag["dagger"]["states_train"] == 7 and set(dag["metrics"]["agents"]) == {
+        "ppo",
+        "ppo_top2",
+    }
+    assert np.isfinite(_play_final(SB3PolicyAgent(tmp_path / "dagger.zip", env_id=CLU_ID)))
+    with pytest.raises(ValueError, match="was trained on 'selenv/FIMSelection-v0'"):
+        train_clustering_dagger.main(
+            [f"--checkpoint={DEFAULT_CHECKPOINTS[FIM_ID]}", "--no-progress"]
+        )
     with pytest.raises(ValueError, match="no exact verification"):
         fim = SB3PolicyAgent(env_id="selenv/FIMSelection-v0", verify_top_k=3)
         fim.reset(gym.make("selenv/FIMSelection-v0"), seed=0)

@@ -38,6 +38,7 @@ from selenv.agents.base import Agent
 __all__ = [
     "CHECKPOINT_DIR",
     "DEFAULT_CHECKPOINTS",
+    "LOAD_CUSTOM_OBJECTS",
     "SB3PolicyAgent",
     "load_metadata",
     "make_ppo_agent",
@@ -53,8 +54,9 @@ DEFAULT_CHECKPOINTS = {
     "selenv/ReceiverClustering-v0": CHECKPOINT_DIR / "receiver_clustering_ppo.zip",
 }
 
-#: objects of the saved model that acting does not need (and that may not unpickle elsewhere)
-_CUSTOM_OBJECTS: dict[str, Any] = {
+#: objects of the saved model that acting (or a ranking fit with its own optimiser) does not
+#: need and that may not unpickle elsewhere: pass as ``custom_objects`` to ``MaskablePPO.load``
+LOAD_CUSTOM_OBJECTS: dict[str, Any] = {
     "learning_rate": 0.0,
     "lr_schedule": lambda _: 0.0,
     "clip_range": lambda _: 0.0,
@@ -145,7 +147,9 @@ class SB3PolicyAgent(Agent):
             )
         algorithm, expected_policy = by_name[algo_name]
         try:
-            model = algorithm.load(self.checkpoint, device="cpu", custom_objects=_CUSTOM_OBJECTS)
+            model = algorithm.load(
+                self.checkpoint, device="cpu", custom_objects=LOAD_CUSTOM_OBJECTS
+            )
         except Exception as exc:  # zip, pickle and torch errors alike
             raise ValueError(f"cannot load checkpoint {self.checkpoint}: {exc}") from exc
         policy = model.policy

@@ -20,6 +20,7 @@ top action) or as the proposal of a verified top-``k`` search
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -99,29 +100,59 @@ def clustering_edit_deltas(env: gym.Env[Any, Any]) -> np.ndarray:
     return out
 
 
-def _collect_worker(args: tuple[dict[str, Any], int, int, int, float, bool]) -> RankingData:
-    env_kwargs, n_states, seed, label_every, explore, progress = args
-    env = gym.make(CLUSTERING_ID, **{**env_kwargs, "action_mode": "edit"})
+@dataclass(frozen=True)
+class _Job:
+    env_kwargs: dict[str, Any]
+    n_states: int
+    seed: int
+    label_every: int
+    explore: float
+    progress: bool
+    behaviour: str | None
+    behaviour_top_k: int
+
+
+def _collect_worker(job: _Job) -> RankingData:
+    env = gym.make(CLUSTERING_ID, **{**job.env_kwargs, "action_mode": "edit"})
     view = view_for(CLUSTERING_ID, env)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(job.seed)
+    agent = None
+    if job.behaviour is not None:
+        from learned.rl.agent import SB3PolicyAgent
+
+        th.set_num_threads(1)  # one worker per core
+
+        agent = SB3PolicyAgent(
+            job.behaviour, env_id=CLUSTERING_ID, verify_top_k=job.behaviour_top_k
+        )
     rows: list[dict[str, np.ndarray]] = []
     deltas: list[np.ndarray] = []
-    obs, _ = env.reset(seed=int(rng.integers(2**31)))
-    bar = tqdm(total=n_states, desc="ranking labels", unit="state", disable=not progress)
-    while len(rows) < n_states:
+
+    def reset() -> tuple[Any, dict[str, Any]]:
+        seed = int(rng.integers(2**31))
+        out = env.reset(seed=seed)
+        if agent is not None:
+            agent.reset(env, seed=seed)
+        return out
+
+    obs, info = reset()
+    bar = tqdm(total=job.n_states, desc="ranking labels", unit="state", disable=not job.progress)
+    while len(rows) < job.n_states:
         action = 0
-        if env.unwrapped.bank.k % label_every == 0:  # type: ignore[attr-defined]
+        if env.unwrapped.bank.k % job.label_every == 0:  # type: ignore[attr-defined]
             d = clustering_edit_deltas(env)
             rows.append(view(obs))
             deltas.append(d)
             bar.update(1)
             action = int(np.argmin(d)) if d.min() < 0.0 else 0  # the greedy expert's edit
-        if rng.random() < explore:  # visit states off the expert's path too
+        if agent is not None:  # DAgger: the learner's own states, the expert's labels
+            action = int(agent.act(obs, info))
+        if rng.random() < job.explore:  # visit states off the behaviour's path too
             allowed = np.flatnonzero(obs["action_mask"])
             action = int(rng.choice(allowed))
-        obs, _, terminated, truncated, _ = env.step(action)
+        obs, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
-            obs, _ = env.reset(seed=int(rng.integers(2**31)))
+            obs, info = reset()
     bar.close()
     env.close()
     stacked = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
@@ -137,12 +168,19 @@ def collect_clustering_ranking(
     explore: float = 0.05,
     workers: int | None = None,
     progress: bool = True,
+    behaviour: str | None = None,
+    behaviour_top_k: int = 0,
 ) -> RankingData:
     """Label ``n_states`` states of ``ReceiverClustering-v0`` with every edit's ``dJ``.
 
     States come from the greedy expert's trajectories (the best improving edit every
-    ``label_every`` steps, keep in between, a random allowed edit with probability
-    ``explore``), on episodes seeded from ``seed``; ``workers`` processes share the work.
+    ``label_every`` steps, keep in between) or, with ``behaviour`` (a checkpoint path), from
+    that policy's own trajectories (DAgger, Ross et al. 2011: the learner visits the states,
+    the exact costs label them; it acts every step, as
+    ``SB3PolicyAgent(behaviour, verify_top_k=behaviour_top_k)``); a random allowed edit
+    replaces the action with probability ``explore``. Episodes are seeded from ``seed``;
+    ``workers`` processes (spawned: safe after torch has started threads; so a script calling
+    this with ``workers > 1`` needs the ``if __name__ == "__main__":`` guard) share the work.
 
     Raises:
         ValueError: ``n_states < 1``, ``label_every < 1``, ``explore`` outside [0, 1].
@@ -156,12 +194,21 @@ def collect_clustering_ranking(
     seeds = np.random.SeedSequence(seed).generate_state(workers)
     shares = [n_states // workers + (w < n_states % workers) for w in range(workers)]
     jobs = [
-        (env_kwargs, shares[w], int(seeds[w]), label_every, explore, progress and w == 0)
+        _Job(
+            env_kwargs,
+            shares[w],
+            int(seeds[w]),
+            label_every,
+            explore,
+            progress and w == 0,
+            behaviour,
+            behaviour_top_k,
+        )
         for w in range(workers)
     ]
     if workers == 1:
         return _collect_worker(jobs[0])
-    with ProcessPoolExecutor(workers) as pool:
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         return RankingData.concatenate(list(pool.map(_collect_worker, jobs)))
 
 
