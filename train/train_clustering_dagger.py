@@ -25,11 +25,9 @@ import torch
 from sb3_contrib import MaskablePPO
 
 from learned.config import parse_config
-from learned.rl.agent import DEFAULT_CHECKPOINTS, LOAD_CUSTOM_OBJECTS, SB3PolicyAgent, load_metadata
+from learned.rl.agent import DEFAULT_CHECKPOINTS, LOAD_CUSTOM_OBJECTS, load_metadata
 from learned.rl.ranking import collect_clustering_ranking, fit_ranking
-from learned.rl.training import evaluate
-from selenv.agents import Agent
-from selenv.agents import make as make_agent
+from learned.rl.training import evaluate_checkpoint
 
 ENV_ID = "selenv/ReceiverClustering-v0"
 
@@ -101,17 +99,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     json_path.write_text(json.dumps(meta, indent=2) + "\n")
     if cfg.eval_episodes:
         eval_kwargs = meta.get("eval_env_kwargs", kwargs)
-        agents: dict[str, Agent] = {"ppo": SB3PolicyAgent(out, env_id=ENV_ID)}
-        for k in [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]:
-            agents[f"ppo_top{k}"] = SB3PolicyAgent(out, env_id=ENV_ID, verify_top_k=k)
-        for name in [b.strip() for b in cfg.baselines.split(",") if b.strip()]:
-            agents[name] = make_agent(name, ENV_ID)
-        seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
-        meta["metrics"] = {
-            "episodes": len(seeds),
-            "eval_seeds": [seeds[0], seeds[-1]],
-            "agents": evaluate(lambda: gym.make(ENV_ID, **eval_kwargs), agents, seeds),
-        }
+        ks = [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]
+        meta["metrics"] = evaluate_checkpoint(
+            out,
+            env_id=ENV_ID,
+            make_eval_env=lambda: gym.make(ENV_ID, **eval_kwargs),
+            seeds=[cfg.eval_seed + e for e in range(cfg.eval_episodes)],
+            baselines=cfg.baselines,
+            policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
+        )
         json_path.write_text(json.dumps(meta, indent=2) + "\n")
         summary = {k: v["mean_final_objective"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_final_objective": summary}, indent=2))

@@ -42,7 +42,7 @@ from learned.rl.candidate_policy import ALGORITHMS, make_ppo, obs_layout
 from selenv.agents import Agent
 from selenv.bench.runner import AgentResult, run_episode
 
-__all__ = ["PPOConfig", "TqdmCallback", "evaluate", "train"]
+__all__ = ["PPOConfig", "TqdmCallback", "evaluate", "evaluate_checkpoint", "train"]
 
 
 @dataclass
@@ -134,6 +134,36 @@ def evaluate(
     return out
 
 
+def evaluate_checkpoint(
+    checkpoint: str | Path,
+    *,
+    env_id: str,
+    make_eval_env: Callable[[], gym.Env[Any, Any]],
+    seeds: list[int],
+    baselines: str = "",
+    policy_variants: dict[str, dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """The ``metrics`` block of a checkpoint's JSON (held-out evaluation).
+
+    The saved file, reloaded through the ``ppo`` agent (plus ``policy_variants``: name ->
+    agent keyword arguments), against the comma-separated registered ``baselines``, one
+    episode per seed each.
+    """
+    from learned.rl.agent import SB3PolicyAgent  # the adapter sits above this module's users
+    from selenv.agents import make as make_agent
+
+    agents: dict[str, Agent] = {"ppo": SB3PolicyAgent(checkpoint, env_id=env_id)}
+    for name, kw in (policy_variants or {}).items():
+        agents[name] = SB3PolicyAgent(checkpoint, env_id=env_id, **kw)
+    for name in [b.strip() for b in baselines.split(",") if b.strip()]:
+        agents[name] = make_agent(name, env_id)
+    return {
+        "episodes": len(seeds),
+        "eval_seeds": [seeds[0], seeds[-1]],
+        "agents": evaluate(make_eval_env, agents, seeds),
+    }
+
+
 def train(
     cfg: PPOConfig,
     *,
@@ -162,9 +192,6 @@ def train(
             keyword arguments of :class:`~learned.rl.agent.SB3PolicyAgent` (e.g.
             ``{"ppo_top4": {"verify_top_k": 4}}``).
     """
-    from learned.rl.agent import SB3PolicyAgent  # the adapter sits above this module's users
-    from selenv.agents import make as make_agent
-
     torch.set_num_threads(cfg.torch_threads)
     out = Path(cfg.out)
     if out.suffix != ".zip":
@@ -265,16 +292,14 @@ def train(
     # 5. evaluate the saved checkpoint (round trip through the agent) against the baselines
     if cfg.eval_episodes:
         seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
-        agents: dict[str, Agent] = {"ppo": SB3PolicyAgent(out, env_id=env_id)}
-        for name, kw in (policy_variants or {}).items():
-            agents[name] = SB3PolicyAgent(out, env_id=env_id, **kw)
-        for name in [b.strip() for b in cfg.baselines.split(",") if b.strip()]:
-            agents[name] = make_agent(name, env_id)
-        meta["metrics"] = {
-            "episodes": len(seeds),
-            "eval_seeds": [seeds[0], seeds[-1]],
-            "agents": evaluate(make_eval_env, agents, seeds),
-        }
+        meta["metrics"] = evaluate_checkpoint(
+            out,
+            env_id=env_id,
+            make_eval_env=make_eval_env,
+            seeds=seeds,
+            baselines=cfg.baselines,
+            policy_variants=policy_variants,
+        )
         json_path.write_text(json.dumps(meta, indent=2) + "\n")
         summary = {k: v["mean_return"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_return": summary, "wall_seconds": round(wall, 1)}, indent=2))
