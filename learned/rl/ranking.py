@@ -85,18 +85,14 @@ def clustering_edit_deltas(env: gym.Env[Any, Any]) -> np.ndarray:
     greedy search compares); 0 for the no-op, ``+inf`` for masked edits. Costs one
     evaluation per allowed edit (counted by the env's filter bank).
     """
-    from selenv.envs.receiver_clustering import apply_edit, edit_mask
+    from selenv.envs.receiver_clustering import edit_cost_changes, edit_mask
 
     base = env.unwrapped
     bank = base.bank  # type: ignore[attr-defined]
-    labels = bank.labels
-    mask = edit_mask(labels, base.max_size)  # type: ignore[attr-defined]
+    mask = edit_mask(bank.labels, base.max_size)  # type: ignore[attr-defined]
     out = np.full(mask.size, np.inf)
-    out[0] = 0.0
-    edits = np.flatnonzero(mask[1:]) + 1
-    if edits.size:
-        costs = bank.evaluate(np.stack([apply_edit(labels, int(a)) for a in edits]))
-        out[edits] = costs - bank.cost().J
+    allowed = np.flatnonzero(mask)
+    out[allowed] = edit_cost_changes(bank, allowed)
     return out
 
 

@@ -260,16 +260,18 @@ class ClusteringEditView(CandidateView):
         Costs ``len(actions)`` evaluations (minus a no-op) through the env's filter bank, which
         counts them (``info["cost_evaluations"]``), exactly as the greedy search does.
         """
-        from selenv.envs.receiver_clustering import apply_edit
+        from selenv.envs.receiver_clustering import edit_cost_changes
 
         bank = env.unwrapped.bank  # type: ignore[attr-defined]
-        labels = np.asarray(obs["assignment"], dtype=np.int64)
-        edits = [int(a) for a in np.asarray(actions).ravel() if int(a) != 0]
-        if not edits:
+        if not np.array_equal(bank.labels, np.asarray(obs["assignment"])):
+            raise ValueError("verify: obs is not the env's current observation")
+        edits = np.asarray(actions, dtype=np.int64).reshape(-1)
+        edits = edits[edits != 0]
+        if edits.size == 0:
             return 0
-        costs = bank.evaluate(np.stack([apply_edit(labels, a) for a in edits]))
-        j = int(np.argmin(costs))
-        return edits[j] if costs[j] < bank.cost().J else 0
+        d = edit_cost_changes(bank, edits)
+        j = int(np.argmin(d))
+        return int(edits[j]) if d[j] < 0.0 else 0
 
 
 #: env id -> {view name -> factory of the view from the env}; the first name is the default

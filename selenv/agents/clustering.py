@@ -27,6 +27,7 @@ from selenv.agents.clustering_ga import GAConfig, GeneticClustering
 from selenv.envs.receiver_clustering import (
     ReceiverClusteringEnv,
     apply_edit,
+    edit_cost_changes,
     edit_mask,
 )
 from selenv.scenarios.clustering_labels import random_feasible_clustering
@@ -161,10 +162,9 @@ class GreedyMoveAgent(Agent):
                 mask[1 + n * n :] = False
             actions = np.flatnonzero(mask[1:]) + 1
             if actions.size:
-                cands = np.stack([apply_edit(labels, int(a)) for a in actions])
-                costs = bank.evaluate(cands)
-                j = int(np.argmin(costs))
-                if costs[j] < bank.cost().J:
+                d = edit_cost_changes(bank, actions)
+                j = int(np.argmin(d))
+                if d[j] < 0.0:
                     best_action = int(actions[j])
         if self.base.action_mode == "edit":
             return best_action

@@ -25,6 +25,7 @@ __all__ = [
     "clustering_observation",
     "clustering_observation_space",
     "edit_action_count",
+    "edit_cost_changes",
     "edit_mask",
     "initial_clustering",
 ]
@@ -131,6 +132,24 @@ def apply_edit(labels: np.ndarray, action: int) -> np.ndarray:
     iu, ju = _swap_pairs(n)
     i, j = int(iu[a - n * n]), int(ju[a - n * n])
     out[i], out[j] = labels[j], labels[i]
+    return out
+
+
+def edit_cost_changes(bank: ClusterFilterBank, actions: Any) -> np.ndarray:
+    """``dJ_a = J(apply_edit(labels, a)) - J(labels)`` of each edit ``a`` of ``actions``, now.
+
+    Algorithm 1 cost eq. (10) at the bank's current time (``labels = bank.labels``): what a
+    local search compares. The no-op (0) gets 0 without an evaluation; every other edit costs
+    one evaluation (counted by the bank). ``actions`` must be allowed edits
+    (:func:`edit_mask`); returns ``(len(actions),)``.
+    """
+    acts = np.asarray(actions, dtype=np.int64).reshape(-1)
+    out = np.zeros(acts.size)
+    edits = np.flatnonzero(acts != 0)
+    if edits.size:
+        labels = bank.labels
+        cands = np.stack([apply_edit(labels, int(acts[e])) for e in edits])
+        out[edits] = bank.evaluate(cands) - bank.cost().J
     return out
 
 
