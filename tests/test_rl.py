@@ -250,6 +250,9 @@ def test_marl_training_script(tmp_path: Path) -> None:
     }
     assert all(np.isfinite(v) for v in finals.values())
     assert meta["marl"]["path"] == "learned.rl.marl.SharedPolicyEnv"
+    # --eval-only re-evaluates the saved checkpoint on its own env kwargs: same numbers
+    again = train_fim_marl.main(["--eval-only", "--eval-episodes=2", f"--out={out}"])
+    assert again["metrics"] == meta["metrics"]
 
 
 def test_plain_ppo_never_samples_a_masked_candidate() -> None:

@@ -39,6 +39,7 @@ class Config(PPOConfig):
     total_timesteps: int = 100_000
     out: str = "checkpoints/fim_marl_ppo.zip"
     eval_episodes: int = 50
+    eval_only: bool = False  # skip training: evaluate the checkpoint at --out
 
 
 def play(policy: Any, kwargs: dict[str, Any], mode: str, seed: int) -> float:
@@ -61,10 +62,12 @@ def play(policy: Any, kwargs: dict[str, Any], mode: str, seed: int) -> float:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train the shared policy, save it, compare it with the greedy schemes; return metadata."""
-    from sb3_contrib import MaskablePPO
-
     cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
     kwargs = cfg.kwargs()
+    if cfg.eval_only:  # re-evaluate the checkpoint at --out, rewrite its metrics
+        meta = json.loads(Path(cfg.out).with_suffix(".json").read_text())
+        kwargs = meta["env_kwargs"]  # what the checkpoint was trained on
+        return _evaluate(cfg, kwargs, meta)
     meta = train(
         dataclasses.replace(cfg, eval_episodes=0),
         env_id=ENV_ID,
@@ -74,6 +77,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         tb_name="fim_marl_ppo",
         extra_meta={"marl": {"path": "learned.rl.marl.SharedPolicyEnv", "mode": cfg.mode}},
     )
+    return _evaluate(cfg, kwargs, meta)
+
+
+def _evaluate(cfg: Config, kwargs: dict[str, Any], meta: dict[str, Any]) -> dict[str, Any]:
+    """Final objectives of the shared policy and the greedy schemes on held-out seeds."""
+    from sb3_contrib import MaskablePPO
+
     if cfg.eval_episodes:
         model = MaskablePPO.load(cfg.out, device="cpu")
         seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
