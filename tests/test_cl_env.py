@@ -152,14 +152,14 @@ def test_bad_input() -> None:
         gym.make(ENV_ID, budget=0)
     with pytest.raises(ValueError, match="n_agents"):
         gym.make(ENV_ID, n_agents=1)
-    with pytest.raises(ValueError, match="unknown CLScheduling keyword"):
+    with pytest.raises(TypeError, match=r"unexpected keyword argument\(s\) \['colour'\]"):
         gym.make(ENV_ID, colour=1)
     with pytest.raises(ValueError, match="range_sigma"):
         gym.make(ENV_ID, range_sigma=-1.0)
-    env = gym.make(ENV_ID, n_agents=3, budget=2, fusion="naive", horizon=3)
+    env = gym.make(ENV_ID, n_agents=3, budget=2, fusion="naive", horizon=3, invalid_action="raise")
     env.reset(seed=0)
     env.step(0)
-    with pytest.raises(ValueError, match="masked"):
+    with pytest.raises(ValueError, match="action 0 is invalid: masked"):
         env.step(0)
     with pytest.raises(ValueError, match="out of range"):
         env.step(99)

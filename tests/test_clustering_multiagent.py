@@ -31,17 +31,17 @@ def _names(n: int) -> list[str]:
 
 
 def _masked_actions(
-    env: rc.raw_env, obs: dict[str, Any], rng: np.random.Generator
+    env: rc.ReceiverClusteringParallelEnv, obs: dict[str, Any], rng: np.random.Generator
 ) -> dict[str, int]:
     return {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in env.agents}
 
 
-def _order(env: rc.raw_env) -> np.ndarray:
+def _order(env: rc.ReceiverClusteringParallelEnv) -> np.ndarray:
     assert env.last_order is not None
     return env.last_order
 
 
-def _stay(env: rc.raw_env) -> dict[str, int]:
+def _stay(env: rc.ReceiverClusteringParallelEnv) -> dict[str, int]:
     return {a: int(env.bank.labels[i]) for i, a in enumerate(env.possible_agents)}
 
 
@@ -283,7 +283,7 @@ def test_shared_reward_matches_single_agent_env(
         ({"sigma": np.ones((3, 2))}, "sigma"),
         ({"horizon": 0}, "horizon"),
         ({"initial": "all"}, "initial"),
-        ({"render_mode": "human"}, "render_mode"),
+        ({"render_mode": "ansi"}, "render_mode"),
     ],
 )
 def test_constructor_errors(kw: dict[str, Any], match: str) -> None:
@@ -292,7 +292,7 @@ def test_constructor_errors(kw: dict[str, Any], match: str) -> None:
 
 
 def test_step_errors() -> None:
-    env = rc.parallel_env(**SMALL)
+    env = rc.parallel_env(**SMALL, invalid_action="raise")
     with pytest.raises(RuntimeError, match="reset"):
         _ = env.bank
     with pytest.raises(RuntimeError, match="reset"):
@@ -309,7 +309,7 @@ def test_step_errors() -> None:
         env.step(stay | {"receiver_2": 7})
     with pytest.raises(ValueError, match=r"receiver_2.*label -1 is out of range"):
         env.step(stay | {"receiver_2": -1})
-    with pytest.raises(ValueError, match=r"receiver_4.*label 0 is masked"):
+    with pytest.raises(ValueError, match=r"action 0 of receiver_4 is invalid: masked: label 0"):
         env.step(stay | {"receiver_4": 0})  # cluster 0 is full
     with pytest.raises(TypeError, match=r"receiver_1.*1\.0"):
         env.step(stay | {"receiver_1": 1.0})

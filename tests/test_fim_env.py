@@ -122,10 +122,10 @@ def test_agent_can_take_over_mid_episode():
 
 
 def test_bad_actions_raise_clear_errors():
-    env = gym.make(ENV_ID, **SMALL).unwrapped
+    env = gym.make(ENV_ID, **SMALL, invalid_action="raise").unwrapped
     env.reset(seed=0)
     env.step(3)
-    with pytest.raises(ValueError, match="action 3 is masked"):
+    with pytest.raises(ValueError, match="action 3 is invalid: masked"):
         env.step(3)
     with pytest.raises(ValueError, match="out of range"):
         env.step(env.n)

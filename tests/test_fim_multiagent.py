@@ -50,12 +50,18 @@ def test_independent_mode_is_per_agent_greedy_and_reward_is_centre_gain():
 
 def test_cooperative_mode_is_the_papers_sequential_scheme():
     env = fim_selection_v0.parallel_env(mode="cooperative", **KW)
-    obs, _ = env.reset(seed=7)
-    assert env.agents == ["agent_0"]
+    obs, infos = env.reset(seed=7)
     seen = []
     pol = CooperativeGreedyPolicy()
     while env.agents:
-        seen.append(tuple(env.agents))
+        assert env.agents == ["agent_0", "agent_1"]  # everyone present; the waiting one passes
+        acting = tuple(a for a in env.agents if infos[a]["on_turn"])
+        assert all(obs[a]["on_turn"][0] == (a in acting) for a in env.agents)
+        for a in env.agents:
+            if a not in acting:  # a waiting agent may only pass (action 0)
+                mask = infos[a]["action_mask"]
+                assert mask[0] and not mask[1:].any()
+        seen.append(acting)
         obs, *_, infos = env.step(pol.act(obs, env.agents))
     assert seen == [("agent_0",)] * 3 + [("agent_1",)] * 3
     P = env.problem
@@ -74,14 +80,22 @@ def test_cooperative_beats_independent_on_average():
 
 
 def test_unequal_budgets_and_errors():
-    env = fim_selection_v0.parallel_env(n_candidates=10, budgets=[1, 3], mode="independent")
+    env = fim_selection_v0.parallel_env(
+        n_candidates=10, budgets=[1, 3], mode="independent", invalid_action="raise"
+    )
     obs, _ = env.reset(seed=0)
-    _obs, *_ = env.step({"agent_0": 0, "agent_1": 0})
-    assert env.agents == ["agent_1"]
+    _obs, _rew, terms, _truncs, infos = env.step({"agent_0": 0, "agent_1": 0})
+    assert env.agents == ["agent_0", "agent_1"] and not any(terms.values())
+    assert not infos["agent_0"]["on_turn"] and infos["agent_1"]["on_turn"]
     with pytest.raises(ValueError, match="missing"):
         env.step({})
-    with pytest.raises(ValueError, match="masked"):
-        env.step({"agent_1": 0})
+    with pytest.raises(ValueError, match="action 0 of agent_1 is invalid: masked"):
+        env.step({"agent_0": 0, "agent_1": 0})
+    before = env.state().copy()
+    env.step({"agent_0": 5, "agent_1": 1})  # agent_0 waits: its 5 is ignored
+    after = env.state()
+    n = len(after) // 2 - 2  # state = gains (N), selected (N), budgets left (2), turns (2)
+    assert after[n:2 * n].sum() == before[n:2 * n].sum() + 1  # one more pick: agent_1's
     with pytest.raises(ValueError, match="budget"):
         fim_selection_v0.parallel_env(n_candidates=2, budgets=[1, 99])
     with pytest.raises(ValueError, match="mode"):

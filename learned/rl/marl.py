@@ -2,9 +2,12 @@
 
 SB3 trains single-agent ``gymnasium`` envs. :class:`SharedPolicyEnv` turns a PettingZoo
 ``ParallelEnv`` whose agents share one observation / action space into one: each Gymnasium
-step is **one agent's** decision, the agents taking their turns in the order of
-``penv.agents``. When every live agent of the round has decided, the joint action goes to
-``penv.step``. The same network therefore acts for every agent (parameter sharing; the agent's
+step is **one acting agent's** decision, the agents taking their turns in the order of
+``penv.agents``. Agents that wait this round (``infos[agent]["on_turn"]`` false, as in
+``fim_selection_v0``) are not asked: they pass with action ``0``, and the ``on_turn`` key is
+dropped from the observations (every observation shown is an acting agent's). When every
+acting agent of the round has decided, the joint action goes to ``penv.step``. (For the
+SuperSuit route, where every agent is a vector-env slot, see the README.) The same network therefore acts for every agent (parameter sharing; the agent's
 own observation is all it sees), and MaskablePPO trains it unchanged::
 
     from selenv.multiagent import fim_selection_v0
@@ -54,12 +57,25 @@ class SharedPolicyEnv(gym.Env[dict[str, np.ndarray], np.int64]):
                 "parameter sharing needs one observation and action space for all agents; "
                 f"got {dict(zip(agents, obs_spaces, strict=True))}"
             )
-        self.observation_space = obs_spaces[0]
+        space = obs_spaces[0]
+        if isinstance(space, gym.spaces.Dict) and "on_turn" in space.spaces:
+            space = gym.spaces.Dict({k: v for k, v in space.spaces.items() if k != "on_turn"})
+        self.observation_space = space
         self.action_space = act_spaces[0]
         self._obs: dict[str, Any] = {}
         self._infos: dict[str, Any] = {}
         self._pending: dict[str, int] = {}
         self._turn: list[str] = []
+
+    def _acting(self) -> list[str]:
+        """The live agents that act this round (the others pass with action 0)."""
+        live = list(self.penv.agents)
+        acting = [a for a in live if self._infos.get(a, {}).get("on_turn", True)]
+        self._pending = {a: 0 for a in live if a not in acting}
+        return acting
+
+    def _view(self, obs: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in obs.items() if k != "on_turn"}
 
     @property
     def agent(self) -> str:
@@ -78,9 +94,8 @@ class SharedPolicyEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         """Reset the multi-agent env; the first live agent decides first."""
         super().reset(seed=seed)
         self._obs, self._infos = self.penv.reset(seed=seed, options=options)
-        self._pending = {}
-        self._turn = list(self.penv.agents)
-        return self._obs[self.agent], self._info()
+        self._turn = self._acting()
+        return self._view(self._obs[self.agent]), self._info()
 
     def action_masks(self) -> np.ndarray:
         """The current agent's mask."""
@@ -98,12 +113,12 @@ class SharedPolicyEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             reward = float(np.mean(list(rewards.values()))) if rewards else 0.0
             self._obs.update(obs)
             self._infos.update(infos)
-            self._turn = list(self.penv.agents)
+            self._turn = self._acting() if self.penv.agents else []
             if not self._turn:
                 terminated = any(terms.values()) or not any(truncs.values())
                 truncated = not terminated
                 last = next(iter(obs)) if obs else None
                 info = dict(infos.get(last, {})) if last is not None else {}
                 obs_last = obs[last] if last is not None else self.observation_space.sample()
-                return obs_last, reward, terminated, truncated, info
-        return self._obs[self.agent], reward, terminated, truncated, self._info()
+                return self._view(obs_last), reward, terminated, truncated, info
+        return self._view(self._obs[self.agent]), reward, terminated, truncated, self._info()

@@ -1,7 +1,8 @@
 """Run agents on one env over identical seeded episodes and collect their results.
 
-Every agent gets its own env (``gymnasium.make(env_id, **env_kwargs)``, built once per agent)
-and plays the same episodes: episode ``e`` starts with ``env.reset(seed=seed + e)`` and
+Every agent gets its own env (``gymnasium.make(env_id, **env_kwargs)``, built once per agent;
+selenv's own envs with ``invalid_action="raise"`` unless ``env_kwargs`` says otherwise, so an
+agent that picks a masked action fails loudly) and plays the same episodes: episode ``e`` starts with ``env.reset(seed=seed + e)`` and
 ``agent.reset(env, seed=seed + e)``. The wall time of each ``agent.act`` call is measured
 with :func:`time.perf_counter`; the episode return is the sum of the rewards and the final
 objective is ``info["objective"]`` after the last step.
@@ -262,8 +263,10 @@ def _check_agents(
 
 
 def _build_env(env_id: str, env_kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
+    """The bench's env: selenv's with ``invalid_action="raise"`` unless given otherwise."""
+    strict = {"invalid_action": "raise"} if env_id in ENV_IDS else {}
     try:
-        return gym.make(env_id, **env_kwargs)
+        return gym.make(env_id, **{**strict, **env_kwargs})
     except (TypeError, ValueError) as exc:
         raise EnvKwargsError(f"cannot build {env_id} with env_kwargs {env_kwargs}: {exc}") from exc
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from itertools import permutations
 from typing import Any
 
@@ -10,7 +11,9 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.core.linalg import logdet_spd
-from selenv.envs.fim_selection import parse_action
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import EpisodeLengthSpec, check_known_keywords, check_render_mode
+from selenv.envs.rendering import Renderer, draw_cl_scheduling
 from selenv.scenarios.cooperative import (
     FUSION_METHODS,
     CLConfig,
@@ -24,7 +27,7 @@ __all__ = ["OBJECTIVES", "CLSchedulingEnv"]
 OBJECTIVES = ("logdet", "trace")
 
 
-class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
     r"""Schedule relative-measurement processing under a budget in cooperative localization.
 
     ## Description
@@ -38,9 +41,12 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     ## Action Space
     ``Discrete(P + 1)`` with ``P = n_agents (n_agents - 1)`` directed pairs (the order of
     ``env.unwrapped.pairs``): pick pair ``p``, or ``P`` = stop processing for this step.
-    Pairs already processed this step are masked (:meth:`action_masks`,
-    ``info["action_mask"]``, ``obs["action_mask"]``; stop is always allowed); a masked or
-    out-of-range action raises ``ValueError``.
+    Pairs already processed this step, or without a measurement now, are masked
+    (:meth:`action_masks`, ``info["action_mask"]``, ``obs["action_mask"]``; stop is always
+    allowed). A masked pair is handled by ``invalid_action`` (:mod:`selenv.envs.actions`):
+    ``"noop"`` (default) spends one of the step's ``budget`` slots without processing
+    anything, ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode. A
+    non-integer or out-of-range action is a ``TypeError`` / ``ValueError`` in every mode.
 
     ## Observation Space
     ``Dict``: ``logdet (A,)`` each agent's ``log det P``, ``pos_std (A,)`` its horizontal
@@ -62,18 +68,28 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     propagated.
 
     ## Episode End
-    Terminates after ``horizon`` steps.
+    Terminates after ``horizon`` filter steps, or at an invalid action with
+    ``invalid_action="terminate"``. A filter step takes 1 to ``budget`` env steps (a stop
+    ends it early), so an episode has at most ``budget * horizon`` steps
+    (``env.spec.max_episode_steps``, an upper bound). Never truncates.
+
+    ## Rendering
+    ``render_mode="rgb_array"`` or ``"human"``: each agent's true and estimated position with
+    its 2-sigma ellipse, the beacons, and the links processed in the current step.
 
     ## Arguments
     ``gymnasium.make("selenv/CLScheduling-v0", n_agents=4, budget=2, fusion="dmv",
-    horizon=200, objective="logdet", model="ins")``; other
-    :class:`~selenv.scenarios.cooperative.CLConfig` fields pass through.
+    horizon=200, objective="logdet", model="ins", invalid_action="noop",
+    invalid_action_penalty=0.0, render_mode=None)``; other
+    :class:`~selenv.scenarios.cooperative.CLConfig` fields pass through; an unknown keyword
+    raises ``TypeError``.
 
     ## Version History
-    * v0: initial version.
+    * v0: initial version (``invalid_action`` modes and rendering added without changing
+      valid trajectories).
     """
 
-    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
 
     def __init__(
         self,
@@ -83,11 +99,15 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         fusion: str = "dmv",
         horizon: int = 200,
         objective: str = "logdet",
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
         **config: Any,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        fields = {f.name for f in dataclasses.fields(CLConfig)}
+        check_known_keywords(config, fields - {"n_agents", "horizon"}, "CLScheduling-v0")
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         if fusion not in FUSION_METHODS[1:]:
             raise ValueError(f"fusion must be one of {FUSION_METHODS[1:]}, got {fusion!r}")
         if objective not in OBJECTIVES:
@@ -103,14 +123,12 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             "tracks": tracks,
             "input_sigma": ((0.02, 0.05), (0.06, 0.2)),
         }
-        try:
-            self.config = CLConfig(n_agents=n_agents, horizon=horizon, **{**defaults, **config})
-        except TypeError as exc:
-            raise ValueError(f"unknown CLScheduling keyword: {exc}") from None
+        self.config = CLConfig(n_agents=n_agents, horizon=horizon, **{**defaults, **config})
         self.pairs: tuple[tuple[int, int], ...] = self.config.relative_pairs
         self.n_pairs = len(self.pairs)
         self.budget, self.fusion, self.objective = int(budget), fusion, objective
         self.horizon = int(horizon)
+        self.max_episode_steps = self.budget * self.horizon
         A = int(n_agents)
         self.action_space = spaces.Discrete(self.n_pairs + 1)
         self.observation_space = spaces.Dict(  # type: ignore[assignment]
@@ -127,7 +145,9 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         self._sim: CLSimulation | None = None
         self._done_pairs: set[int] = set()
         self._available: list[int] = []
+        self._slots = 0
         self._done = False
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- oracle view -------------------------------------------------------------------------
     @property
@@ -139,8 +159,8 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
 
     @property
     def budget_left(self) -> int:
-        """Pairs that may still be processed in this step."""
-        return self.budget - len(self._done_pairs)
+        """Pairs that may still be processed in this step (an invalid no-op spends a slot)."""
+        return self.budget - self._slots
 
     def action_masks(self) -> np.ndarray:
         """(P + 1,) bool: available, unprocessed pairs; stop is always allowed."""
@@ -174,21 +194,45 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         sim = self.sim
         if self._done:
             raise RuntimeError("episode is over: call reset()")
-        p = parse_action(action, self.n_pairs + 1, self.action_masks())
-        reward = 0.0
-        if p < self.n_pairs:
+        p = check_discrete(action, self.n_pairs + 1)
+        reason = None if self.action_masks()[p] else self._masked_reason(p)
+        rule = self.invalid_rule
+        if rule.check(f"action {p}", reason) and rule.terminates:
+            self._done = True
+            return self._obs(), rule.penalty, True, False, self._info(reason)
+        reward = rule.penalty if reason else 0.0
+        if reason is None and p < self.n_pairs:
             before = self.objective_value()
             sim.relative_update(p)
             reward = before - self.objective_value()
             self._done_pairs.add(p)
+        if p < self.n_pairs:
+            self._slots += 1
         if p == self.n_pairs or self.budget_left == 0 or not self.action_masks()[:-1].any():
             if sim.k >= self.horizon:
                 self._done = True
-                return self._obs(), reward, True, False, self._info()
+                return self._obs(), reward, True, False, self._info(reason)
             before = self.objective_value()
             self._advance()  # propagation and the uncontrolled updates: their change counts too
             reward += before - self.objective_value()
-        return self._obs(), reward, False, False, self._info()
+        return self._obs(), reward, False, False, self._info(reason)
+
+    def render(self) -> np.ndarray | None:
+        """A frame of the team (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        sim, done = self.sim, sorted(self._done_pairs)
+        title = f"CLScheduling-v0 ({self.fusion}): step {sim.k}, objective {self.objective_value():.2f}"
+        return self._renderer.render(
+            lambda fig: draw_cl_scheduling(fig, sim, self.pairs, done, title)
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
+
+    def _masked_reason(self, p: int) -> str:
+        if p in self._done_pairs:
+            return f"masked: pair {self.pairs[p]} was already processed in this step"
+        return f"masked: pair {self.pairs[p]} has no relative measurement in this step"
 
     # -- helpers -----------------------------------------------------------------------------
     def _advance(self) -> None:
@@ -199,6 +243,7 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         sim.beacon_updates()
         self._available = sim.available()
         self._done_pairs = set()
+        self._slots = 0
 
     def preview_gain(self, p: int) -> float:
         """Decrease of the objective if pair ``p`` were processed now (previewed, no change).
@@ -237,7 +282,7 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             "action_mask": self.action_masks().astype(np.int8),
         }
 
-    def _info(self) -> dict[str, Any]:
+    def _info(self, reason: str | None = None) -> dict[str, Any]:
         sim = self.sim
         return {
             "objective": self.objective_value(),
@@ -245,4 +290,5 @@ class CLSchedulingEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             "position_errors": sim.position_errors(),
             "processed": sorted(self._done_pairs),
             "action_mask": self.action_masks(),
+            **self.invalid_rule.info(reason),
         }

@@ -9,6 +9,9 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.core.information import LogDetGainState
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.rendering import Renderer, draw_fim_selection
+from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.scenarios.fim_selection import (
     FIMProblem,
     config_from,
@@ -25,18 +28,13 @@ __all__ = [
 
 
 def parse_action(action: Any, n: int, mask: np.ndarray, name: str = "action") -> int:
-    """Validate a ``Discrete(n)`` action against ``mask``; return it as ``int``.
+    """Validate a ``Discrete(n)`` action against ``mask``; return it as ``int`` (strict).
 
     Raises:
         TypeError: not an integer (bools and floats are rejected, never rounded).
         ValueError: out of ``[0, n)`` or masked, with the reason.
     """
-    a = np.asarray(action)
-    if a.shape not in ((), (1,)) or a.dtype == bool or not np.issubdtype(a.dtype, np.integer):
-        raise TypeError(f"{name} must be an integer in [0, {n}), got {action!r}")
-    k = int(a.reshape(()))
-    if not 0 <= k < n:
-        raise ValueError(f"{name} {k} is out of range: expected an integer in [0, {n})")
+    k = check_discrete(action, n, name)
     if not mask[k]:
         raise ValueError(f"{name} {k} is masked: candidate {k} is already selected")
     return k
@@ -84,7 +82,7 @@ def fim_observation(
     }
 
 
-class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
     r"""Pick measurements one at a time to maximise the log det of the Fisher information.
 
     ## Description
@@ -100,8 +98,11 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     ## Action Space
     ``Discrete(N)``: the index of the candidate to select, ``N = n_candidates x sensors x
     agents``. Already-selected candidates are masked (:meth:`action_masks`,
-    ``info["action_mask"]``, ``obs["action_mask"]``); a masked or out-of-range action raises
-    ``ValueError``.
+    ``info["action_mask"]``, ``obs["action_mask"]``). Picking a masked candidate is handled by
+    ``invalid_action`` (:mod:`selenv.envs.actions`): ``"noop"`` (default) spends the budget
+    slot without selecting anything (``info["invalid_action"]``, ``info["invalid_reason"]``),
+    ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode. A non-integer or
+    out-of-range action is a ``TypeError`` / ``ValueError`` in every mode.
 
     ## Observation Space
     ``Dict`` (``m`` = rows per candidate, 2 with cameras else 1; ``d`` = parameters):
@@ -128,19 +129,27 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     Nothing is selected.
 
     ## Episode End
-    Terminates when ``budget`` candidates are selected. Never truncates.
+    Terminates after ``budget`` steps (``env.spec.max_episode_steps``), i.e. when the budget
+    is spent, or at an invalid action with ``invalid_action="terminate"``. Never truncates.
+
+    ## Rendering
+    ``render_mode="rgb_array"`` or ``"human"``: the sensing agents' paths, the target, every
+    candidate by sensor type with the picked ones bold, and the 2-sigma ellipse of the target
+    position under the current information.
 
     ## Arguments
     ``gymnasium.make("selenv/FIMSelection-v0", preset="example2", n_candidates=100,
     budget=10, sensors=None, n_agents=None, camera_sigma_px=None, toa_sigma_m=None,
-    doppler_sigma_mps=None, randomize=True)``; ``None`` keeps the preset's value. Presets:
-    ``example1`` (one camera), ``example2`` (camera + Doppler), ``example3`` (two agents).
+    doppler_sigma_mps=None, randomize=True, invalid_action="noop", invalid_action_penalty=0.0,
+    render_mode=None)``; ``None`` keeps the preset's value. Presets: ``example1`` (one
+    camera), ``example2`` (camera + Doppler), ``example3`` (two agents).
 
     ## Version History
-    * v0: initial version.
+    * v0: initial version (``invalid_action`` modes and rendering added without changing
+      valid trajectories).
     """
 
-    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 4}  # noqa: RUF012
 
     def __init__(
         self,
@@ -154,10 +163,12 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         toa_sigma_m: float | None = None,
         doppler_sigma_mps: float | None = None,
         randomize: bool = True,
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
         for key, val in (
             ("sensors", None if sensors is None else tuple(sensors)),
@@ -176,10 +187,14 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         if not 1 <= budget <= self.n:
             raise ValueError(f"budget must lie in [1, {self.n}] (the pool size), got {budget}")
         self.budget = int(budget)
+        self.max_episode_steps = self.budget
         self.action_space = spaces.Discrete(self.n)
         self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment]
         self.problem: FIMProblem | None = None
         self._state: LogDetGainState | None = None
+        self._steps = 0
+        self._done = False
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- oracle view used by heuristic agents ---------------------------------------------
     @property
@@ -191,8 +206,8 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
 
     @property
     def budget_left(self) -> int:
-        """Number of picks still to make."""
-        return self.budget - len(self.state.order)
+        """Number of picks still to make (an invalid no-op pick spends one too)."""
+        return self.budget - self._steps
 
     def action_masks(self) -> np.ndarray:
         """Boolean ``(N,)`` mask of allowed actions (MaskablePPO protocol)."""
@@ -209,17 +224,36 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             self.problem.Q0, self.problem.G, track_gains=True, track_whitened=True
         )
         self._features = candidate_features(self.problem)
+        self._steps, self._done = 0, False
         return self._obs(), self._info()
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """Select candidate ``action``; reward is its log-det gain (nats)."""
         state = self.state
-        if self.budget_left == 0:
+        if self._done:
             raise RuntimeError("episode is over: call reset()")
-        k = parse_action(action, self.n, ~state.selected)
-        reward = state.add(k)
-        terminated = self.budget_left == 0
-        return self._obs(), float(reward), terminated, False, self._info()
+        k = check_discrete(action, self.n)
+        reason = f"masked: candidate {k} is already selected" if state.selected[k] else None
+        rule = self.invalid_rule
+        if rule.check(f"action {k}", reason) and rule.terminates:
+            self._done = True
+            return self._obs(), rule.penalty, True, False, self._info(reason)
+        reward = rule.penalty if reason else float(state.add(k))
+        self._steps += 1
+        self._done = self.budget_left == 0
+        return self._obs(), reward, self._done, False, self._info(reason)
+
+    def render(self) -> np.ndarray | None:
+        """A frame of the scene (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        state, problem = self.state, self.problem
+        title = f"FIMSelection-v0: {len(state.order)} picked, f = {state.objective:.2f} nats"
+        return self._renderer.render(
+            lambda fig: draw_fim_selection(fig, problem, state.selected, state.information, title)
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
 
     def _obs(self) -> dict[str, np.ndarray]:
         s = self.state
@@ -227,10 +261,11 @@ class FIMSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         frac = self.budget_left / self.budget
         return fim_observation(s.gains, s.Z, s.selected, self._features, frac)
 
-    def _info(self) -> dict[str, Any]:
+    def _info(self, reason: str | None = None) -> dict[str, Any]:
         s = self.state
         return {
             "objective": float(s.objective),
             "action_mask": ~s.selected,
             "n_selected": len(s.order),
+            **self.invalid_rule.info(reason),
         }

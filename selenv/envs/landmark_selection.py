@@ -4,12 +4,17 @@ from __future__ import annotations
 
 from typing import Any
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 
 from selenv.core.information import LogDetGainState, whiten
 from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd
-from selenv.envs.fim_selection import fim_observation, fim_observation_space, parse_action
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import EpisodeLengthSpec, check_known_keywords, check_render_mode
+from selenv.envs.fim_selection import fim_observation, fim_observation_space
+from selenv.envs.rendering import Renderer, draw_landmark_selection
 from selenv.scenarios.landmarks import (
     LandmarkConfig,
     LandmarkEKF,
@@ -32,7 +37,7 @@ def landmark_features(h_pred: FloatArray, k: int, horizon: int) -> np.ndarray:
     return np.stack([np.sin(az), np.cos(az), el / (np.pi / 2), t], axis=1).astype(np.float32)
 
 
-class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
     r"""Choose which K of N landmarks the EKF processes at each step of an angles-only UAV flight.
 
     ## Description
@@ -49,8 +54,11 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     ## Action Space
     ``Discrete(N)``: one landmark per env step; the filter updates after the ``k``-th pick of
     a filter step. Landmarks already picked in this filter step are masked
-    (:meth:`action_masks`, ``info["action_mask"]``, ``obs["action_mask"]``); a masked or
-    out-of-range action raises ``ValueError``.
+    (:meth:`action_masks`, ``info["action_mask"]``, ``obs["action_mask"]``). A masked pick is
+    handled by ``invalid_action`` (:mod:`selenv.envs.actions`): ``"noop"`` (default) spends
+    the pick slot without adding a landmark (the filter still updates after ``k`` slots, with
+    the landmarks picked), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the
+    episode. A non-integer or out-of-range action is a ``TypeError`` / ``ValueError``.
 
     ## Observation Space
     The ``FIMSelection-v0`` layout over the landmarks of the current filter step:
@@ -76,18 +84,27 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     measurement noise; the first propagation is done, so the first pick is for step 1.
 
     ## Episode End
-    Terminates after ``horizon`` filter updates. Never truncates.
+    Terminates after ``horizon`` filter updates, i.e. ``k * horizon`` steps
+    (``env.spec.max_episode_steps``), or at an invalid action with
+    ``invalid_action="terminate"``. Never truncates.
+
+    ## Rendering
+    ``render_mode="rgb_array"`` or ``"human"``: the UAV's true track and estimate, the
+    landmarks with the ones picked now and in the last update, the 2-sigma position ellipse.
 
     ## Arguments
     ``gymnasium.make("selenv/LandmarkSelection-v0", n_landmarks=30, k=2, horizon=300,
-    objective="logdet", landmarks=None)``; ``landmarks`` is an optional (N, 3) ENU layout.
-    Any other :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too.
+    objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
+    render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout. Any other
+    :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too; an unknown
+    keyword raises ``TypeError``.
 
     ## Version History
-    * v0: initial version.
+    * v0: initial version (``invalid_action`` modes and rendering added without changing
+      valid trajectories).
     """
 
-    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
 
     def __init__(
         self,
@@ -97,11 +114,15 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         horizon: int = 300,
         objective: str = "logdet",
         landmarks: Any = None,
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
         **config: Any,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        fields = {f.name for f in dataclasses.fields(LandmarkConfig)}
+        check_known_keywords(config, fields - {"n_landmarks", "horizon", "landmarks"}, "LandmarkSelection-v0")
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         if objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
         if isinstance(k, bool) or not isinstance(k, int | np.integer):
@@ -110,16 +131,14 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             raise ValueError(f"k must lie in [1, n_landmarks={n_landmarks}], got {k}")
         if landmarks is not None:
             landmarks = np.asarray(landmarks, dtype=float)
-        try:
-            self.config = LandmarkConfig(
-                n_landmarks=n_landmarks, horizon=horizon, landmarks=landmarks, **config
-            )
-        except TypeError as exc:
-            raise ValueError(f"unknown LandmarkSelection keyword: {exc}") from None
+        self.config = LandmarkConfig(
+            n_landmarks=n_landmarks, horizon=horizon, landmarks=landmarks, **config
+        )
         self.n = int(n_landmarks)
         self.k = int(k)
         self.objective = objective
         self.horizon = int(horizon)
+        self.max_episode_steps = self.k * self.horizon
         self.action_space = gym.spaces.Discrete(self.n)
         space = fim_observation_space(self.n, 2, 9)
         space.spaces["features"] = gym.spaces.Box(-1.0, 1.0, (self.n, 4), np.float32)
@@ -132,6 +151,8 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         self._cost = float("nan")
         self._error = float("nan")
         self._done = False
+        self._slots = 0
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- oracle view for heuristics (same names as FIMSelectionEnv) --------------------------
     @property
@@ -150,8 +171,8 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
 
     @property
     def budget_left(self) -> int:
-        """Picks left in the current filter step."""
-        return self.k - len(self.picks)
+        """Picks left in the current filter step (an invalid no-op pick spends one too)."""
+        return self.k - self._slots
 
     def action_masks(self) -> np.ndarray:
         """(N,) bool: landmarks not yet picked in this filter step."""
@@ -178,22 +199,43 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         ekf = self.ekf
         if self._state is None or self._done:
             raise RuntimeError("episode is over: call reset()")
-        a = parse_action(action, self.n, self.action_masks())
-        self.state.add(a)
-        self.picks.append(a)
-        if len(self.picks) < self.k:
-            return self._obs(), 0.0, False, False, self._info()
+        a = check_discrete(action, self.n)
+        reason = f"masked: landmark {a} is already picked in this step" if self.state.selected[a] else None
+        rule = self.invalid_rule
+        if rule.check(f"action {a}", reason) and rule.terminates:
+            self._done = True
+            return self._obs(), rule.penalty, True, False, self._info(reason)
+        penalty = rule.penalty if reason else 0.0
+        if reason is None:
+            self.state.add(a)
+            self.picks.append(a)
+        self._slots += 1
+        if self._slots < self.k:
+            return self._obs(), penalty, False, False, self._info(reason)
         ekf.update(self.picks)
         self.last_selection = tuple(self.picks)
         self._cost = self._cost_of(ekf.P)
         self._error = self._position_error()  # of the posterior, before the next prediction
-        reward = -self._cost
+        reward = penalty - self._cost
         if ekf.k >= self.horizon:
             self._done = True
-            return self._obs(), reward, True, False, self._info()
+            return self._obs(), reward, True, False, self._info(reason)
         ekf.predict()
         self._open_step()
-        return self._obs(), reward, False, False, self._info()
+        return self._obs(), reward, False, False, self._info(reason)
+
+    def render(self) -> np.ndarray | None:
+        """A frame of the flight (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        ekf, problem = self.ekf, self.problem
+        title = f"LandmarkSelection-v0: step {ekf.k}, cost {self._cost:.2f}"
+        picks, last = tuple(self.picks), self.last_selection
+        return self._renderer.render(
+            lambda fig: draw_landmark_selection(fig, problem, ekf.x, ekf.P, ekf.k, picks, last, title)
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
 
     # -- helpers -----------------------------------------------------------------------------
     def _cost_of(self, P: FloatArray) -> float:
@@ -210,6 +252,7 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         Q0 = Linv.T @ Linv  # P_pred^-1 from its Cholesky factor
         self._state = LogDetGainState(0.5 * (Q0 + Q0.T), G, track_gains=True, track_whitened=True)
         self.picks = []
+        self._slots = 0
 
     def _obs(self) -> dict[str, np.ndarray]:
         st = self.state
@@ -222,7 +265,7 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         truth = self.problem.states[ekf.k]  # type: ignore[union-attr]
         return float(np.linalg.norm(ekf.x[:3] - truth[:3]))
 
-    def _info(self) -> dict[str, Any]:
+    def _info(self, reason: str | None = None) -> dict[str, Any]:
         ekf = self.ekf
         mask = self.action_masks() if not self._done else np.ones(self.n, bool)
         return {
@@ -232,4 +275,5 @@ class LandmarkSelectionEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             "picks": tuple(self.picks),
             "last_selection": self.last_selection,
             "action_mask": mask,
+            **self.invalid_rule.info(reason),
         }

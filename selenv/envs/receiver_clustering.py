@@ -8,6 +8,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
+from selenv.envs.rendering import Renderer, draw_receiver_clustering
 from selenv.scenarios.clustering import (
     ClusteringConfig,
     ClusteringProblem,
@@ -183,7 +186,7 @@ def clustering_observation(bank: ClusterFilterBank, horizon: int) -> dict[str, n
     }
 
 
-class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
+class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], Any]):
     r"""Re-cluster GNSS receivers with a shared bias to minimise the posterior MSE cost.
 
     ## Description
@@ -198,14 +201,19 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
     ## Action Space
     ``action_mode="assignment"`` (default): ``MultiDiscrete([n] * n)``, the clustering to use
     from now on as a label per receiver (labels are arbitrary: only the partition matters).
-    An infeasible clustering raises ``ValueError`` naming the violated cluster. This is the
-    GA's encoding. :meth:`action_masks` gives, per receiver, the labels it could take if every
-    other receiver stayed (the joint constraint is still validated).
+    This is the GA's encoding. :meth:`action_masks` gives, per receiver, the labels it could
+    take if every other receiver stayed; the joint state limit cannot be expressed per
+    receiver, so an element of the space can still be infeasible (a cluster over ``N_max``).
 
     ``action_mode="edit"``: ``Discrete(1 + n^2 + n(n-1)/2)``, one local edit of the current
     clustering (no-op, receiver ``i`` joins ``j``'s cluster or leaves to a singleton, swap two
-    receivers), exactly masked (:func:`edit_mask`); a masked action raises ``ValueError``.
-    Meant for RL (MaskablePPO).
+    receivers), exactly masked (:func:`edit_mask`). Meant for RL (MaskablePPO).
+
+    An infeasible clustering or a masked edit is handled by ``invalid_action``
+    (:mod:`selenv.envs.actions`): ``"noop"`` (default) keeps the current clustering and runs
+    the filter step (``info["invalid_action"]``, ``info["invalid_reason"]`` naming the violated
+    cluster), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode. Labels
+    outside ``[0, n)``, a wrong shape or non-integers are a ``ValueError`` / ``TypeError``.
 
     ## Observation Space
     ``Dict``: ``assignment (n,)`` canonical labels, ``cluster_size (n,)`` size of each
@@ -225,7 +233,13 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
     ``reset(options={"clustering": labels})``.
 
     ## Episode End
-    Terminates after ``horizon`` filter steps (a finite-horizon problem; ``time`` is observed).
+    Terminates after ``horizon`` filter steps (``env.spec.max_episode_steps``; a
+    finite-horizon problem, ``time`` is observed), or at an invalid action with
+    ``invalid_action="terminate"``.
+
+    ## Rendering
+    ``render_mode="rgb_array"`` or ``"human"``: the receivers placed at their two noise
+    levels ``sigma`` and coloured by cluster, and ``J`` with its terms ``J_G, J_C, J_L``.
 
     ## Step
     ``step(action)`` (1) re-clusters at time ``k`` if the partition changes, re-initialising the
@@ -235,14 +249,16 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
     ## Arguments
     ``gymnasium.make("selenv/ReceiverClustering-v0", n_agents=30, n_max_states=14, sigma=None,
     noise_correlation=0.9, dt=0.1, tau=20, weights=(1, 1, 1), horizon=500,
-    prior_std=(1, 1, 1), action_mode="assignment", initial="random")``. ``n_max_states=None``
-    lifts the constraint.
+    prior_std=(1, 1, 1), action_mode="assignment", initial="random", invalid_action="noop",
+    invalid_action_penalty=0.0, render_mode=None)``. ``n_max_states=None`` lifts the
+    constraint.
 
     ## Version History
-    * v0: initial version.
+    * v0: initial version (``invalid_action`` modes and rendering added without changing
+      valid trajectories).
     """
 
-    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
 
     def __init__(
         self,
@@ -258,10 +274,12 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
         prior_std: tuple[float, float, float] = (1.0, 1.0, 1.0),
         action_mode: str = "assignment",
         initial: str = "random",
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         self.config = clustering_config(
             n_agents=n_agents,
             n_max_states=n_max_states,
@@ -278,6 +296,7 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         self.n = int(n_agents)
         self.horizon = int(horizon)
+        self.max_episode_steps = self.horizon
         self.action_mode = action_mode
         self.initial = initial
         self.max_size = self.config.max_cluster_size
@@ -290,6 +309,8 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
             self.observation_space = clustering_observation_space(self.n, n_edit)  # type: ignore[assignment]
         self.problem: ClusteringProblem | None = None
         self._bank: ClusterFilterBank | None = None
+        self._done = False
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- oracle view for heuristics ----------------------------------------------------------
     @property
@@ -327,35 +348,65 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
             raise ValueError(f"unknown reset options {sorted(unknown)}; known: ['clustering']")
         labels = initial_clustering(self.problem, self.initial, opts, self.np_random)
         self._bank = ClusterFilterBank(self.problem, labels)
+        self._done = False
         return self._obs(), self._info(changed=False)
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """Re-cluster (if the action changes the partition), then one filter step."""
         bank = self.bank
-        if bank.k >= self.horizon:
+        if self._done:
             raise RuntimeError("episode is over: call reset()")
-        labels = self._parse(action)
-        changed = bank.recluster(labels)
+        labels, reason = self._parse(action)
+        rule = self.invalid_rule
+        if rule.check(f"action {self._describe(action)}", reason) and rule.terminates:
+            self._done = True
+            return self._obs(), rule.penalty, True, False, self._info(False, reason)
+        changed = False if labels is None else bank.recluster(labels)
         bank.step()
         J = bank.cost().J
-        terminated = bank.k >= self.horizon
-        return self._obs(), -J, terminated, False, self._info(changed=changed)
+        self._done = bank.k >= self.horizon
+        reward = -J + (rule.penalty if reason else 0.0)
+        return self._obs(), reward, self._done, False, self._info(changed, reason)
+
+    def render(self) -> np.ndarray | None:
+        """A frame of the clustering (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        bank = self.bank
+        c = bank.cost()
+        labels, sigma = bank.labels.copy(), bank.problem.sigma
+        title = f"ReceiverClustering-v0: step {bank.k}, J = {c.J:.4f}"
+        return self._renderer.render(
+            lambda fig: draw_receiver_clustering(
+                fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, bank.k, self.max_size, title
+            )
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
 
     # -- helpers -----------------------------------------------------------------------------
-    def _parse(self, action: Any) -> np.ndarray:
+    def _parse(self, action: Any) -> tuple[np.ndarray | None, str | None]:
+        """``(labels, None)`` for a valid action, ``(None, reason)`` for an invalid one.
+
+        Raises:
+            TypeError, ValueError: the action is not in the action space.
+        """
         bank = self.bank
         if self.action_mode == "assignment":
-            return self.problem.check_clustering(action, "action")  # type: ignore[union-attr]
-        a = np.asarray(action)
-        n_edit = edit_action_count(self.n)
-        if a.shape not in ((), (1,)) or a.dtype == bool or not np.issubdtype(a.dtype, np.integer):
-            raise TypeError(f"action must be an integer in [0, {n_edit}), got {action!r}")
-        k = int(a.reshape(()))
-        if not 0 <= k < n_edit:
-            raise ValueError(f"action {k} is out of range: expected an integer in [0, {n_edit})")
+            problem = self.problem
+            assert problem is not None  # reset() ran: the bank exists
+            arr = problem.check_labels(action, "action")
+            reason = problem.violation(arr)
+            return (None, f"infeasible: {reason}") if reason else (problem.check_clustering(arr), None)
+        k = check_discrete(action, edit_action_count(self.n))
         if not edit_mask(bank.labels, self.max_size)[k]:
-            raise ValueError(f"action {k} is masked: {self.describe_edit(k)} is not allowed now")
-        return apply_edit(bank.labels, k)
+            return None, f"masked: {self.describe_edit(k)} is not allowed now"
+        return apply_edit(bank.labels, k), None
+
+    def _describe(self, action: Any) -> str:
+        if self.action_mode == "assignment":
+            return np.array2string(np.asarray(action), separator=",", max_line_width=10**6)
+        return str(int(np.asarray(action).reshape(())))
 
     def describe_edit(self, action: int) -> str:
         """Human-readable meaning of an edit action."""
@@ -375,7 +426,7 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
             obs["action_mask"] = self.action_masks().astype(np.int8)
         return obs
 
-    def _info(self, changed: bool) -> dict[str, Any]:
+    def _info(self, changed: bool, reason: str | None = None) -> dict[str, Any]:
         bank = self.bank
         c = bank.cost()
         return {
@@ -388,4 +439,5 @@ class ReceiverClusteringEnv(gym.Env[dict[str, np.ndarray], Any]):
             "k": bank.k,
             "action_mask": self.action_masks(),
             "cost_evaluations": bank.n_cost_evaluations,
+            **self.invalid_rule.info(reason),
         }

@@ -9,26 +9,48 @@ own pool; all picks go to the fusion centre, whose information is
 | | |
 |---|---|
 | Import | ``from selenv.multiagent import fim_selection_v0`` |
-| API | ``fim_selection_v0.parallel_env(...)`` (native), ``fim_selection_v0.env(...)`` (AEC) |
-| Agents | ``agent_0 ... agent_{n-1}`` (``n`` from the preset, 2 for ``example3``) |
+| API | ``parallel_env(...)`` (native ``ParallelEnv``), ``env(...)`` (AEC with the standard |
+| | wrappers), ``raw_env(...)`` (unwrapped AEC), as in PettingZoo's own parallel modules |
+| Agents | ``agent_0 ... agent_{n-1}`` (``n`` from the preset, 2 for ``example3``), all live |
+| | from ``reset`` until the episode ends |
 | Action | ``Discrete(N_i)``: index into the agent's own pool (masked once selected) |
-| Observation | ``Dict`` as in ``selenv/FIMSelection-v0`` over the agent's own pool |
+| Observation | ``Dict`` as in ``selenv/FIMSelection-v0`` over the agent's own pool, plus |
+| | ``on_turn (1,)``: 1 if the agent's pick counts this step |
 | Reward | shared: the fusion centre's log-det gain over the step (nats) |
+| State | ``Box``: centre gains and selection of every candidate, budgets left, turns |
 
 Modes (``mode=``):
 
 * ``"independent"``: every agent with budget left picks each step, against its own
   ``Q0 + FIM(F_i)`` (no communication; Algorithm 1 run by every agent at once).
 * ``"cooperative"``: the paper's cooperative selection. Agents take turns: ``agent_0`` spends
-  its whole budget, then ``agent_1`` joins ``env.agents`` with the centre's FIM of every earlier
-  pick as its prior (``FIM(F_1*)`` replaces ``Q0``), and so on. Only the agent whose turn it is
-  is live; the others are not in ``env.agents`` yet (PettingZoo allows agents to join).
+  its whole budget, then ``agent_1`` picks with the centre's FIM of every earlier pick as its
+  prior (``FIM(F_1*)`` replaces ``Q0``), and so on.
   :func:`selenv.agents.fim_solvers.cooperative_greedy` is the same scheme as a plain solver.
 
-An agent whose budget is spent terminates and leaves ``env.agents``; the episode ends when all
-have. ``infos[agent]`` holds ``objective`` (the centre's ``f``) and ``action_mask``.
-A step must give an action for exactly the live agents; masked, out-of-range or missing
-actions raise ``ValueError``.
+## Turns: every agent is present, waiting agents pass
+Every agent stays in ``env.agents`` from ``reset`` until the episode ends, so the agent set
+never changes (what SuperSuit's ``pettingzoo_env_to_vec_env_v1`` and most MARL trainers need;
+``black_death_v3`` is not needed, and could not be used: it requires ``Box`` observations).
+An agent **acts** when ``obs["on_turn"] == 1`` (``infos[agent]["on_turn"]``): in cooperative
+mode the agent whose turn it is, in independent mode every agent with budget left. Any other
+agent **waits**: its action is accepted and ignored (a no-op, not an invalid action), and its
+``action_mask`` allows only action ``0``, so a masked policy passes with probability one and
+contributes no gradient. The episode ends for all agents together when every budget is spent
+(or at an invalid action with ``invalid_action="terminate"``).
+
+## Invalid actions
+A masked pick of an acting agent is handled by ``invalid_action`` (:mod:`selenv.envs.actions`):
+``"noop"`` (default) spends that agent's budget slot without a pick
+(``infos[agent]["invalid_action"]``, ``["invalid_reason"]``; ``invalid_action_penalty`` is
+added to that agent's reward), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the
+episode for everyone (the offender's reward is the penalty, the others' 0). A step must give an
+action for exactly the live agents; a missing one, a non-integer or an out-of-range action is
+a ``ValueError`` / ``TypeError`` in every mode.
+
+``infos[agent]`` holds ``objective`` (the centre's ``f``), ``action_mask``, ``on_turn`` and
+``invalid_action``. ``render_mode="rgb_array"`` / ``"human"`` draws the centre's picture
+(:class:`selenv.envs.fim_selection.FIMSelectionEnv`'s frame).
 """
 
 from __future__ import annotations
@@ -39,24 +61,27 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
-from pettingzoo import ParallelEnv
+from pettingzoo import AECEnv, ParallelEnv
+from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from selenv.core.information import LogDetGainState
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import check_render_mode
 from selenv.envs.fim_selection import (
     candidate_features,
     fim_observation,
     fim_observation_space,
-    parse_action,
 )
+from selenv.envs.rendering import Renderer, draw_fim_selection
 from selenv.scenarios.fim_selection import config_from, make_problem
 
-__all__ = ["env", "parallel_env", "raw_env"]
+__all__ = ["FIMSelectionParallelEnv", "env", "parallel_env", "raw_env"]
 
 MODES = ("independent", "cooperative")
 
 
-class raw_env(ParallelEnv):
+class FIMSelectionParallelEnv(ParallelEnv):
     """Parallel multi-agent FIM selection; see the module docstring for the manual.
 
     Args:
@@ -67,12 +92,15 @@ class raw_env(ParallelEnv):
         n_agents: override the preset's number of agents.
         sensors: override the preset's sensors (same for every agent).
         randomize: draw a new geometry per reset.
-        render_mode: must be ``None``.
+        invalid_action: ``"noop"``, ``"raise"`` or ``"terminate"`` (module docstring).
+        invalid_action_penalty: reward added for an invalid pick (float, default 0).
+        render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
         "name": "fim_selection_v0",
-        "render_modes": [],
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 4,
         "is_parallelizable": True,
     }
 
@@ -86,10 +114,12 @@ class raw_env(ParallelEnv):
         n_agents: int | None = None,
         sensors: Sequence[str] | None = None,
         randomize: bool = True,
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
@@ -99,7 +129,6 @@ class raw_env(ParallelEnv):
             overrides["sensors"] = tuple(sensors)
         self.config = config_from(preset, **overrides)
         self.mode = mode
-        self.render_mode = None
         probe = make_problem(self.config, np.random.default_rng(0))
         n_ag = self.config.n_agents
         self.possible_agents = [f"agent_{i}" for i in range(n_ag)]
@@ -115,11 +144,18 @@ class raw_env(ParallelEnv):
             self.budgets[a] = int(B)
         _, m, d = probe.G.shape
         self._action_spaces = {a: spaces.Discrete(len(p)) for a, p in self._pools.items()}
-        self._observation_spaces = {
-            a: fim_observation_space(len(p), m, d) for a, p in self._pools.items()
-        }
+        self._observation_spaces: dict[str, spaces.Space[Any]] = {}
+        for a, p in self._pools.items():
+            space = fim_observation_space(len(p), m, d)
+            space.spaces["on_turn"] = spaces.MultiBinary(1)
+            self._observation_spaces[a] = space
+        n_total = probe.G.shape[0]
+        #: global state for centralised critics: centre gains (N,), selection (N,), budget left
+        #: fraction (n_agents,), on-turn flags (n_agents,)
+        self.state_space = spaces.Box(0.0, np.inf, (2 * n_total + 2 * n_ag,), np.float32)
         self.agents: list[str] = []
         self._np_random: np.random.Generator | None = None
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     def observation_space(self, agent: str) -> spaces.Space[Any]:
         """The (fixed) observation space of ``agent``."""
@@ -129,9 +165,33 @@ class raw_env(ParallelEnv):
         """The (fixed) action space of ``agent``."""
         return self._action_spaces[agent]
 
+    def on_turn(self, agent: str) -> bool:
+        """Whether ``agent``'s pick counts this step (module docstring, "Turns")."""
+        if self._count[agent] >= self.budgets[agent]:
+            return False
+        if self.mode == "independent":
+            return True
+        first = next(a for a in self.possible_agents if self._count[a] < self.budgets[a])
+        return agent == first
+
     def action_mask(self, agent: str) -> np.ndarray:
-        """Boolean mask of ``agent``'s allowed actions."""
+        """Boolean mask of ``agent``'s allowed actions (only ``0`` while it waits)."""
+        if not self.on_turn(agent):
+            mask = np.zeros(len(self._pools[agent]), bool)
+            mask[0] = True
+            return mask
         return ~self._centre.selected[self._pools[agent]]
+
+    def state(self) -> np.ndarray:
+        """Global state (see ``state_space``) as one float32 array."""
+        c = self._centre
+        assert c.gains is not None  # tracked by construction
+        gains = c.gains
+        left = [1.0 - self._count[a] / self.budgets[a] for a in self.possible_agents]
+        turn = [float(self.on_turn(a)) for a in self.possible_agents]
+        return np.concatenate(
+            [np.where(c.selected, 0.0, gains), c.selected, left, turn]
+        ).astype(np.float32)
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
@@ -142,7 +202,8 @@ class raw_env(ParallelEnv):
         self.problem = make_problem(self.config, self._np_random)
         P = self.problem
         coop = self.mode == "cooperative"
-        self._centre = LogDetGainState(P.Q0, P.G, track_gains=coop, track_whitened=coop)
+        # gains always tracked: the global state() shows the centre's gains in both modes
+        self._centre = LogDetGainState(P.Q0, P.G, track_gains=True, track_whitened=coop)
         self._own = (
             {}
             if coop
@@ -153,14 +214,14 @@ class raw_env(ParallelEnv):
         )
         self._features = candidate_features(P)
         self._count = dict.fromkeys(self.possible_agents, 0)
-        self.agents = self.possible_agents[:1] if coop else list(self.possible_agents)
+        self.agents = list(self.possible_agents)
         return (
             {a: self._obs(a) for a in self.agents},
             {a: self._info(a) for a in self.agents},
         )
 
     def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
-        """Apply every live agent's pick; the shared reward is the centre's log-det gain."""
+        """Apply the acting agents' picks; the shared reward is the centre's log-det gain."""
         if not self.agents:
             raise RuntimeError("episode is over: call reset()")
         missing = set(self.agents) - set(actions)
@@ -170,31 +231,61 @@ class raw_env(ParallelEnv):
                 f"actions must hold exactly the live agents {self.agents}; "
                 f"missing {sorted(missing)}, unexpected {sorted(extra)}"
             )
-        picks = {
-            a: parse_action(actions[a], len(self._pools[a]), self.action_mask(a), f"action of {a}")
-            for a in self.agents
-        }
-        before = self._centre.objective
-        for a, k in picks.items():
-            self._centre.add(int(self._pools[a][k]))
-            if self._own:
-                self._own[a].add(k)
-            self._count[a] += 1
-        gain = self._centre.objective - before
+        rule = self.invalid_rule
+        picks: dict[str, int] = {}
+        reasons: dict[str, str] = {}
+        for a in self.agents:
+            k = check_discrete(actions[a], len(self._pools[a]), f"action of {a}")
+            if not self.on_turn(a):
+                continue  # waiting: accepted and ignored
+            if self._centre.selected[self._pools[a][k]]:
+                reasons[a] = f"masked: candidate {k} of {a}'s pool is already selected"
+                rule.check(f"action {k} of {a}", reasons[a])
+            else:
+                picks[a] = k
         live = list(self.agents)
-        terms = {a: self._count[a] >= self.budgets[a] for a in live}
-        self.agents = [a for a in live if not terms[a]]
-        if self.mode == "cooperative" and not self.agents:  # next agent's turn
-            nxt = self.possible_agents.index(live[-1]) + 1
-            if nxt < len(self.possible_agents):
-                self.agents = [self.possible_agents[nxt]]
-                live.append(self.agents[0])
-                terms[self.agents[0]] = False
+        if reasons and rule.terminates:
+            self.agents = []
+            rewards = {a: rule.penalty if a in reasons else 0.0 for a in live}
+            return self._result(live, rewards, dict.fromkeys(live, True), reasons)
+        before = self._centre.objective
+        for a in live:
+            if a in picks:
+                self._centre.add(int(self._pools[a][picks[a]]))
+                if self._own:
+                    self._own[a].add(picks[a])
+            if a in picks or a in reasons:
+                self._count[a] += 1
+        gain = float(self._centre.objective - before)
+        done = all(self._count[a] >= self.budgets[a] for a in live)
+        if done:
+            self.agents = []
+        rewards = {a: gain + (rule.penalty if a in reasons else 0.0) for a in live}
+        return self._result(live, rewards, dict.fromkeys(live, done), reasons)
+
+    def _result(
+        self,
+        live: list[str],
+        rewards: dict[str, float],
+        terms: dict[str, bool],
+        reasons: dict[str, str],
+    ) -> tuple[dict[str, Any], ...]:
         obs = {a: self._obs(a) for a in live}
-        rewards = dict.fromkeys(live, float(gain))
         truncs = dict.fromkeys(live, False)
-        infos = {a: self._info(a) for a in live}
+        infos = {a: self._info(a, reasons.get(a)) for a in live}
         return obs, rewards, terms, truncs, infos
+
+    def render(self) -> np.ndarray | None:
+        """The fusion centre's frame (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        c, problem = self._centre, self.problem
+        title = f"fim_selection_v0 ({self.mode}): {len(c.order)} picked, f = {c.objective:.2f}"
+        return self._renderer.render(
+            lambda fig: draw_fim_selection(fig, problem, c.selected, c.information, title)
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
 
     def _obs(self, agent: str) -> dict[str, np.ndarray]:
         pool = self._pools[agent]
@@ -203,17 +294,31 @@ class raw_env(ParallelEnv):
         assert view.gains is not None and view.Z is not None
         frac = 1.0 - self._count[agent] / self.budgets[agent]
         sel = self._centre.selected[pool]
-        return fim_observation(view.gains[idx], view.Z[idx], sel, self._features[pool], frac)
+        obs = fim_observation(view.gains[idx], view.Z[idx], sel, self._features[pool], frac)
+        obs["action_mask"] = self.action_mask(agent).astype(np.int8)
+        obs["on_turn"] = np.array([self.on_turn(agent)], np.int8)
+        return obs
 
-    def _info(self, agent: str) -> dict[str, Any]:
-        return {"objective": float(self._centre.objective), "action_mask": self.action_mask(agent)}
+    def _info(self, agent: str, reason: str | None = None) -> dict[str, Any]:
+        return {
+            "objective": float(self._centre.objective),
+            "action_mask": self.action_mask(agent),
+            "on_turn": self.on_turn(agent),
+            **InvalidActionRule.info(reason),
+        }
 
 
-def parallel_env(**kwargs: Any) -> raw_env:
-    """The native parallel env (see :class:`raw_env` for the keywords)."""
-    return raw_env(**kwargs)
+def parallel_env(**kwargs: Any) -> FIMSelectionParallelEnv:
+    """The native ``ParallelEnv`` (keywords: :class:`FIMSelectionParallelEnv`)."""
+    return FIMSelectionParallelEnv(**kwargs)
 
 
-def env(**kwargs: Any) -> Any:
-    """The AEC version (agents act in turn), converted with ``parallel_to_aec``."""
-    return parallel_to_aec(raw_env(**kwargs))
+def raw_env(**kwargs: Any) -> AECEnv:
+    """The unwrapped AEC version (agents act in turn), via ``parallel_to_aec``."""
+    return parallel_to_aec(parallel_env(**kwargs))
+
+
+def env(**kwargs: Any) -> AECEnv:
+    """The AEC version with PettingZoo's standard wrappers (bounds check, call order)."""
+    aec = wrappers.AssertOutOfBoundsWrapper(raw_env(**kwargs))
+    return wrappers.OrderEnforcingWrapper(aec)

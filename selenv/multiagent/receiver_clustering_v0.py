@@ -10,7 +10,8 @@ re-initialisation of new clusters (Algorithm 2, lines 17-19) are those of
 | | |
 |---|---|
 | Import | ``from selenv.multiagent import receiver_clustering_v0`` |
-| API | ``parallel_env(...)`` (native), ``env(...)`` (AEC), ``raw_env`` |
+| API | ``parallel_env(...)`` (native ``ParallelEnv``), ``env(...)`` (AEC with the standard |
+| | wrappers), ``raw_env(...)`` (unwrapped AEC), as in PettingZoo's own parallel modules |
 | Agents | ``receiver_0 ... receiver_{n-1}`` (``n = n_agents``), all live until the horizon |
 | Action | ``Discrete(n)``: a cluster label of the current canonical labelling (masked) |
 | Observation | ``Dict``: as in ``selenv/ReceiverClustering-v0`` + ``self``, ``action_mask`` |
@@ -30,8 +31,13 @@ of first appearance, ``m`` clusters). Receiver ``i`` answers a label ``t`` in ``
 labels receiver ``i`` could take if every other receiver stayed: its own label, every used
 label whose cluster has room (``size < max_size``) and every unused label. Its own label is
 always allowed, so the mask is never all zeros. With ``n_max_states=None`` every action is
-allowed. A masked, out-of-range or non-integer action raises ``ValueError``/``TypeError``
-naming the agent and the action; a step must give an action for exactly the live agents.
+allowed. A masked label (a full cluster) is handled by ``invalid_action``
+(:mod:`selenv.envs.actions`): ``"noop"`` (default) keeps the receiver where it is
+(``infos[agent]["invalid_action"]``, ``["invalid_reason"]``; ``invalid_action_penalty`` is
+added to its reward), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode for
+every agent (the offenders' reward is the penalty, the others' 0). An out-of-range or
+non-integer action is a ``ValueError``/``TypeError`` naming the agent and the action in every
+mode; a step must give an action for exactly the live agents.
 
 ## Resolution of joint moves (part of the contract)
 The joint choice may overfill a cluster (two receivers joining a cluster with room for one).
@@ -75,9 +81,13 @@ a random feasible clustering (``initial="singletons"``: all singletons) or
 the same ``sigma`` and initial clustering as the single-agent env. All agents terminate
 together after ``horizon`` filter steps and leave ``env.agents``.
 
+## Rendering
+``render_mode="rgb_array"`` / ``"human"``: the frame of ``selenv/ReceiverClustering-v0``.
+
 ## Arguments
 ``parallel_env(n_agents=30, n_max_states=14, sigma=None, noise_correlation=0.9, dt=0.1, tau=20,
-weights=(1, 1, 1), horizon=500, prior_std=(1, 1, 1), initial="random", render_mode=None)``.
+weights=(1, 1, 1), horizon=500, prior_std=(1, 1, 1), initial="random", invalid_action="noop",
+invalid_action_penalty=0.0, render_mode=None)``.
 
 ## Version History
 * v0: initial version.
@@ -90,9 +100,12 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
-from pettingzoo import ParallelEnv
+from pettingzoo import AECEnv, ParallelEnv
+from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import check_render_mode
 from selenv.envs.receiver_clustering import (
     clustering_config,
     clustering_observation,
@@ -103,9 +116,17 @@ from selenv.scenarios.clustering import (
     ClusteringProblem,
     make_clustering_problem,
 )
+from selenv.envs.rendering import Renderer, draw_receiver_clustering
 from selenv.scenarios.clustering_filters import ClusterFilterBank
 
-__all__ = ["env", "label_masks", "parallel_env", "raw_env", "resolve_moves"]
+__all__ = [
+    "ReceiverClusteringParallelEnv",
+    "env",
+    "label_masks",
+    "parallel_env",
+    "raw_env",
+    "resolve_moves",
+]
 
 
 def label_masks(labels: np.ndarray, max_size: int) -> np.ndarray:
@@ -154,7 +175,7 @@ def resolve_moves(
     return new, accepted
 
 
-class raw_env(ParallelEnv):
+class ReceiverClusteringParallelEnv(ParallelEnv):
     """Parallel multi-agent receiver clustering; see the module docstring for the manual.
 
     Args:
@@ -168,12 +189,15 @@ class raw_env(ParallelEnv):
         horizon: filter steps per episode.
         prior_std: initial 1-sigma ``(position, velocity, bias)`` per axis.
         initial: ``"random"`` or ``"singletons"`` initial clustering.
-        render_mode: must be ``None``.
+        invalid_action: ``"noop"``, ``"raise"`` or ``"terminate"`` (module docstring).
+        invalid_action_penalty: reward added for a masked label (float, default 0).
+        render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
         "name": "receiver_clustering_v0",
-        "render_modes": [],
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
         "is_parallelizable": True,
     }
 
@@ -190,10 +214,12 @@ class raw_env(ParallelEnv):
         horizon: int = 500,
         prior_std: tuple[float, float, float] = (1.0, 1.0, 1.0),
         initial: str = "random",
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         self.config = clustering_config(
             n_agents=n_agents,
             n_max_states=n_max_states,
@@ -206,7 +232,6 @@ class raw_env(ParallelEnv):
             horizon=horizon,
             initial=initial,
         )
-        self.render_mode = None
         self.n = n = int(n_agents)
         self.horizon = int(horizon)
         self.initial = initial
@@ -225,6 +250,7 @@ class raw_env(ParallelEnv):
         self.last_order: np.ndarray | None = None
         self._bank: ClusterFilterBank | None = None
         self._np_random: np.random.Generator | None = None
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- spaces and oracle view ------------------------------------------------------------------
     def observation_space(self, agent: str) -> spaces.Space[Any]:
@@ -284,21 +310,38 @@ class raw_env(ParallelEnv):
                 f"missing {sorted(missing)}, unexpected {sorted(extra)}"
             )
         masks = label_masks(bank.labels, self.max_size)
-        targets = np.array(
-            [self._parse(a, actions[a], masks[self._index[a]]) for a in self.possible_agents]
-        )
+        targets = np.array([self._parse(a, actions[a]) for a in self.possible_agents])
+        reasons: dict[str, str] = {}
+        for a, i in self._index.items():
+            t = int(targets[i])
+            if not masks[i, t]:
+                reasons[a] = (
+                    f"masked: label {t} is a cluster that already holds "
+                    f"max_size={self.max_size} receivers"
+                )
+                self.invalid_rule.check(f"action {t} of {a}", reasons[a])
+                targets[i] = bank.labels[i]  # noop: the receiver stays
+        live = list(self.agents)
+        if reasons and self.invalid_rule.terminates:
+            self.agents = []
+            masks = label_masks(bank.labels, self.max_size)
+            obs = self._observations(masks, live)
+            infos = self._infos(masks, None, False, reasons, live)
+            rewards = {a: self.invalid_rule.penalty if a in reasons else 0.0 for a in live}
+            done = dict.fromkeys(live, True)
+            return obs, rewards, done, dict.fromkeys(live, False), infos
         assert self._np_random is not None
         self.last_order = self._np_random.permutation(self.n)
         new_labels, accepted = resolve_moves(bank.labels, targets, self.max_size, self.last_order)
         changed = bank.recluster(new_labels)
         bank.step()
         J = bank.cost().J
-        live = list(self.agents)
         done = bank.k >= self.horizon
         masks = label_masks(bank.labels, self.max_size)
-        obs = self._observations(masks)
-        infos = self._infos(masks, accepted, changed=changed)
-        rewards = dict.fromkeys(live, -J)
+        obs = self._observations(masks, live)
+        infos = self._infos(masks, accepted, changed, reasons, live)
+        penalty = self.invalid_rule.penalty
+        rewards = {a: -J + (penalty if a in reasons else 0.0) for a in live}
         terms = dict.fromkeys(live, done)
         truncs = dict.fromkeys(live, False)
         if done:
@@ -306,24 +349,28 @@ class raw_env(ParallelEnv):
         return obs, rewards, terms, truncs, infos
 
     # -- helpers -------------------------------------------------------------------------------
-    def _parse(self, agent: str, action: Any, mask: np.ndarray) -> int:
-        n = self.n
-        a = np.asarray(action)
-        if a.shape not in ((), (1,)) or a.dtype == bool or not np.issubdtype(a.dtype, np.integer):
-            raise TypeError(
-                f"action of {agent} must be an integer label in [0, {n}), got {action!r}"
-            )
-        t = int(a.reshape(()))
-        if not 0 <= t < n:
-            raise ValueError(f"action of {agent}: label {t} is out of range [0, {n})")
-        if not mask[t]:
-            raise ValueError(
-                f"action of {agent}: label {t} is masked: that cluster already holds "
-                f"max_size={self.max_size} receivers"
-            )
-        return t
+    def _parse(self, agent: str, action: Any) -> int:
+        return check_discrete(action, self.n, f"action of {agent}: label")
 
-    def _observations(self, masks: np.ndarray) -> dict[str, dict[str, np.ndarray]]:
+    def render(self) -> np.ndarray | None:
+        """The clustering frame (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        bank = self.bank
+        c = bank.cost()
+        labels, sigma = bank.labels.copy(), bank.problem.sigma
+        title = f"receiver_clustering_v0: step {bank.k}, J = {c.J:.4f}"
+        return self._renderer.render(
+            lambda fig: draw_receiver_clustering(
+                fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, bank.k, self.max_size, title
+            )
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
+
+    def _observations(
+        self, masks: np.ndarray, agents: list[str] | None = None
+    ) -> dict[str, dict[str, np.ndarray]]:
         shared = clustering_observation(self.bank, self.horizon)
         eye = np.eye(self.n, dtype=np.int8)
         return {
@@ -333,11 +380,16 @@ class raw_env(ParallelEnv):
                 "action_mask": masks[i].astype(np.int8),
             }
             for a, i in self._index.items()
-            if a in self.agents
+            if a in (self.agents if agents is None else agents)
         }
 
     def _infos(
-        self, masks: np.ndarray, accepted: np.ndarray | None, changed: bool
+        self,
+        masks: np.ndarray,
+        accepted: np.ndarray | None,
+        changed: bool,
+        reasons: dict[str, str] | None = None,
+        agents: list[str] | None = None,
     ) -> dict[str, dict[str, Any]]:
         bank = self.bank
         common = {
@@ -347,19 +399,27 @@ class raw_env(ParallelEnv):
             "k": bank.k,
         }
         infos: dict[str, dict[str, Any]] = {}
+        reasons = reasons or {}
         for a, i in self._index.items():
-            if a in self.agents:
+            if a in (self.agents if agents is None else agents):
                 infos[a] = {**common, "action_mask": masks[i].copy()}
                 if accepted is not None:
-                    infos[a]["accepted"] = bool(accepted[i])
+                    infos[a]["accepted"] = bool(accepted[i]) and a not in reasons
+                infos[a].update(InvalidActionRule.info(reasons.get(a)))
         return infos
 
 
-def parallel_env(**kwargs: Any) -> raw_env:
-    """The native parallel env (see :class:`raw_env` for the keywords)."""
-    return raw_env(**kwargs)
+def parallel_env(**kwargs: Any) -> ReceiverClusteringParallelEnv:
+    """The native ``ParallelEnv`` (keywords: :class:`ReceiverClusteringParallelEnv`)."""
+    return ReceiverClusteringParallelEnv(**kwargs)
 
 
-def env(**kwargs: Any) -> Any:
-    """The AEC version (agents act in turn), converted with ``parallel_to_aec``."""
-    return parallel_to_aec(raw_env(**kwargs))
+def raw_env(**kwargs: Any) -> AECEnv:
+    """The unwrapped AEC version (agents act in turn), via ``parallel_to_aec``."""
+    return parallel_to_aec(parallel_env(**kwargs))
+
+
+def env(**kwargs: Any) -> AECEnv:
+    """The AEC version with PettingZoo's standard wrappers (bounds check, call order)."""
+    aec = wrappers.AssertOutOfBoundsWrapper(raw_env(**kwargs))
+    return wrappers.OrderEnforcingWrapper(aec)

@@ -238,24 +238,46 @@ class ClusteringProblem:
                 whose state or measurement count exceeds ``N_max`` (the message names the
                 cluster and its receivers).
         """
+        arr = self.check_labels(labels, name)
+        reason = self.violation(arr)
+        if reason is not None:
+            raise ValueError(f"{name}: {reason}")
+        return canonical_labels(arr)
+
+    def check_labels(self, labels: Any, name: str = "clustering") -> np.ndarray:
+        """Validate the form of a labelling (integers, shape ``(n,)``, values in ``[0, n)``).
+
+        This is membership of the ``MultiDiscrete([n] * n)`` space; feasibility is
+        :meth:`violation`. Returns the labels as an int array (not relabelled).
+
+        Raises:
+            ValueError: non-integer labels, wrong shape, labels outside ``[0, n)``.
+        """
         arr = as_labels(labels, name)
         if arr.shape != (self.n,):
             raise ValueError(f"{name} must have shape ({self.n},), got {arr.shape}")
         if arr.max() >= self.n:
             raise ValueError(f"{name}: labels must lie in [0, {self.n}), got {int(arr.max())}")
-        canon = canonical_labels(arr)
+        return arr
+
+    def violation(self, labels: np.ndarray) -> str | None:
+        """Why a well-formed labelling breaks the state limit of Problem 1, or ``None``.
+
+        The reason names the largest cluster, its receivers and the limit.
+        """
+        canon = canonical_labels(labels)
         sizes = np.bincount(canon)
         cap = self.max_cluster_size
-        if sizes.max() > cap:
-            j = int(np.argmax(sizes))
-            members = np.flatnonzero(canon == j).tolist()
-            s = int(sizes[j])
-            raise ValueError(
-                f"{name}: cluster {int(arr[members[0]])} (receivers {members}) has "
-                f"max(N(C), N_y(C)) = {max(n_states(s), n_measurements(s))} > "
-                f"n_max_states = {self.config.n_max_states} (at most {cap} receivers per cluster)"
-            )
-        return canon
+        if sizes.max() <= cap:
+            return None
+        j = int(np.argmax(sizes))
+        members = np.flatnonzero(canon == j).tolist()
+        s = int(sizes[j])
+        return (
+            f"cluster {int(labels[members[0]])} (receivers {members}) has "
+            f"max(N(C), N_y(C)) = {max(n_states(s), n_measurements(s))} > "
+            f"n_max_states = {self.config.n_max_states} (at most {cap} receivers per cluster)"
+        )
 
     # -- per-axis model (what the filters run on) -------------------------------------------
     def axis_model(self, members: Sequence[int]) -> tuple[FloatArray, FloatArray, FloatArray]:

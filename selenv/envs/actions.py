@@ -1,0 +1,116 @@
+"""Action validation shared by every env: what is outside a space, and what is merely invalid.
+
+Gymnasium's rule is that every element of ``env.action_space`` is a legal input to ``step()``
+(checkers, plain PPO, SuperSuit and TorchRL sample the space). selenv therefore separates:
+
+* **outside the action space** (wrong type, shape or range): always ``TypeError`` /
+  ``ValueError`` (:func:`check_discrete`);
+* **inside the space but invalid now** (a masked candidate, an infeasible clustering): handled
+  by the env's :class:`InvalidActionRule`, chosen with the constructor keywords
+  ``invalid_action`` and ``invalid_action_penalty``:
+
+  ========== ==========================================================================
+  mode       effect of an invalid action
+  ========== ==========================================================================
+  noop       (default) no selection or clustering changes; the rest of the step
+             happens (a budget slot or a time step is spent, so episodes stay bounded);
+             ``info["invalid_action"] = True``, ``info["invalid_reason"]`` says why;
+             the reward gets ``invalid_action_penalty`` (default 0) added
+  raise      ``ValueError`` naming the action and the reason (heuristics, ``selenv
+             bench``: a buggy agent is caught)
+  terminate  the episode ends (``terminated=True``) with reward
+             ``invalid_action_penalty``, as PettingZoo's illegal-move wrappers do
+  ========== ==========================================================================
+
+Masks are unaffected by the mode: ``action_masks()``, ``info["action_mask"]`` and
+``obs["action_mask"]`` always say which actions are valid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "INVALID_ACTION_MODES",
+    "InvalidActionRule",
+    "check_discrete",
+]
+
+INVALID_ACTION_MODES = ("noop", "raise", "terminate")
+
+
+def check_discrete(action: Any, n: int, name: str = "action") -> int:
+    """Validate an element of ``Discrete(n)`` and return it as ``int``.
+
+    Accepts Python and numpy integers, and integer arrays of shape ``()`` or ``(1,)`` (what
+    vectorised samplers hand out).
+
+    Raises:
+        TypeError: not an integer (bools and floats are rejected, never rounded).
+        ValueError: outside ``[0, n)``.
+    """
+    a = np.asarray(action)
+    if a.shape not in ((), (1,)) or a.dtype == bool or not np.issubdtype(a.dtype, np.integer):
+        raise TypeError(f"{name} must be an integer in [0, {n}), got {action!r}")
+    k = int(a.reshape(()))
+    if not 0 <= k < n:
+        raise ValueError(f"{name} {k} is out of range: expected an integer in [0, {n})")
+    return k
+
+
+@dataclass(frozen=True)
+class InvalidActionRule:
+    """What an env does with an action that is in its space but invalid now.
+
+    Attributes:
+        mode: ``"noop"``, ``"raise"`` or ``"terminate"`` (module docstring).
+        penalty: added to the reward of an invalid step (``noop``) or given as the reward of
+            the terminating step (``terminate``); finite float, default 0.
+    """
+
+    mode: str = "noop"
+    penalty: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.mode, str) or self.mode not in INVALID_ACTION_MODES:
+            raise ValueError(
+                f"invalid_action must be one of {INVALID_ACTION_MODES}, got {self.mode!r}"
+            )
+        p = self.penalty
+        if isinstance(p, bool) or not isinstance(p, int | float | np.integer | np.floating):
+            raise TypeError(f"invalid_action_penalty must be a float, got {type(p).__name__}")
+        if not math.isfinite(float(p)):
+            raise ValueError(f"invalid_action_penalty must be finite, got {p!r}")
+        object.__setattr__(self, "penalty", float(p))
+
+    def check(self, what: str, reason: str | None) -> bool:
+        """Return whether the action is invalid; in ``raise`` mode raise instead.
+
+        Args:
+            what: the action as the error message should name it (``"action 7"``).
+            reason: ``None`` if the action is valid, else why it is not.
+
+        Raises:
+            ValueError: ``mode == "raise"`` and ``reason`` is not ``None``.
+        """
+        if reason is None:
+            return False
+        if self.mode == "raise":
+            raise ValueError(f"{what} is invalid: {reason}")
+        return True
+
+    @property
+    def terminates(self) -> bool:
+        """Whether an invalid action ends the episode."""
+        return self.mode == "terminate"
+
+    @staticmethod
+    def info(reason: str | None) -> dict[str, Any]:
+        """The ``info`` entries of a step: ``invalid_action`` and, if invalid, ``invalid_reason``."""
+        if reason is None:
+            return {"invalid_action": False}
+        return {"invalid_action": True, "invalid_reason": reason}

@@ -1,0 +1,65 @@
+"""Constructor conventions shared by every env: keywords, ``render_mode``, ``spec``.
+
+* an unknown keyword is a ``TypeError`` (:func:`check_known_keywords`; Python's convention,
+  which ``gymnasium.make``, SB3's ``make_vec_env`` and TorchRL rely on), a bad value a
+  ``ValueError`` naming the argument;
+* ``render_mode`` is one of ``metadata["render_modes"]`` or ``None`` (:func:`check_render_mode`);
+* ``env.spec.max_episode_steps`` is the episode length the keywords imply
+  (:class:`EpisodeLengthSpec`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from gymnasium.envs.registration import EnvSpec
+
+__all__ = ["EpisodeLengthSpec", "check_known_keywords", "check_render_mode"]
+
+
+def check_known_keywords(given: dict[str, Any], known: Any, env_name: str) -> None:
+    """Raise ``TypeError`` for keywords of ``given`` not in ``known``."""
+    unknown = sorted(set(given) - set(known))
+    if unknown:
+        raise TypeError(
+            f"{env_name} got unexpected keyword argument(s) {unknown}; known: {sorted(known)}"
+        )
+
+
+def check_render_mode(render_mode: Any, metadata: dict[str, Any]) -> str | None:
+    """Return ``render_mode`` if it is ``None`` or in ``metadata["render_modes"]``.
+
+    Raises:
+        ValueError: any other value, naming the supported modes.
+    """
+    modes = metadata["render_modes"]
+    if render_mode is not None and render_mode not in modes:
+        raise ValueError(f"render_mode must be None or one of {modes}, got {render_mode!r}")
+    return render_mode
+
+
+class EpisodeLengthSpec:
+    """Mixin (put it before ``gymnasium.Env``): the spec reports the episode length.
+
+    ``gymnasium.make`` stores a spec with ``max_episode_steps=None`` on the unwrapped env; the
+    length of a selenv episode is known from the constructor keywords (``budget``, ``k *
+    horizon``, ...), so the spec is completed with :attr:`max_episode_steps` when it is set.
+    No ``TimeLimit`` is added by the registration: episodes end by termination. A
+    ``max_episode_steps`` given to ``gymnasium.make`` is kept as given.
+    """
+
+    #: the longest possible episode, in ``step`` calls (set by the env's ``__init__``)
+    max_episode_steps: int
+    _spec: EnvSpec | None = None
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """The env's spec, with ``max_episode_steps`` filled in."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: Any) -> None:
+        if isinstance(value, EnvSpec) and value.max_episode_steps is None:
+            value = dataclasses.replace(value, max_episode_steps=int(self.max_episode_steps))
+        self._spec = value
