@@ -27,8 +27,12 @@ FRAMES = {
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="docs/figures", help="output folder (default: %(default)s)")
-    parser.add_argument("--steps", type=int, default=6, help="steps before the frame (default: %(default)s)")
+    parser.add_argument(
+        "--out", default="docs/figures", help="output folder (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--steps", type=int, default=5, help="steps before the frame (default: %(default)s)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="reset seed (default: %(default)s)")
     args = parser.parse_args(argv)
     out = Path(args.out)

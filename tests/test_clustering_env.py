@@ -115,7 +115,9 @@ def test_infeasible_or_bad_actions_are_clear_errors() -> None:
         env.step(np.array([0.5, 1, 2, 3, 4, 5]))
     edit = gym.make(ENV_ID, n_agents=6, horizon=5, action_mode="edit", invalid_action="raise")
     edit.reset(seed=0, options={"clustering": [0, 0, 0, 1, 1, 1]})
-    with pytest.raises(ValueError, match=r"action 2 is invalid: masked: receiver 0 -> cluster of 1"):
+    with pytest.raises(
+        ValueError, match=r"action 2 is invalid: masked: receiver 0 -> cluster of 1"
+    ):
         edit.step(2)  # 0 joins 1's cluster: already together
     with pytest.raises(ValueError, match="out of range"):
         edit.step(edit_action_count(6))

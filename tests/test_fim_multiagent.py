@@ -95,7 +95,7 @@ def test_unequal_budgets_and_errors():
     env.step({"agent_0": 5, "agent_1": 1})  # agent_0 waits: its 5 is ignored
     after = env.state()
     n = len(after) // 2 - 2  # state = gains (N), selected (N), budgets left (2), turns (2)
-    assert after[n:2 * n].sum() == before[n:2 * n].sum() + 1  # one more pick: agent_1's
+    assert after[n : 2 * n].sum() == before[n : 2 * n].sum() + 1  # one more pick: agent_1's
     with pytest.raises(ValueError, match="budget"):
         fim_selection_v0.parallel_env(n_candidates=2, budgets=[1, 99])
     with pytest.raises(ValueError, match="mode"):

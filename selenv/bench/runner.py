@@ -2,10 +2,10 @@
 
 Every agent gets its own env (``gymnasium.make(env_id, **env_kwargs)``, built once per agent;
 selenv's own envs with ``invalid_action="raise"`` unless ``env_kwargs`` says otherwise, so an
-agent that picks a masked action fails loudly) and plays the same episodes: episode ``e`` starts with ``env.reset(seed=seed + e)`` and
-``agent.reset(env, seed=seed + e)``. The wall time of each ``agent.act`` call is measured
-with :func:`time.perf_counter`; the episode return is the sum of the rewards and the final
-objective is ``info["objective"]`` after the last step.
+agent that picks a masked action fails loudly) and plays the same episodes: episode ``e``
+starts with ``env.reset(seed=seed + e)`` and ``agent.reset(env, seed=seed + e)``. The wall
+time of each ``agent.act`` call is measured with :func:`time.perf_counter`; the episode return
+is the sum of the rewards and the final objective is ``info["objective"]`` after the last step.
 
 An agent that raises :class:`ValueError` while being built, reset or asked to act (for
 instance brute force's size guard) is recorded as skipped with the message and the run goes

@@ -110,7 +110,7 @@ class InvalidActionRule:
 
     @staticmethod
     def info(reason: str | None) -> dict[str, Any]:
-        """The ``info`` entries of a step: ``invalid_action`` and, if invalid, ``invalid_reason``."""
+        """The step's ``info`` entries: ``invalid_action`` and, if invalid, ``invalid_reason``."""
         if reason is None:
             return {"invalid_action": False}
         return {"invalid_action": True, "invalid_reason": reason}

@@ -10,8 +10,8 @@ from gymnasium import spaces
 
 from selenv.core.information import LogDetGainState
 from selenv.envs.actions import InvalidActionRule, check_discrete
-from selenv.envs.rendering import Renderer, draw_fim_selection
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
+from selenv.envs.rendering import Renderer, draw_fim_selection
 from selenv.scenarios.fim_selection import (
     FIMProblem,
     config_from,

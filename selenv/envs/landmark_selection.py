@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import dataclasses
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -120,7 +119,9 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         **config: Any,
     ) -> None:
         fields = {f.name for f in dataclasses.fields(LandmarkConfig)}
-        check_known_keywords(config, fields - {"n_landmarks", "horizon", "landmarks"}, "LandmarkSelection-v0")
+        check_known_keywords(
+            config, fields - {"n_landmarks", "horizon", "landmarks"}, "LandmarkSelection-v0"
+        )
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         if objective not in OBJECTIVES:
@@ -200,7 +201,11 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         if self._state is None or self._done:
             raise RuntimeError("episode is over: call reset()")
         a = check_discrete(action, self.n)
-        reason = f"masked: landmark {a} is already picked in this step" if self.state.selected[a] else None
+        reason = (
+            f"masked: landmark {a} is already picked in this step"
+            if self.state.selected[a]
+            else None
+        )
         rule = self.invalid_rule
         if rule.check(f"action {a}", reason) and rule.terminates:
             self._done = True
@@ -230,7 +235,9 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         title = f"LandmarkSelection-v0: step {ekf.k}, cost {self._cost:.2f}"
         picks, last = tuple(self.picks), self.last_selection
         return self._renderer.render(
-            lambda fig: draw_landmark_selection(fig, problem, ekf.x, ekf.P, ekf.k, picks, last, title)
+            lambda fig: draw_landmark_selection(
+                fig, problem, ekf.x, ekf.P, ekf.k, picks, last, title
+            )
         )
 
     def close(self) -> None:

@@ -397,7 +397,9 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
             assert problem is not None  # reset() ran: the bank exists
             arr = problem.check_labels(action, "action")
             reason = problem.violation(arr)
-            return (None, f"infeasible: {reason}") if reason else (problem.check_clustering(arr), None)
+            return (
+                (None, f"infeasible: {reason}") if reason else (problem.check_clustering(arr), None)
+            )
         k = check_discrete(action, edit_action_count(self.n))
         if not edit_mask(bank.labels, self.max_size)[k]:
             return None, f"masked: {self.describe_edit(k)} is not allowed now"

@@ -189,9 +189,9 @@ class FIMSelectionParallelEnv(ParallelEnv):
         gains = c.gains
         left = [1.0 - self._count[a] / self.budgets[a] for a in self.possible_agents]
         turn = [float(self.on_turn(a)) for a in self.possible_agents]
-        return np.concatenate(
-            [np.where(c.selected, 0.0, gains), c.selected, left, turn]
-        ).astype(np.float32)
+        return np.concatenate([np.where(c.selected, 0.0, gains), c.selected, left, turn]).astype(
+            np.float32
+        )
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None

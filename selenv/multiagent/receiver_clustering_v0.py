@@ -112,11 +112,11 @@ from selenv.envs.receiver_clustering import (
     clustering_observation_space,
     initial_clustering,
 )
+from selenv.envs.rendering import Renderer, draw_receiver_clustering
 from selenv.scenarios.clustering import (
     ClusteringProblem,
     make_clustering_problem,
 )
-from selenv.envs.rendering import Renderer, draw_receiver_clustering
 from selenv.scenarios.clustering_filters import ClusterFilterBank
 
 __all__ = [
@@ -328,8 +328,8 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
             obs = self._observations(masks, live)
             infos = self._infos(masks, None, False, reasons, live)
             rewards = {a: self.invalid_rule.penalty if a in reasons else 0.0 for a in live}
-            done = dict.fromkeys(live, True)
-            return obs, rewards, done, dict.fromkeys(live, False), infos
+            ended = dict.fromkeys(live, True)
+            return obs, rewards, ended, dict.fromkeys(live, False), infos
         assert self._np_random is not None
         self.last_order = self._np_random.permutation(self.n)
         new_labels, accepted = resolve_moves(bank.labels, targets, self.max_size, self.last_order)
