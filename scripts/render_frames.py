@@ -42,8 +42,11 @@ def main(argv: list[str] | None = None) -> None:
         obs, info = env.reset(seed=args.seed)
         agent = make(agent_name, env_id)
         agent.reset(env, seed=args.seed)
-        for _ in range(args.steps):
+        steps = 0
+        # play the steps; CL: go on until a link is being processed, so the frame shows one
+        while steps < args.steps or (info.get("processed") == [] and steps < 10 * args.steps):
             obs, _r, terminated, truncated, info = env.step(agent.act(obs, info))
+            steps += 1
             if terminated or truncated:
                 break
         frame = env.render()

@@ -220,9 +220,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     def render(self) -> np.ndarray | None:
         """A frame of the team (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         sim, done = self.sim, sorted(self._done_pairs)
-        title = (
-            f"CLScheduling-v0 ({self.fusion}): step {sim.k}, objective {self.objective_value():.2f}"
-        )
+        title = f"CLScheduling-v0 ({self.fusion})"
         return self._renderer.render(
             lambda fig: draw_cl_scheduling(fig, sim, self.pairs, done, title)
         )

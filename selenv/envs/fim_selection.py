@@ -246,7 +246,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     def render(self) -> np.ndarray | None:
         """A frame of the scene (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         state, problem = self.state, self.problem
-        title = f"FIMSelection-v0: {len(state.order)} picked, f = {state.objective:.2f} nats"
+        title = "FIMSelection-v0"
         return self._renderer.render(
             lambda fig: draw_fim_selection(fig, problem, state.selected, state.information, title)
         )

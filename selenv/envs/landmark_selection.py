@@ -232,7 +232,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     def render(self) -> np.ndarray | None:
         """A frame of the flight (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         ekf, problem = self.ekf, self.problem
-        title = f"LandmarkSelection-v0: step {ekf.k}, cost {self._cost:.2f}"
+        title = "LandmarkSelection-v0"
         picks, last = tuple(self.picks), self.last_selection
         return self._renderer.render(
             lambda fig: draw_landmark_selection(

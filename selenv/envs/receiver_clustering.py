@@ -373,7 +373,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         bank = self.bank
         c = bank.cost()
         labels, sigma = bank.labels.copy(), bank.problem.sigma
-        title = f"ReceiverClustering-v0: step {bank.k}, J = {c.J:.4f}"
+        title = "ReceiverClustering-v0"
         return self._renderer.render(
             lambda fig: draw_receiver_clustering(
                 fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, bank.k, self.max_size, title

@@ -278,7 +278,7 @@ class FIMSelectionParallelEnv(ParallelEnv):
     def render(self) -> np.ndarray | None:
         """The fusion centre's frame (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         c, problem = self._centre, self.problem
-        title = f"fim_selection_v0 ({self.mode}): {len(c.order)} picked, f = {c.objective:.2f}"
+        title = f"fim_selection_v0 ({self.mode})"
         return self._renderer.render(
             lambda fig: draw_fim_selection(fig, problem, c.selected, c.information, title)
         )

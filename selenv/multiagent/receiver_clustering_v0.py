@@ -357,7 +357,7 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
         bank = self.bank
         c = bank.cost()
         labels, sigma = bank.labels.copy(), bank.problem.sigma
-        title = f"receiver_clustering_v0: step {bank.k}, J = {c.J:.4f}"
+        title = "receiver_clustering_v0"
         return self._renderer.render(
             lambda fig: draw_receiver_clustering(
                 fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, bank.k, self.max_size, title
