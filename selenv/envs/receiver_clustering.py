@@ -31,6 +31,7 @@ __all__ = [
     "edit_cost_changes",
     "edit_mask",
     "initial_clustering",
+    "render_clustering",
 ]
 
 ACTION_MODES = ("assignment", "edit")
@@ -154,6 +155,19 @@ def edit_cost_changes(bank: ClusterFilterBank, actions: Any) -> np.ndarray:
         cands = np.stack([apply_edit(labels, int(acts[e])) for e in edits])
         out[edits] = bank.evaluate(cands) - bank.cost().J
     return out
+
+
+def render_clustering(
+    renderer: Renderer, bank: ClusterFilterBank, max_size: int, title: str
+) -> np.ndarray | None:
+    """Draw ``bank``'s clustering and cost terms with ``renderer`` (both clustering envs)."""
+    c = bank.cost()
+    labels, sigma, k = bank.labels.copy(), bank.problem.sigma, bank.k
+    return renderer.render(
+        lambda fig: draw_receiver_clustering(
+            fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, k, max_size, title
+        )
+    )
 
 
 # -- observations -------------------------------------------------------------------------------
@@ -370,15 +384,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
 
     def render(self) -> np.ndarray | None:
         """A frame of the clustering (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
-        bank = self.bank
-        c = bank.cost()
-        labels, sigma = bank.labels.copy(), bank.problem.sigma
-        title = "ReceiverClustering-v0"
-        return self._renderer.render(
-            lambda fig: draw_receiver_clustering(
-                fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, bank.k, self.max_size, title
-            )
-        )
+        return render_clustering(self._renderer, self.bank, self.max_size, "ReceiverClustering-v0")
 
     def close(self) -> None:
         """Close the render window, if any."""

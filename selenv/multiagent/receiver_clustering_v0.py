@@ -111,8 +111,9 @@ from selenv.envs.receiver_clustering import (
     clustering_observation,
     clustering_observation_space,
     initial_clustering,
+    render_clustering,
 )
-from selenv.envs.rendering import Renderer, draw_receiver_clustering
+from selenv.envs.rendering import Renderer
 from selenv.scenarios.clustering import (
     ClusteringProblem,
     make_clustering_problem,
@@ -354,15 +355,7 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
 
     def render(self) -> np.ndarray | None:
         """The clustering frame (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
-        bank = self.bank
-        c = bank.cost()
-        labels, sigma = bank.labels.copy(), bank.problem.sigma
-        title = "receiver_clustering_v0"
-        return self._renderer.render(
-            lambda fig: draw_receiver_clustering(
-                fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, bank.k, self.max_size, title
-            )
-        )
+        return render_clustering(self._renderer, self.bank, self.max_size, "receiver_clustering_v0")
 
     def close(self) -> None:
         """Close the render window, if any."""
