@@ -162,3 +162,12 @@ def test_supersuit_pipeline_trains_sb3_ppo(module: Any) -> None:
     assert model.num_timesteps == 16 * venv.num_envs
     assert len(rec.infos) == 16 * venv.num_envs  # one info per agent slot per step
     venv.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_human_render_mode_runs_headless(env_id: str) -> None:
+    env = gym.make(env_id, render_mode="human")  # matplotlib window; Agg here: draws only
+    env.reset(seed=0)
+    assert env.render() is None
+    env.close()
+    env.close()  # idempotent
