@@ -30,6 +30,18 @@ AGENT_KEYS = {
     "final_objectives",
     "mean_final_objective",
     "decision_seconds_mean",
+    "paired",
+    "normalized_score",
+}
+PAIRED_KEYS = {"baseline", "mean_diff", "ci95", "wins", "ties", "losses"}
+PROVENANCE_KEYS = {
+    "selenv_version",
+    "git_commit",
+    "python",
+    "platform",
+    "packages",
+    "argv",
+    "timestamp",
 }
 
 
@@ -105,6 +117,13 @@ class RefuseAgent(ToyAgent):
 
     def act(self, obs: Any, info: dict[str, Any]) -> Any:
         raise ValueError("toy_refuse refuses C(5, 2) = 10 subsets")
+
+
+class RandomToyAgent(ToyAgent):
+    name = "random"
+
+    def act(self, obs: Any, info: dict[str, Any]) -> Any:
+        return int(self.rng.choice(np.flatnonzero(info["mask"])))
 
 
 class CrashAgent(ToyAgent):
@@ -227,9 +246,13 @@ def test_json_follows_the_contract_and_round_trips(tmp_path: Path) -> None:
     rc = main([*argv, "--env-kwargs", '{"n": 6}', "--json", str(out), "--no-progress"])
     assert rc == 0
     with out.open() as fh:
-        doc = json.load(fh)
-    assert isinstance(doc, dict)  # one env -> one object
-    assert CONTRACT_KEYS | {"selenv_version", "timestamp"} <= set(doc)
+        top = json.load(fh)
+    assert set(top) == {"provenance", "results"}  # one shape, whatever the number of envs
+    assert PROVENANCE_KEYS <= set(top["provenance"])
+    assert top["provenance"]["argv"][:3] == ["selenv", "bench", TOY]
+    assert len(top["results"]) == 1
+    doc = top["results"][0]
+    assert CONTRACT_KEYS | {"selenv_version", "timestamp", "baseline"} <= set(doc)
     assert doc["env_id"] == TOY and doc["env_kwargs"] == {"n": 6}
     assert doc["seed"] == 5 and doc["episodes"] == 3
     best = doc["agents"]["toy_best"]
@@ -239,23 +262,111 @@ def test_json_follows_the_contract_and_round_trips(tmp_path: Path) -> None:
     np.testing.assert_allclose(best["returns"], opt)
     assert best["mean_final_objective"] == pytest.approx(10 * np.mean(opt))
     assert doc["agents"]["toy_refuse"] == {"skipped": "toy_refuse refuses C(5, 2) = 10 subsets"}
+    assert doc["agent_specs"]["toy_best"] == {"agent": "toy_best", "kwargs": {}}
     assert json.loads(json.dumps(doc)) == doc
 
 
-def test_several_envs_give_a_list_and_skip_inapplicable_agents(
+def test_several_envs_give_the_same_shape_and_skip_inapplicable_agents(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    out = tmp_path / "res.json"
+    out, one = tmp_path / "res.json", tmp_path / "one.json"
     argv = ["bench", TOY, TOY2, "--agents", "toy_best,toy_only2", "--episodes", "2"]
     rc = main([*argv, "--json", str(out), "--no-progress"])
     assert rc == 0
     cap = capsys.readouterr()
     assert f"skipping toy_only2 on {TOY}" in cap.err
-    doc = json.loads(out.read_text())
+    top = json.loads(out.read_text())
+    doc = top["results"]
     assert [d["env_id"] for d in doc] == [TOY, TOY2]
     assert "does not apply" in doc[0]["agents"]["toy_only2"]["skipped"]
     assert AGENT_KEYS <= set(doc[1]["agents"]["toy_only2"])
     assert TOY in cap.out and TOY2 in cap.out
+    # the same keys at every level as a one-env run
+    assert main(["bench", TOY, "--agents", "toy_best", "--episodes", "2", "--json", str(one),
+                 "--no-progress"]) == 0  # fmt: skip
+    single = json.loads(one.read_text())
+    assert set(single) == set(top)
+    assert set(single["provenance"]) == set(top["provenance"])
+    assert set(single["results"][0]) == set(doc[0]) == set(doc[1])
+    assert set(single["results"][0]["agents"]["toy_best"]) == set(doc[0]["agents"]["toy_best"])
+
+
+def test_json_has_paired_statistics_and_normalized_score(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(AGENTS["random"], TOY, AgentSpec("random", (TOY,), RandomToyAgent))
+    out = tmp_path / "res.json"
+    argv = ["bench", TOY, "--agents", "toy_first,toy_best,random", "--episodes", "6"]
+    assert main([*argv, "--json", str(out), "--no-progress"]) == 0
+    doc = json.loads(out.read_text())["results"][0]
+    assert doc["baseline"] == "toy_best"  # default: the best mean return
+    assert doc["random_reference"] == "random"
+    agents = doc["agents"]
+    for name, entry in agents.items():
+        assert PAIRED_KEYS <= set(entry["paired"]), name
+        assert entry["paired"]["baseline"] == "toy_best"
+        assert "normalized_score" in entry
+    first, best, rand = agents["toy_first"], agents["toy_best"], agents["random"]
+    diffs = np.subtract(first["returns"], best["returns"])
+    assert first["paired"]["mean_diff"] == pytest.approx(diffs.mean())
+    lo, hi = first["paired"]["ci95"]
+    assert lo <= diffs.mean() <= hi < 0  # toy_best is optimal: every difference is <= 0
+    w, t, lo_ = (first["paired"][k] for k in ("wins", "ties", "losses"))
+    assert (w, t + lo_) == (0, 6) and lo_ == int(np.sum(diffs < -1e-9))
+    assert best["paired"] == {**best["paired"], "mean_diff": 0.0, "ci95": [0.0, 0.0], "ties": 6}
+    assert best["normalized_score"] == pytest.approx(1.0)
+    assert rand["normalized_score"] == pytest.approx(0.0)
+    want = (first["mean_return"] - rand["mean_return"]) / (
+        best["mean_return"] - rand["mean_return"]
+    )
+    assert first["normalized_score"] == pytest.approx(want)
+
+
+def test_explicit_baseline(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "res.json"
+    argv = ["bench", TOY, "--agents", "toy_first,toy_best", "--episodes", "4"]
+    assert main([*argv, "--baseline", "toy_first", "--json", str(out), "--no-progress"]) == 0
+    doc = json.loads(out.read_text())["results"][0]
+    assert doc["baseline"] == "toy_first" and doc["random_reference"] is None
+    best = doc["agents"]["toy_best"]
+    assert best["paired"]["baseline"] == "toy_first"
+    assert best["paired"]["mean_diff"] > 0 and best["paired"]["ci95"][0] > 0
+    assert best["normalized_score"] is None  # no random agent ran
+    lines = capsys.readouterr().out.splitlines()
+    assert "Δ vs toy_first [95 % CI]" in lines[1]
+    assert "baseline" in next(ln for ln in lines if ln.startswith("toy_first"))
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        [TOY, "--agents", "toy_first,toy_best", "--baseline", "nope"],  # not among the agents
+        [TOY, "--agents", "toy_first,toy_best", "--baseline", "toy_slow"],  # registered, not run
+        [TOY, "--agents", "toy_best,toy_refuse", "--baseline", "toy_refuse"],  # skipped
+        [TOY, TOY2, "--agents", "toy_best,toy_first", "--baseline", "toy_first"],  # not on TOY2
+        [TOY, "--baseline", "toy_refuse"],  # default agents, baseline skipped
+    ],
+)
+def test_unknown_or_skipped_baseline_exits_2_and_writes_nothing(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, plots = tmp_path / "res.json", tmp_path / "plots"
+    rc = main(["bench", *argv, "--episodes", "2", "--json", str(out), "--plot", str(plots),
+               "--no-progress"])  # fmt: skip
+    assert rc == 2
+    assert "baseline" in capsys.readouterr().err
+    assert not out.exists() and not plots.exists()
+
+
+def test_unknown_pettingzoo_module_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "res.json"
+    for module in ("selenv.multiagent.nope_v0", "selenv.multiagent", "os.path"):
+        assert main(["bench", module, "--json", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert repr(module) in err and "selenv.multiagent.fim_selection_v0" in err
+    assert not out.exists()
 
 
 def test_table_on_stdout(capsys: pytest.CaptureFixture[str]) -> None:
@@ -264,9 +375,13 @@ def test_table_on_stdout(capsys: pytest.CaptureFixture[str]) -> None:
     out = capsys.readouterr().out
     lines = out.splitlines()
     assert lines[0].startswith(TOY)
-    assert "gap to best (%)" in lines[1] and "decision ms" in lines[1]
+    header = lines[1]
+    for col in ("Δ vs toy_best [95 % CI]", "W/T/L", "norm. score", "decision ms", "episodes"):
+        assert col in header
     best_row = next(ln for ln in lines if ln.startswith("toy_best"))
-    assert " 0.00 " in best_row and best_row.endswith(" 10")
+    assert " baseline " in best_row and best_row.endswith(" 10")
+    first_row = next(ln for ln in lines if ln.startswith("toy_first"))
+    assert "*" in first_row and " 0/" in first_row  # CI excludes 0; no win against the optimum
     assert any(ln.startswith("toy_refuse") and "skipped: toy_refuse refuses" in ln for ln in lines)
 
 
@@ -328,7 +443,7 @@ def test_real_fim_bench_greedy_beats_random(tmp_path: Path) -> None:
     argv = ["bench", FIM, "--agents", "greedy,random", "--episodes", "2", "--env-kwargs", kwargs]
     rc = main([*argv, "--json", str(out), "--no-progress"])
     assert rc == 0
-    doc = json.loads(out.read_text())
+    doc = json.loads(out.read_text())["results"][0]
     assert CONTRACT_KEYS <= set(doc)
     greedy, rand = doc["agents"]["greedy"], doc["agents"]["random"]
     assert AGENT_KEYS <= set(greedy) and AGENT_KEYS <= set(rand)
@@ -336,3 +451,20 @@ def test_real_fim_bench_greedy_beats_random(tmp_path: Path) -> None:
     # the return of FIMSelection is the objective f(F) itself
     np.testing.assert_allclose(greedy["returns"], greedy["final_objectives"], rtol=1e-6)
     assert greedy["mean_final_objective"] >= rand["mean_final_objective"]
+
+
+def test_provenance_never_fails(monkeypatch: pytest.MonkeyPatch) -> None:
+    from selenv.bench import provenance as prov
+
+    doc = prov.provenance(["selenv", "bench"])
+    assert PROVENANCE_KEYS <= set(doc) and doc["argv"] == ["selenv", "bench"]
+    assert set(doc["packages"]) == set(prov.PACKAGES)
+    assert doc["packages"]["numpy"] == np.__version__
+    assert prov._version("no_such_distribution_xyz") is None
+
+    def no_git(*args: Any, **kwargs: Any) -> Any:
+        raise FileNotFoundError("git")
+
+    monkeypatch.setattr(prov.subprocess, "run", no_git)
+    assert prov.git_commit() == (None, None)
+    assert prov.provenance()["git_commit"] is None

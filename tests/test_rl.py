@@ -382,7 +382,7 @@ def test_bench_runs_a_checkpoint_path(tmp_path: Path) -> None:
         ]
     )
     assert code == 0
-    res = json.loads(out.read_text())
+    res = json.loads(out.read_text())["results"][0]
     assert set(res["agents"]) == {"greedy", f"ppo:{ckpt}"}
     assert len(res["agents"][f"ppo:{ckpt}"]["returns"]) == 1
     assert cli_main(["bench", FIM_ID, "--agents", f"ppo:{tmp_path / 'no.zip'}",

@@ -17,6 +17,11 @@ swap           greedy, then best-improvement 1-swap local search      >= greedy
 brute_force    exhaustive over all C(N, B) subsets (size-guarded)     optimal
 random         uniform subset                                         baseline
 ============== ====================================================== ==================
+
+Multi-agent (disjoint pools, a budget per pool, i.e. a partition matroid): ``cooperative_greedy``
+(the paper's per-agent schemes), and the centralised ``partition_greedy_whitened`` (greedy over
+the union of the pools, each pick the best gain among the pools with budget left: >= OPT / 2,
+Fisher, Nemhauser & Wolsey 1978) and ``partition_swap_whitened`` (then swaps within a pool).
 """
 
 from __future__ import annotations
@@ -48,6 +53,8 @@ __all__ = [
     "greedy_whitened",
     "lazy_greedy",
     "lazy_greedy_whitened",
+    "partition_greedy_whitened",
+    "partition_swap_whitened",
     "random_selection",
     "swap",
     "swap_whitened",
@@ -184,6 +191,13 @@ def _swap_deltas(G: FloatArray, P: FloatArray, sel: np.ndarray, uns: np.ndarray)
     return np.where(sign > 0, logdet, -np.inf)
 
 
+def _crlb(Q0: FloatArray, G: FloatArray, sel: np.ndarray) -> FloatArray:
+    """``A^-1`` of the selection's FIM ``A`` (eq. 2), by two triangular solves."""
+    A = information_matrix(Q0, G, sel)
+    L = cholesky_spd(A, "FIM")
+    return np.linalg.solve(L.T, np.linalg.solve(L, np.eye(A.shape[0])))
+
+
 def swap_whitened(
     Q0: FloatArray,
     G: FloatArray,
@@ -209,9 +223,7 @@ def swap_whitened(
     for _ in range(max_rounds):
         if budget in (0, N):
             break
-        A = information_matrix(Q0, G, sel)
-        L = cholesky_spd(A, "FIM")
-        P = np.linalg.solve(L.T, np.linalg.solve(L, np.eye(A.shape[0])))  # A^-1 by two solves
+        P = _crlb(Q0, G, sel)
         uns = np.setdiff1d(np.arange(N), sel)
         delta = _swap_deltas(G, P, sel, uns)
         evals += delta.size
@@ -307,3 +319,104 @@ def cooperative_greedy(
             prior = centre
     obj = float(logdet_spd(centre, "FIM")) - float(logdet_spd(Q0_a, "Q0"))
     return CooperativeSelection(tuple(picks), obj)
+
+
+def _check_partition(
+    N: int, groups: Sequence[Sequence[int]], budgets: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """``owner`` ``(N,)`` (group of each candidate, ``-1`` for none) and budgets as an array."""
+    if len(groups) != len(budgets):
+        raise ValueError(f"groups ({len(groups)}) and budgets ({len(budgets)}) must match")
+    owner = np.full(N, -1, dtype=np.intp)
+    B = np.empty(len(groups), dtype=np.intp)
+    for g, (members, budget) in enumerate(zip(groups, budgets, strict=True)):
+        idx = np.asarray(members, dtype=np.intp).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= N):
+            raise ValueError(f"group {g} holds indices outside [0, {N})")
+        if np.any(owner[idx] >= 0) or np.unique(idx).size != idx.size:
+            raise ValueError(f"groups must be disjoint sets of indices; group {g} overlaps")
+        owner[idx] = g
+        B[g] = _check_budget(budget, idx.size)
+    return owner, B
+
+
+def partition_greedy_whitened(
+    Q0: FloatArray, G: FloatArray, groups: Sequence[Sequence[int]], budgets: Sequence[int]
+) -> Selection:
+    """Greedy under a partition matroid: at most ``budgets[g]`` picks from ``groups[g]``.
+
+    The centralised multi-agent greedy: one decision-maker sees the pooled candidates of every
+    agent (``groups[g]`` the indices of agent ``g``'s pool) and, for ``sum(budgets)`` picks,
+    takes the largest marginal gain among the unselected candidates whose group still has
+    budget (ties towards the lower index). ``f`` is monotone submodular, so this is
+    ``>= OPT / 2`` (Fisher, Nemhauser & Wolsey 1978); with one group holding every candidate it
+    is :func:`greedy_whitened`. Candidates in no group are never picked.
+
+    Raises:
+        ValueError: groups that overlap or leave ``[0, N)``, a budget larger than its group.
+    """
+    N = G.shape[0]
+    owner, left = _check_partition(N, groups, budgets)
+    state = LogDetGainState(Q0, G, track_gains=True)
+    total = int(left.sum())
+    for _ in range(total):
+        open_ = owner >= 0
+        open_[open_] = left[owner[open_]] > 0  # the candidate's group has budget left
+        k = int(np.argmax(np.where(open_, state.masked_gains(), -np.inf)))
+        state.add(k)
+        left[owner[k]] -= 1
+    return _finish(Q0, G, state.order, total * N)
+
+
+def partition_swap_whitened(
+    Q0: FloatArray,
+    G: FloatArray,
+    groups: Sequence[Sequence[int]],
+    budgets: Sequence[int],
+    *,
+    initial: Sequence[int] | None = None,
+    max_rounds: int = 200,
+    tol: float = 1e-9,
+) -> Selection:
+    """:func:`partition_greedy_whitened` (or ``initial``), then swaps within each group.
+
+    Each round evaluates, for every group, every (selected, unselected) pair of that group
+    (the batched determinant lemma of :func:`swap_whitened`) and applies the best swap over all
+    groups if it gains more than ``tol`` nats, so every group keeps its number of picks and the
+    objective never decreases: at least the partition greedy.
+
+    Raises:
+        ValueError: as :func:`partition_greedy_whitened`, or an ``initial`` selection that is
+            not ``budgets[g]`` distinct indices of each group ``g``.
+    """
+    N = G.shape[0]
+    owner, B = _check_partition(N, groups, budgets)
+    start = partition_greedy_whitened(Q0, G, groups, budgets) if initial is None else None
+    sel = np.array(start.indices if start else list(initial or []), dtype=np.intp)
+    inside = bool(np.all((sel >= 0) & (sel < N)))
+    group_of = owner[sel] if inside else np.full(sel.size, -1)
+    counts = np.bincount(group_of[group_of >= 0], minlength=len(B))
+    if np.unique(sel).size != sel.size or np.any(group_of < 0) or not np.array_equal(counts, B):
+        raise ValueError(
+            f"initial must hold budgets[g] distinct indices of each group g, got {list(sel)}"
+        )
+    evals = start.evaluations if start else 0
+    for _ in range(max_rounds):
+        if sel.size == 0:
+            break
+        P = _crlb(Q0, G, sel)
+        best, best_i, best_j = tol, -1, -1
+        for g in range(len(B)):
+            rows = np.flatnonzero(owner[sel] == g)
+            uns = np.setdiff1d(np.flatnonzero(owner == g), sel)
+            if rows.size == 0 or uns.size == 0:
+                continue
+            delta = _swap_deltas(G, P, sel[rows], uns)
+            evals += delta.size
+            i, j = np.unravel_index(int(np.argmax(delta)), delta.shape)
+            if delta[i, j] > best:
+                best, best_i, best_j = float(delta[i, j]), int(rows[i]), int(uns[j])
+        if best_i < 0:
+            break
+        sel[best_i] = best_j
+    return _finish(Q0, G, sel.tolist(), evals)
