@@ -75,20 +75,20 @@ def test_fim_episode_is_bounded_even_if_every_action_is_invalid() -> None:
 
 
 @pytest.mark.parametrize(
-    ("env_id", "first", "bad"),
+    ("env_id", "first", "bad", "kw"),
     [
-        ("selenv/FIMSelection-v0", 2, 2),
-        ("selenv/LandmarkSelection-v0", 2, 2),
-        ("selenv/CLScheduling-v0", 0, 0),
+        ("selenv/FIMSelection-v0", 2, 2, {}),
+        ("selenv/LandmarkSelection-v0", 2, 2, {}),
+        ("selenv/CLScheduling-v0", 0, 0, {"budget": 2}),  # two picks per filter step
     ],
 )
-def test_raise_and_terminate_modes(env_id: str, first: int, bad: int) -> None:
-    strict = _make(env_id, "raise")
+def test_raise_and_terminate_modes(env_id: str, first: int, bad: int, kw: dict) -> None:
+    strict = _make(env_id, "raise", **kw)
     strict.reset(seed=0)
     strict.step(first)
     with pytest.raises(ValueError, match=f"action {bad} is invalid: masked"):
         strict.step(bad)
-    term = _make(env_id, "terminate")
+    term = _make(env_id, "terminate", **kw)
     term.reset(seed=0)
     term.step(first)
     _obs, r, terminated, truncated, info = term.step(bad)
@@ -123,7 +123,9 @@ def test_landmark_noop_slot_updates_with_the_valid_picks_only() -> None:
 
 # -- CLScheduling-v0 -------------------------------------------------------------------------------
 def test_cl_noop_on_the_last_slot_equals_stopping() -> None:
-    env, ref = _make("selenv/CLScheduling-v0"), gym.make("selenv/CLScheduling-v0").unwrapped
+    kw = {"budget": 2}  # two picks per filter step: the no-op spends the second
+    env = _make("selenv/CLScheduling-v0", **kw)
+    ref = gym.make("selenv/CLScheduling-v0", **kw).unwrapped
     env.reset(seed=2)
     ref.reset(seed=2)
     r1, r1_ref = env.step(0)[1], ref.step(0)[1]

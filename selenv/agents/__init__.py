@@ -11,6 +11,7 @@ from selenv.agents import clustering as _clustering  # noqa: F401  (registers cl
 from selenv.agents import fim as _fim  # noqa: F401  (registers the FIM agents)
 from selenv.agents import landmarks as _landmarks  # noqa: F401  (registers landmark agents)
 from selenv.agents import multiagent as _multiagent  # noqa: F401  (registers the PettingZoo agents)
+from selenv.agents import rollout as _rollout  # noqa: F401  (registers the rollout agents)
 from selenv.agents.base import (
     AGENTS,
     Agent,

@@ -22,9 +22,56 @@ from selenv.scenarios.cooperative import (
     make_cl_problem,
 )
 
-__all__ = ["OBJECTIVES", "CLSchedulingEnv"]
+__all__ = ["OBJECTIVES", "PRESETS", "TOPOLOGIES", "CLSchedulingEnv", "relative_pairs"]
 
 OBJECTIVES = ("logdet", "trace")
+TOPOLOGIES = ("all", "chain")
+
+#: Named configurations: env keywords and :class:`CLConfig` fields. Explicit keywords override
+#: the preset's values. ``"benchmark"`` is the default (see the class docstring for why).
+PRESETS: dict[str, dict[str, Any]] = {
+    "benchmark": {
+        "n_agents": 6,
+        "budget": 1,
+        "horizon": 200,
+        "objective": "trace",
+        "topology": "all",
+        "relative_every": 1,
+        "tracks": ("rectangle", "circle", "lemniscate"),
+        "input_sigma": ((0.02, 0.05), (0.06, 0.2)),
+    },
+    "dense": {  # the configuration of v0 before the benchmark preset: decisions barely matter
+        "n_agents": 4,
+        "budget": 2,
+        "horizon": 200,
+        "objective": "logdet",
+        "topology": "all",
+        "relative_every": 1,
+        "tracks": ("rectangle", "circle", "lemniscate"),
+        "input_sigma": ((0.02, 0.05), (0.06, 0.2)),
+    },
+    "paper": {  # Chen & Kia's two pedestrians (CLConfig defaults), both pairs processed
+        "n_agents": 2,
+        "budget": 2,
+        "horizon": 600,
+        "objective": "logdet",
+        "topology": "all",
+    },
+}
+
+
+def relative_pairs(n_agents: int, topology: str) -> tuple[tuple[int, int], ...]:
+    """Directed measurement pairs ``(i, j)`` (``i`` measures ``j``) of a link topology.
+
+    ``"all"``: every ordered pair; ``"chain"``: neighbours ``i, i + 1`` both ways (a column
+    walking through a corridor, each agent in radio / line-of-sight range of its neighbours).
+    """
+    if topology == "all":
+        return tuple(permutations(range(n_agents), 2))
+    if topology == "chain":
+        fwd = [(i, i + 1) for i in range(n_agents - 1)]
+        return tuple(fwd + [(j, i) for i, j in fwd])
+    raise ValueError(f"topology must be one of {TOPOLOGIES}, got {topology!r}")
 
 
 class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
@@ -94,11 +141,13 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     def __init__(
         self,
         *,
-        n_agents: int = 4,
-        budget: int = 2,
+        preset: str = "benchmark",
+        n_agents: int | None = None,
+        budget: int | None = None,
         fusion: str = "dmv",
-        horizon: int = 200,
-        objective: str = "logdet",
+        horizon: int | None = None,
+        objective: str | None = None,
+        topology: str | None = None,
         invalid_action: str = "noop",
         invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
@@ -108,22 +157,34 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         check_known_keywords(config, fields - {"n_agents", "horizon"}, "CLScheduling-v0")
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
+        if not isinstance(preset, str) or preset not in PRESETS:
+            raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+        self.preset = preset
+        given: dict[str, Any] = {"n_agents": n_agents, "budget": budget, "horizon": horizon}
+        given |= {"objective": objective, "topology": topology}
+        merged = {**PRESETS[preset], **{k: v for k, v in given.items() if v is not None}, **config}
+        n_agents, budget, horizon = (
+            merged.pop("n_agents"),
+            merged.pop("budget"),
+            merged.pop("horizon"),
+        )
+        objective, topology = merged.pop("objective"), merged.pop("topology")
         if fusion not in FUSION_METHODS[1:]:
             raise ValueError(f"fusion must be one of {FUSION_METHODS[1:]}, got {fusion!r}")
         if objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
         if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 1:
             raise ValueError(f"budget must be an int >= 1, got {budget!r}")
-        if isinstance(n_agents, int | np.integer) and n_agents < 2:
-            raise ValueError(f"n_agents must be >= 2 (relative measurements), got {n_agents}")
-        tracks = ("rectangle", "circle", "lemniscate")
-        defaults: dict[str, Any] = {
-            "relative_pairs": tuple(permutations(range(int(n_agents)), 2)),
-            "relative_every": 1,
-            "tracks": tracks,
-            "input_sigma": ((0.02, 0.05), (0.06, 0.2)),
-        }
-        self.config = CLConfig(n_agents=n_agents, horizon=horizon, **{**defaults, **config})
+        if isinstance(n_agents, bool) or not isinstance(n_agents, int | np.integer) or n_agents < 2:
+            raise ValueError(
+                f"n_agents must be an int >= 2 (relative measurements), got {n_agents!r}"
+            )
+        if "relative_pairs" in config and given["topology"] is not None:
+            raise ValueError("give topology or relative_pairs, not both")
+        if "relative_pairs" not in config:
+            merged["relative_pairs"] = relative_pairs(int(n_agents), topology)
+        self.topology: str | None = None if "relative_pairs" in config else topology
+        self.config = CLConfig(n_agents=n_agents, horizon=horizon, **merged)
         self.pairs: tuple[tuple[int, int], ...] = self.config.relative_pairs
         self.n_pairs = len(self.pairs)
         self.budget, self.fusion, self.objective = int(budget), fusion, objective
