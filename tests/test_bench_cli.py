@@ -468,3 +468,25 @@ def test_provenance_never_fails(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(prov.subprocess, "run", no_git)
     assert prov.git_commit() == (None, None)
     assert prov.provenance()["git_commit"] is None
+
+
+def test_agent_spec_options_and_bad_options_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from selenv.agents import parse_spec
+
+    assert parse_spec("ppo:runs/my.zip") == ("ppo", {"checkpoint": "runs/my.zip"})
+    assert parse_spec("rollout:top_k=5:horizon=3:base=greedy") == (
+        "rollout",
+        {"top_k": 5, "horizon": 3, "base": "greedy"},
+    )
+    with pytest.raises(ValueError, match="two checkpoints"):
+        parse_spec("ppo:a.zip:b.zip")
+    out = tmp_path / "r.json"
+    env = "selenv/CLScheduling-v0"
+    for spec, why in (("rollout:top_k=0", "top_k"), ("rollout:horizon=-1", "horizon")):
+        argv = ["bench", env, "--agents", f"greedy,{spec}", "--episodes", "1", "--json", str(out)]
+        assert main([*argv, "--no-progress", "--env-kwargs", '{"horizon": 2}']) == 2
+        assert why in capsys.readouterr().err and not out.exists()
+    argv = ["bench", env, "--agents", "greedy,rollout:top_k=2:horizon=1", "--episodes", "1"]
+    assert main([*argv, "--no-progress", "--env-kwargs", '{"horizon": 3}']) == 0

@@ -385,5 +385,6 @@ def test_bench_runs_a_checkpoint_path(tmp_path: Path) -> None:
     res = json.loads(out.read_text())["results"][0]
     assert set(res["agents"]) == {"greedy", f"ppo:{ckpt}"}
     assert len(res["agents"][f"ppo:{ckpt}"]["returns"]) == 1
+    # a named checkpoint that cannot be loaded is a usage error (exit 2), not a skipped agent
     assert cli_main(["bench", FIM_ID, "--agents", f"ppo:{tmp_path / 'no.zip'}",
-                     "--episodes", "1", "--no-progress"]) == 0  # fmt: skip
+                     "--episodes", "1", "--no-progress"]) == 2  # fmt: skip

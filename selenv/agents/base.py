@@ -16,6 +16,7 @@ the objective: they call the solvers and the scenario.
 from __future__ import annotations
 
 import importlib
+import json
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -122,14 +123,36 @@ def agents_for(env_id: str) -> list[str]:
 
 
 def parse_spec(spec: str) -> tuple[str, dict[str, Any]]:
-    """Split an agent spec: ``"ppo:runs/my.zip"`` -> ``("ppo", {"checkpoint": "runs/my.zip"})``.
+    """Split an agent spec ``NAME[:ARG]...`` into the name and the factory's keywords.
 
-    A plain name gives ``(name, {})``. The part after the first ``:`` is passed to the agent's
-    factory as ``checkpoint`` (used by learned agents to load a file instead of the shipped
-    checkpoint).
+    Each ``ARG`` is either ``key=value`` (an option; ``value`` is read as JSON when it parses,
+    e.g. ``5``, ``0.5``, ``true``, else kept as a string) or a path, passed as ``checkpoint``
+    (learned agents load that file instead of the shipped checkpoint)::
+
+        "ppo:runs/my.zip"            -> ("ppo", {"checkpoint": "runs/my.zip"})
+        "rollout:top_k=5:horizon=3"  -> ("rollout", {"top_k": 5, "horizon": 3})
+
+    Raises:
+        ValueError: an empty option name or two checkpoints.
     """
-    name, sep, arg = spec.partition(":")
-    return (name, {"checkpoint": arg}) if sep and arg else (name, {})
+    name, *args = spec.split(":")
+    kwargs: dict[str, Any] = {}
+    for arg in args:
+        if not arg:
+            continue
+        key, eq, text = arg.partition("=")
+        if not eq:
+            if "checkpoint" in kwargs:
+                raise ValueError(f"agent spec {spec!r} names two checkpoints")
+            kwargs["checkpoint"] = arg
+            continue
+        if not key.isidentifier():
+            raise ValueError(f"agent spec {spec!r}: {key!r} is not an option name")
+        try:
+            kwargs[key] = json.loads(text)
+        except json.JSONDecodeError:
+            kwargs[key] = text
+    return name, kwargs
 
 
 def make(name: str, env_id: str, **kwargs: Any) -> Agent:

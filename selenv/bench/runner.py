@@ -219,6 +219,8 @@ def run_bench(
                 try:
                     agent = make(name, env_id)
                 except ValueError as exc:
+                    if agent_names is not None:  # named explicitly: bad options or file
+                        raise BenchError(f"cannot build agent {name!r}: {exc}") from exc
                     raise AgentRefused(str(exc)) from exc
                 for e in range(episodes):
                     ret, obj = play(env, agent, seed + e, result)
