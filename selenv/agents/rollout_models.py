@@ -32,7 +32,9 @@ import numpy as np
 
 from selenv.core.information import whiten
 from selenv.core.kalman import kf_predict, kf_update
-from selenv.core.linalg import FloatArray, logdet_spd
+from selenv.core.linalg import FloatArray
+from selenv.envs.cl_scheduling import agent_objective
+from selenv.envs.landmark_selection import landmark_cost
 from selenv.scenarios.cooperative import CLConfig, fuse_relative
 from selenv.scenarios.cooperative_models import beacon_range, relative_bearing, relative_range
 from selenv.scenarios.landmark_models import (
@@ -114,9 +116,7 @@ class CLForecast:
     # -- objective ---------------------------------------------------------------------------
     def cost(self, P_i: FloatArray) -> float:
         """One agent's term of the env's objective (``log det P_i`` or ``tr P_i[:2, :2]``)."""
-        if self.objective == "logdet":
-            return float(logdet_spd(P_i, "P_i"))
-        return float(P_i[0, 0] + P_i[1, 1])
+        return float(agent_objective(P_i, self.objective))
 
     def objective_value(self) -> float:
         """The env's objective (sum over agents) on the forecast covariances."""
@@ -259,8 +259,7 @@ class LandmarkForecast:
 
     def cost(self) -> float:
         """The env's cost eq. (11) of the current covariance: ``log det P`` or ``det P``."""
-        logdet = float(logdet_spd(self.P, "P"))
-        return logdet if self.objective == "logdet" else float(np.exp(logdet))
+        return landmark_cost(self.P, self.objective)
 
     def predict(self) -> None:
         """``LandmarkEKF.predict`` with the held IMU sample; ``k += 1``."""

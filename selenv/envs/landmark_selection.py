@@ -21,9 +21,15 @@ from selenv.scenarios.landmarks import (
     make_landmark_problem,
 )
 
-__all__ = ["OBJECTIVES", "LandmarkSelectionEnv", "landmark_features"]
+__all__ = ["OBJECTIVES", "LandmarkSelectionEnv", "landmark_cost", "landmark_features"]
 
 OBJECTIVES = ("logdet", "det")
+
+
+def landmark_cost(P: FloatArray, objective: str) -> float:
+    """The cost eq. (11) of a posterior covariance ``P`` (9, 9): ``log det P`` or ``det P``."""
+    logdet = float(logdet_spd(P, "P"))
+    return logdet if objective == "logdet" else float(np.exp(logdet))
 
 
 def landmark_features(h_pred: FloatArray, k: int, horizon: int) -> np.ndarray:
@@ -246,8 +252,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
 
     # -- helpers -----------------------------------------------------------------------------
     def _cost_of(self, P: FloatArray) -> float:
-        logdet = float(logdet_spd(P, "P"))
-        return logdet if self.objective == "logdet" else float(np.exp(logdet))
+        return landmark_cost(P, self.objective)
 
     def _open_step(self) -> None:
         """Gain state over the landmarks at the new prediction: ``Q0 = P_pred^-1``."""
