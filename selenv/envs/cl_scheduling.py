@@ -40,7 +40,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "benchmark": {
         "n_agents": 6,
         "budget": 1,
-        "horizon": 200,
+        "horizon": 60,
         "objective": "trace",
         "topology": "all",
         "relative_every": 1,
@@ -103,14 +103,16 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     allows only ``budget`` of them per step: the agent picks them one at a time, or stops early.
 
     ## Presets
-    ``preset="benchmark"`` (default): six pedestrians with ZUPT-aided INS on rectangle /
-    circle / lemniscate tracks, only ``agent_0`` ranging to the two beacons (the others drift
-    between relative updates), every directed pair measurable every step, but a processing and
-    communication budget of **one** relative update per step, and the objective is the team's
+    ``preset="benchmark"`` (default): a cold start of six pedestrians with ZUPT-aided INS on
+    rectangle / circle / lemniscate tracks: 60 filter steps (6 s at 10 Hz) from the initial
+    uncertainty, only ``agent_0`` ranging to the two beacons (the others drift between
+    relative updates), every directed pair measurable every step, but a processing and
+    communication budget of **one** relative update per step; the objective is the team's
     horizontal position MSE (``"trace"``: sum of the agents' horizontal position variances),
     which is what localization is for. Here the decision matters: on 30 held-out seeds greedy
     gets a clearly larger return than random, and the non-myopic ``rollout`` agent beats greedy
-    with a paired 95 % CI excluding 0 (docs/BENCHMARKS.md). ``preset="dense"`` is the v0
+    on every seed (docs/BENCHMARKS.md; on longer episodes its edge fades: tied at 100 steps,
+    behind at 200). ``preset="dense"`` is the v0
     configuration before this preset (four agents, budget two, ``log det`` over all states),
     where random scheduling gets 99.7 % of greedy's return; ``preset="paper"`` Chen & Kia's two
     pedestrians (:class:`~selenv.scenarios.cooperative.CLConfig` defaults, relative ranges
@@ -159,7 +161,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     ``gymnasium.make("selenv/CLScheduling-v0", preset="benchmark", n_agents=None,
     budget=None, fusion="dmv", horizon=None, objective=None, topology=None, model="ins",
     invalid_action="noop", invalid_action_penalty=0.0, render_mode=None)``; ``None`` takes the
-    preset's value (benchmark: 6 agents, budget 1, horizon 200, ``"trace"``, ``"all"``).
+    preset's value (benchmark: 6 agents, budget 1, horizon 60, ``"trace"``, ``"all"``).
     ``topology``: ``"all"`` directed pairs or ``"chain"`` (neighbours only); or give
     ``relative_pairs`` directly. Other :class:`~selenv.scenarios.cooperative.CLConfig` fields
     pass through; an unknown keyword raises ``TypeError``.
