@@ -32,6 +32,23 @@ def _play(env, agent, seed, options=None):
 def test_registered_agents() -> None:
     names = set(agents_for(ENV_ID))
     assert {"ga", "greedy", "fixed_random", "singletons", "single_cluster"} <= names
+    assert {"offline_static", "rollout"} <= names
+
+
+def test_offline_static_keeps_one_solved_partition() -> None:
+    for preset in ("paper", "multipath"):
+        env = gym.make(ENV_ID, n_agents=9, horizon=40, tau=8, preset=preset)
+        traj = _play(env, make("offline_static", ENV_ID), seed=5)
+        labels = [lab for lab, _ in traj[1:]]
+        assert all(np.array_equal(lab, labels[0]) for lab in labels)
+        assert np.bincount(labels[0]).max() <= 3
+        if preset == "paper":  # fixed noise: the offline solution beats a random partition
+            keep = _play(env, make("fixed_random", ENV_ID), seed=5)
+            assert sum(j for _, j in traj) < sum(j for _, j in keep)
+    with pytest.raises(ValueError, match="levels"):
+        make("offline_static", ENV_ID, levels="future")
+    with pytest.raises(ValueError, match="warmup"):
+        make("offline_static", ENV_ID, warmup=-1)
 
 
 def test_ga_agent_waits_then_improves_and_stays_feasible() -> None:

@@ -14,6 +14,7 @@ import selenv  # noqa: F401
 from selenv.envs.receiver_clustering import (
     apply_edit,
     edit_action_count,
+    edit_cost_changes,
     edit_mask,
 )
 from selenv.scenarios.clustering import canonical_labels
@@ -172,3 +173,18 @@ def test_maskable_ppo_learns_on_edit_mode_smoke() -> None:
     obs, info = env.reset(seed=1)
     action, _ = model.predict(obs, action_masks=env.unwrapped.action_masks())
     assert info["action_mask"][int(action)]
+
+
+@pytest.mark.parametrize("preset", ["paper", "multipath"])
+def test_edit_cost_changes_equal_full_evaluations_of_every_allowed_edit(preset: str) -> None:
+    env = gym.make(ENV_ID, n_agents=8, horizon=30, tau=5, preset=preset)
+    env.reset(seed=2, options={"clustering": [0, 0, 0, 1, 1, 2, 3, 3]})  # full, room, singleton
+    base = env.unwrapped
+    for _ in range(9):
+        env.step(base.bank.labels)
+    bank = base.bank
+    actions = np.flatnonzero(edit_mask(bank.labels, base.max_size))
+    d = edit_cost_changes(bank, actions)
+    assert d[0] == 0.0 and actions.size > 30
+    full = bank.evaluate(np.stack([apply_edit(bank.labels, int(a)) for a in actions[1:]]))
+    np.testing.assert_allclose(d[1:], full - bank.cost().J, rtol=1e-9, atol=1e-13)

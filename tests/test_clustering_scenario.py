@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
@@ -10,6 +12,7 @@ from selenv.core.kalman import kf_predict, kf_update
 from selenv.core.riccati import riccati_pass, riccati_step
 from selenv.scenarios.clustering import (
     ClusteringConfig,
+    MultipathRegimes,
     axis_to_full,
     canonical_labels,
     clustering_cost,
@@ -54,16 +57,28 @@ def test_riccati_step_matches_joseph_kalman_update() -> None:
     np.testing.assert_allclose(hist[0, -1], P, rtol=1e-10, atol=1e-12)
 
 
-def test_per_axis_filters_equal_the_full_model_and_cost_matches_definition() -> None:
-    prob = _problem(n=7, n_max=14, seed=3)
+def _multipath_problem(n: int, seed: int, horizon: int, **kw):
+    """Fast regime switching so that R changes every few steps."""
+    regimes = MultipathRegimes(p_enter=0.3, p_leave=0.4, degraded_factor=4.0)
+    cfg = ClusteringConfig(n_agents=n, n_max_states=14, regimes=regimes, **kw)
+    return make_clustering_problem(cfg, np.random.default_rng(seed), horizon=horizon)
+
+
+@pytest.mark.parametrize("noise", ["fixed", "time-varying"])
+def test_per_axis_filters_equal_the_full_model_and_cost_matches_definition(noise: str) -> None:
+    if noise == "fixed":
+        prob = _problem(n=7, n_max=14, seed=3)
+    else:
+        prob = _multipath_problem(7, 3, horizon=12)
+        assert len({prob.sigma_at(k).tobytes() for k in range(13)}) > 6
     labels = np.array([0, 1, 0, 2, 1, 2, 0])
     bank = ClusterFilterBank(prob, labels)
     keys = bank.clusters
     Ps = [axis_to_full(prob.axis_prior(len(k))) for k in keys]
-    models = [prob.full_model(k) for k in keys]
-    for _ in range(12):
+    for k in range(1, 13):
         bank.step()
-        for c, (A, Q, C, R) in enumerate(models):
+        for c, key in enumerate(keys):
+            A, Q, C, R = prob.full_model(key, k)  # R_k of the measurement at step k
             x, Pm = kf_predict(np.zeros(A.shape[0]), Ps[c], A, Q)
             Ps[c] = kf_update(x, Pm, np.zeros(C.shape[0]), C, R).P
     for P_axis, P_full in zip(bank.posteriors(), Ps, strict=True):
@@ -72,6 +87,40 @@ def test_per_axis_filters_equal_the_full_model_and_cost_matches_definition() -> 
     got = bank.cost()
     assert got.J == pytest.approx(J, rel=1e-10)
     assert (got.J_G, got.J_C, got.J_L) == pytest.approx((J_G, J_C, J_L), rel=1e-10)
+
+
+def test_algorithm1_window_uses_the_past_noise_of_each_step() -> None:
+    """Algorithm 1 at k with time-varying R against an independent full-model recursion."""
+    tau, K = 5, 11
+    prob = _multipath_problem(6, 8, horizon=K + 10, tau=tau)
+    old = np.array([0, 0, 1, 1, 2, 2])
+    bank = ClusterFilterBank(prob, old)
+    for _ in range(K):
+        bank.step()
+    maps = prob.selection_maps(old)
+    P_l = sum(  # step 1 (bias averaged over the old clusters), full coordinates, at l = k - tau
+        Mu.T @ axis_to_full(bank.history(key)[0]) @ Mu
+        + Ms.T @ axis_to_full(bank.history(key)[0]) @ Ms / len(maps)
+        for key, (Mu, Ms) in zip(bank.clusters, maps, strict=True)
+    )
+    new = np.array([0, 1, 0, 2, 1, 2])
+    keys = cluster_keys(canonical_labels(new))
+    Ps = []
+    for key, (Mu, Ms) in zip(keys, prob.selection_maps(new), strict=True):
+        P = Mu @ P_l @ Mu.T + Ms @ P_l @ Ms.T  # step 2
+        for k in range(K - tau + 1, K + 1):  # steps 3-9 over the window, R_k of each step
+            A, Q, C, R = prob.full_model(key, k)
+            x, Pm = kf_predict(np.zeros(A.shape[0]), P, A, Q)
+            P = kf_update(x, Pm, np.zeros(C.shape[0]), C, R).P
+        Ps.append(P)
+    assert bank.evaluate(new)[0] == pytest.approx(_cost_full(prob, Ps, keys)[0], rel=1e-10)
+    # the future noise (steps > k) plays no part in Algorithm 1
+    future = prob.regimes.copy()
+    future[K + 1 :] = 1.0 - future[K + 1 :]
+    other = dataclasses.replace(prob, regimes=future)
+    bank.problem = other
+    bank._new_time_step()  # drop the step's caches: recompute with the altered problem
+    assert bank.evaluate(new)[0] == pytest.approx(_cost_full(prob, Ps, keys)[0], rel=1e-10)
 
 
 def test_long_run_converges_to_the_riccati_steady_state() -> None:

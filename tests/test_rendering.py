@@ -155,7 +155,8 @@ def test_landmark_selection_frames(renderer):
 
 @pytest.mark.parametrize("model", ["ins", "unicycle"])
 def test_cl_scheduling_frames(renderer, model):
-    env = gym.make("selenv/CLScheduling-v0", model=model).unwrapped
+    # budget 2: after one pick the filter step is still open, so the link is drawn
+    env = gym.make("selenv/CLScheduling-v0", model=model, budget=2).unwrapped
     _, info = env.reset(seed=0)
 
     def frame() -> np.ndarray:

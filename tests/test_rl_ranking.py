@@ -73,7 +73,7 @@ def test_edit_deltas_match_single_evaluations_and_greedy() -> None:
 
 def test_ranking_fit_learns_the_oracle_order() -> None:
     """On labelled states the fitted policy's top edit is much closer to the oracle's best."""
-    kwargs = {"n_agents": 6, "horizon": 60}
+    kwargs = {"n_agents": 6, "horizon": 60, "preset": "paper"}
     data = collect_clustering_ranking(kwargs, 120, seed=0, label_every=1, workers=1,
                                       explore=0.3, progress=False)  # fmt: skip
     assert len(data) == 120 and data.deltas.shape[1] == 1 + 36 + 15

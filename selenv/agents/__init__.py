@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from selenv.agents import cl as _cl  # noqa: F401  (registers the CL scheduling agents)
 from selenv.agents import clustering as _clustering  # noqa: F401  (registers clustering agents)
+from selenv.agents import clustering_rollout as _clustering_rollout  # noqa: F401
 from selenv.agents import fim as _fim  # noqa: F401  (registers the FIM agents)
 from selenv.agents import landmarks as _landmarks  # noqa: F401  (registers landmark agents)
 from selenv.agents import multiagent as _multiagent  # noqa: F401  (registers the PettingZoo agents)

@@ -10,6 +10,8 @@ Algorithm 1 costs of candidates) and return a full assignment (``action_mode="as
 | ``ga`` | Algorithm 2: one GA generation every ``every`` steps from ``start_step`` on |
 | ``greedy`` | best single move or swap by Algorithm 1 cost, if it improves (local search) |
 | ``fixed_random`` | a random feasible clustering (clusters filled to the cap), kept all episode |
+| ``offline_static`` | the best partition found offline at ``k = 0`` for the base noise levels,
+  kept all episode (with time-varying noise: what online re-clustering must beat) |
 | ``singletons`` | one receiver per cluster: the worst clustering (Remark 2) |
 | ``single_cluster`` | all receivers together: the unconstrained lower bound (refuses when
   the env's ``n_max_states`` forbids it) |
@@ -17,6 +19,7 @@ Algorithm 1 costs of candidates) and return a full assignment (``action_mode="as
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import gymnasium as gym
@@ -30,6 +33,8 @@ from selenv.envs.receiver_clustering import (
     edit_cost_changes,
     edit_mask,
 )
+from selenv.scenarios.clustering import ClusteringProblem
+from selenv.scenarios.clustering_filters import ClusterFilterBank
 from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 __all__ = [
@@ -37,12 +42,16 @@ __all__ = [
     "FixedClusteringAgent",
     "GAAgent",
     "GreedyMoveAgent",
+    "OfflineStaticAgent",
+    "best_edit",
+    "clustering_env",
 ]
 
 CLUSTERING_ENV_ID = "selenv/ReceiverClustering-v0"
 
 
-def _clustering_env(env: gym.Env[Any, Any], name: str, modes: tuple[str, ...]) -> Any:
+def clustering_env(env: gym.Env[Any, Any], name: str, modes: tuple[str, ...]) -> Any:
+    """``env.unwrapped`` if it is ``ReceiverClustering-v0`` in one of ``modes``, else ValueError."""
     base = env.unwrapped
     if not isinstance(base, ReceiverClusteringEnv):
         raise ValueError(f"agent {name!r} needs {CLUSTERING_ENV_ID}, got {type(base).__name__}")
@@ -65,7 +74,7 @@ class FixedClusteringAgent(Agent):
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
         """Choose the clustering (``ValueError`` if the env's constraint forbids it)."""
         super().reset(env, seed)
-        base = _clustering_env(env, self.kind, ("assignment",))
+        base = clustering_env(env, self.kind, ("assignment",))
         n = base.n
         if self.kind == "singletons":
             self.labels = np.arange(n)
@@ -109,7 +118,7 @@ class GAAgent(Agent):
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
         super().reset(env, seed)
-        self.base = _clustering_env(env, self.name, ("assignment",))
+        self.base = clustering_env(env, self.name, ("assignment",))
         self.ga = None  # built at the first generation, from the clustering in use then
 
     def act(self, obs: Any, info: dict[str, Any]) -> np.ndarray:
@@ -148,27 +157,109 @@ class GreedyMoveAgent(Agent):
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
         super().reset(env, seed)
-        self.base = _clustering_env(env, self.name, ("assignment", "edit"))
+        self.base = clustering_env(env, self.name, ("assignment", "edit"))
 
     def act(self, obs: Any, info: dict[str, Any]) -> Any:
         """The best improving edit (as labels or as an edit index, per the env's mode)."""
         bank = self.base.bank
-        labels = bank.labels
         best_action = 0
         if bank.k % self.every == 0:
-            n = labels.size
-            mask = edit_mask(labels, self.base.max_size)
-            if not self.swaps:
-                mask[1 + n * n :] = False
-            actions = np.flatnonzero(mask[1:]) + 1
-            if actions.size:
-                d = edit_cost_changes(bank, actions)
-                j = int(np.argmin(d))
-                if d[j] < 0.0:
-                    best_action = int(actions[j])
+            best_action, _ = best_edit(bank, self.base.max_size, self.swaps)
         if self.base.action_mode == "edit":
             return best_action
-        return apply_edit(labels, best_action)
+        return apply_edit(bank.labels, best_action)
+
+
+def best_edit(bank: ClusterFilterBank, max_size: int, swaps: bool = True) -> tuple[int, float]:
+    """The edit with the lowest Algorithm 1 cost change now, and that change (the greedy step).
+
+    ``(0, 0.0)`` (the no-op) unless an allowed edit of :func:`edit_mask` lowers ``J``.
+    """
+    labels = bank.labels
+    n = labels.size
+    mask = edit_mask(labels, max_size)
+    if not swaps:
+        mask[1 + n * n :] = False
+    actions = np.flatnonzero(mask[1:]) + 1
+    if actions.size:
+        d = edit_cost_changes(bank, actions)
+        j = int(np.argmin(d))
+        if d[j] < 0.0:
+            return int(actions[j]), float(d[j])
+    return 0, 0.0
+
+
+class OfflineStaticAgent(Agent):
+    """A baseline to test against: one partition solved offline at ``k = 0``, kept all episode.
+
+    At its first decision it solves the static problem with the noise held at fixed levels:
+    a private filter bank (the env is not touched) starts from the env's clustering, runs
+    ``warmup`` filter steps with a greedy edit (best move or swap by Algorithm 1) every step,
+    then applies greedy edits at that time until none improves (at most ``max_edits``), and
+    plays the result from then on. With fixed noise (``preset="paper"``) this is the best
+    static clustering the local search finds; with time-varying noise it is what online
+    re-clustering has to beat.
+
+    Args:
+        levels: noise levels of the static problem: ``"base"`` (open-sky ``sigma``),
+            ``"rms"`` (``sigma sqrt(1 + pi (f^2 - 1))``, the stationary RMS level) or
+            ``"current"`` (the levels at ``k = 0``).
+        warmup: filter steps before the final search, >= 0; ``None``: ``tau + 5`` (the
+            Algorithm 1 window is full; longer warm-ups gave the same partitions).
+        max_edits: cap on the edits of the final search, >= 0.
+    """
+
+    name = "offline_static"
+    LEVELS = ("base", "rms", "current")
+
+    def __init__(
+        self, levels: str = "base", warmup: int | None = None, max_edits: int = 200
+    ) -> None:
+        if levels not in self.LEVELS:
+            raise ValueError(f"levels must be one of {self.LEVELS}, got {levels!r}")
+        for name, v in (("warmup", warmup), ("max_edits", max_edits)):
+            if v is None and name == "warmup":
+                continue
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{name} must be an int >= 0, got {v!r}")
+        self.levels, self.warmup, self.max_edits = levels, warmup, max_edits
+
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
+        super().reset(env, seed)
+        self.base = clustering_env(env, self.name, ("assignment",))
+        self.labels: np.ndarray | None = None
+
+    def static_problem(self, problem: ClusteringProblem) -> ClusteringProblem:
+        """The fixed-noise problem the partition is solved for (known at ``k = 0``)."""
+        model = problem.config.regimes
+        if self.levels == "current":
+            sigma = problem.sigma_at(0)
+        elif self.levels == "rms" and model is not None:
+            f = float(model.degraded_factor)
+            sigma = problem.sigma * np.sqrt(1.0 + model.degraded_fraction * (f * f - 1.0))
+        else:
+            sigma = problem.sigma
+        config = dataclasses.replace(problem.config, regimes=None)
+        return ClusteringProblem(config=config, sigma=np.asarray(sigma, dtype=float))
+
+    def act(self, obs: Any, info: dict[str, Any]) -> np.ndarray:
+        """Solve at the first call, then play the solution."""
+        if self.labels is None:
+            bank = ClusterFilterBank(
+                self.static_problem(self.base.bank.problem), self.base.bank.labels
+            )
+            cap = self.base.max_size
+            warmup = bank.tau + 5 if self.warmup is None else self.warmup
+            for _ in range(warmup):
+                bank.recluster(apply_edit(bank.labels, best_edit(bank, cap)[0]))
+                bank.step()
+            for _ in range(self.max_edits):
+                action, _ = best_edit(bank, cap)
+                if action == 0:
+                    break
+                bank.recluster(apply_edit(bank.labels, action))
+            self.labels = bank.labels.copy()
+        return self.labels.copy()
 
 
 def _fixed(kind: str) -> Any:
@@ -183,6 +274,14 @@ register_agent(AgentSpec("ga", _ID, GAAgent, "Algorithm 2 genetic algorithm (Gre
 register_agent(AgentSpec("greedy", _ID, GreedyMoveAgent, "best single move/swap if it improves"))
 register_agent(
     AgentSpec("fixed_random", _ID, _fixed("fixed_random"), "random feasible clustering, kept")
+)
+register_agent(
+    AgentSpec(
+        "offline_static",
+        _ID,
+        OfflineStaticAgent,
+        "best partition for the base noise found offline at k = 0, kept",
+    )
 )
 register_agent(AgentSpec("singletons", _ID, _fixed("singletons"), "one receiver per cluster"))
 register_agent(

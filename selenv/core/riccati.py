@@ -7,7 +7,9 @@ window of ``tau`` steps for every candidate cluster).
 
 Symbols follow :mod:`selenv.core.kalman`: ``P`` (B, n, n) covariances stacked over a leading batch
 axis, ``F`` (n, n) transition and ``Q`` (n, n) process noise shared by the batch, ``H`` (p, n)
-measurement matrix shared by the batch, ``R`` (p, p) shared or (B, p, p) per batch element.
+measurement matrix shared by the batch, ``R`` (p, p) shared or (B, p, p) per batch element;
+:func:`riccati_pass` also takes a time-varying ``R_k`` (B, steps, p, p), one per step (eq. 1b of
+Greiff et al.: the noise of a receiver changes with its reception conditions).
 
 The update uses the symmetric form ``P' = P - (H P)^T S^-1 (H P)`` with ``S = H P H^T + R``
 (optimal gain; the Joseph form of :func:`selenv.core.kalman.kf_update` exists for suboptimal
@@ -65,11 +67,13 @@ def riccati_pass(
         F: transition (n, n).
         Q: process noise (n, n).
         H: measurement matrix (p, n).
-        R: measurement noise (p, p) or (B, p, p).
+        R: measurement noise: (p, p) or (B, p, p) for every step, or (B, steps, p, p) with
+            ``R[:, t - 1]`` the noise of the measurement at step ``t = 1 .. steps``.
         steps: number of prediction-update steps, >= 0.
 
     Returns:
-        ``(B, steps + 1, n, n)``: ``P0`` then the posterior after each step.
+        ``(B, steps + 1, n, n)``: ``P0`` then the posterior after each step (a time-invariant
+        ``R`` gives the same numbers as the same ``R`` repeated per step).
 
     Raises:
         ValueError: wrong shapes, NaN/inf, or a negative ``steps``.
@@ -85,14 +89,19 @@ def riccati_pass(
         raise ValueError(f"H must have shape (p, {n}), got {H.shape}")
     p = H.shape[0]
     R = check_finite(as_float_array(R, "R"), "R")
-    if R.shape not in ((p, p), (B, p, p)):
-        raise ValueError(f"R must have shape ({p}, {p}) or ({B}, {p}, {p}), got {R.shape}")
     if isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 0:
         raise ValueError(f"steps must be an int >= 0, got {steps!r}")
-    out = np.empty((B, int(steps) + 1, n, n))
+    steps = int(steps)
+    per_step = R.shape == (B, steps, p, p)
+    if not per_step and R.shape not in ((p, p), (B, p, p)):
+        raise ValueError(
+            f"R must have shape ({p}, {p}), ({B}, {p}, {p}) or, per step, "
+            f"({B}, {steps}, {p}, {p}); got {R.shape}"
+        )
+    out = np.empty((B, steps + 1, n, n))
     out[:, 0] = P0
     P = P0
-    for t in range(1, int(steps) + 1):
-        P = riccati_step(P, F, Q, H, R)
+    for t in range(1, steps + 1):
+        P = riccati_step(P, F, Q, H, R[:, t - 1] if per_step else R)  # R_t of (12a)
         out[:, t] = P
     return out

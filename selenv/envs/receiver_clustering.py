@@ -14,6 +14,7 @@ from selenv.envs.rendering import Renderer, draw_receiver_clustering
 from selenv.scenarios.clustering import (
     ClusteringConfig,
     ClusteringProblem,
+    MultipathRegimes,
     make_clustering_problem,
 )
 from selenv.scenarios.clustering_filters import ClusterFilterBank
@@ -22,6 +23,7 @@ from selenv.scenarios.clustering_labels import random_feasible_clustering
 __all__ = [
     "ACTION_MODES",
     "INITIALS",
+    "PRESETS",
     "ReceiverClusteringEnv",
     "apply_edit",
     "clustering_config",
@@ -38,6 +40,26 @@ ACTION_MODES = ("assignment", "edit")
 
 
 INITIALS = ("random", "singletons")
+#: noise presets: ``"multipath"`` (default) time-varying regimes, ``"paper"`` fixed ``sigma``
+PRESETS = ("multipath", "paper")
+
+
+def _regimes(
+    preset: str, p_enter: float | None, p_leave: float | None, degraded_factor: float | None
+) -> MultipathRegimes | None:
+    """The noise model of ``preset`` with the given overrides (``ValueError`` naming them)."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {PRESETS}, got {preset!r}")
+    given = {"p_enter": p_enter, "p_leave": p_leave, "degraded_factor": degraded_factor}
+    overrides = {name: v for name, v in given.items() if v is not None}
+    if preset == "paper":
+        if overrides:
+            raise ValueError(
+                f"{sorted(overrides)} set the multipath noise model; preset='paper' keeps "
+                "sigma fixed (use preset='multipath')"
+            )
+        return None
+    return MultipathRegimes(**overrides)
 
 
 def clustering_config(
@@ -52,17 +74,27 @@ def clustering_config(
     prior_std: tuple[float, float, float],
     horizon: int,
     initial: str,
+    preset: str = "paper",
+    p_enter: float | None = None,
+    p_leave: float | None = None,
+    degraded_factor: float | None = None,
 ) -> ClusteringConfig:
     """Validated scenario config from the env keywords (shared by both clustering envs).
 
+    ``preset="multipath"``: :class:`~selenv.scenarios.clustering.MultipathRegimes` with its
+    defaults, overridden by ``p_enter``, ``p_leave``, ``degraded_factor`` when given;
+    ``preset="paper"``: fixed ``sigma`` (those three must then be ``None``).
+
     Raises:
-        ValueError: any bad keyword (via :class:`ClusteringConfig`), ``horizon < 1`` or an
-            unknown ``initial``.
+        ValueError: any bad keyword (via :class:`ClusteringConfig` or
+            :class:`~selenv.scenarios.clustering.MultipathRegimes`, naming it), ``horizon < 1``,
+            an unknown ``initial`` or ``preset``.
     """
     if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
         raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
     if initial not in INITIALS:
         raise ValueError(f"initial must be one of {INITIALS}, got {initial!r}")
+    regimes = _regimes(preset, p_enter, p_leave, degraded_factor)
     return ClusteringConfig(
         n_agents=n_agents,
         n_max_states=n_max_states,
@@ -72,6 +104,7 @@ def clustering_config(
         tau=tau,
         weights=tuple(weights),  # type: ignore[arg-type]
         prior_std=tuple(prior_std),  # type: ignore[arg-type]
+        regimes=regimes,
     )
 
 
@@ -139,21 +172,61 @@ def apply_edit(labels: np.ndarray, action: int) -> np.ndarray:
     return out
 
 
+def _edit_changes(
+    labels: np.ndarray, keys: list[tuple[int, ...]], actions: np.ndarray
+) -> tuple[np.ndarray, list[tuple[tuple[int, ...], ...]]]:
+    """Clusters each edit removes (indices into ``keys``, -1: none) and adds (member tuples)."""
+    n = labels.size
+    iu, ju = _swap_pairs(n)
+    removed = np.full((actions.size, 2), -1, dtype=np.int64)
+    added: list[tuple[tuple[int, ...], ...]] = []
+    for e, action in enumerate(actions.tolist()):
+        a = action - 1
+        if a < 0:
+            added.append(())
+            continue
+        if a < n * n:
+            i, j = divmod(a, n)
+            A = int(labels[i])
+            rest = tuple(x for x in keys[A] if x != i)
+            if i == j:  # i leaves to a new singleton
+                removed[e, 0] = A
+                added.append((rest, (i,)) if rest else ((i,),))
+                continue
+            B = int(labels[j])
+            removed[e] = (A, B)
+            joined = tuple(sorted((*keys[B], i)))
+            added.append((rest, joined) if rest else (joined,))
+            continue
+        i, j = int(iu[a - n * n]), int(ju[a - n * n])
+        A, B = int(labels[i]), int(labels[j])
+        removed[e] = (A, B)
+        added.append(
+            (
+                tuple(sorted((*(x for x in keys[A] if x != i), j))),
+                tuple(sorted((*(x for x in keys[B] if x != j), i))),
+            )
+        )
+    return removed, added
+
+
 def edit_cost_changes(bank: ClusterFilterBank, actions: Any) -> np.ndarray:
     """``dJ_a = J(apply_edit(labels, a)) - J(labels)`` of each edit ``a`` of ``actions``, now.
 
     Algorithm 1 cost eq. (10) at the bank's current time (``labels = bank.labels``): what a
     local search compares. The no-op (0) gets 0 without an evaluation; every other edit costs
-    one evaluation (counted by the bank). ``actions`` must be allowed edits
-    (:func:`edit_mask`); returns ``(len(actions),)``.
+    one evaluation (counted by the bank), done by
+    :meth:`~selenv.scenarios.clustering_filters.ClusterFilterBank.evaluate_changes` on the
+    two clusters the edit changes. ``actions`` must be allowed edits (:func:`edit_mask`);
+    returns ``(len(actions),)``.
     """
     acts = np.asarray(actions, dtype=np.int64).reshape(-1)
     out = np.zeros(acts.size)
     edits = np.flatnonzero(acts != 0)
     if edits.size:
-        labels = bank.labels
-        cands = np.stack([apply_edit(labels, int(acts[e])) for e in edits])
-        out[edits] = bank.evaluate(cands) - bank.cost().J
+        removed, added = _edit_changes(bank.labels, bank.clusters, acts[edits])
+        J, J_now = bank.evaluate_changes(removed, added)
+        out[edits] = J - J_now
     return out
 
 
@@ -162,7 +235,7 @@ def render_clustering(
 ) -> np.ndarray | None:
     """Draw ``bank``'s clustering and cost terms with ``renderer`` (both clustering envs)."""
     c = bank.cost()
-    labels, sigma, k = bank.labels.copy(), bank.problem.sigma, bank.k
+    labels, sigma, k = bank.labels.copy(), bank.current_sigma(), bank.k
     return renderer.render(
         lambda fig: draw_receiver_clustering(
             fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, k, max_size, title
@@ -193,7 +266,7 @@ def clustering_observation(bank: ClusterFilterBank, horizon: int) -> dict[str, n
     return {
         "assignment": labels.copy(),
         "cluster_size": np.bincount(labels)[labels].astype(np.int64),
-        "sigma": bank.problem.sigma.astype(np.float32),
+        "sigma": bank.current_sigma().astype(np.float32),
         "position_var": bank.receiver_position_variance().astype(np.float32),
         "cost": np.array([c.J, c.J_G, c.J_C, c.J_L], np.float32),
         "time": np.array([min(bank.k / horizon, 1.0)], np.float32),
@@ -211,6 +284,37 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
     ``N_max`` states and measurements (Problem 1), i.e. ``(N_max - 2) // 4`` receivers. The
     cost eq. (10) ``J = a_G J_G + a_C J_C + a_L J_L`` is computed from the filters' posteriors;
     one big cluster would be best (Remark 2) but is infeasible.
+
+    ## Noise model (presets)
+    ``preset="multipath"`` (default): the receivers enter and leave multipath / urban-canyon
+    conditions. Each receiver has base (open-sky) noise levels ``sigma ~ U(0, 1]`` per channel
+    and a two-state Markov chain (open sky / degraded; a Gilbert-Elliott channel, the
+    "good/bad" land-mobile-satellite model of Lutz et al. 1991), independent across receivers:
+
+    | parameter | default | meaning (at ``dt = 0.1`` s) |
+    |---|---|---|
+    | ``p_enter`` | 0.01 | per-step P(open sky -> degraded): open-sky spells of 100 steps (10 s) |
+    | ``p_leave`` | 0.05 | per-step P(degraded -> open sky): degraded spells of 20 steps (2 s) |
+    | ``degraded_factor`` | 5 | both noise std devs times 5 while degraded (25x the variance) |
+
+    About ``p_enter / (p_enter + p_leave) = 1/6`` of the receivers are degraded at any time
+    (the chain starts from that stationary distribution). Step ``k``'s measurement noise is
+    eq. (3b)-(4) with the levels of step ``k``: the filters, Algorithm 1's window passes and
+    the cost all use the ``R_k`` of each step. The whole regime path (steps ``0 .. horizon``) is
+    drawn at ``reset`` from the env's generator, after ``sigma`` and before the initial
+    clustering, like any noise realisation: a seed fixes the trajectory on every executor.
+    With these defaults a partition solved once at ``k = 0`` (``offline_static``) loses to
+    online re-clustering (``greedy``, ``ga``): the best clustering moves with the regimes.
+
+    ``preset="paper"``: Greiff et al.'s setting, ``sigma`` fixed for the episode (the
+    trajectories of v0 before the presets existed, bit for bit).
+
+    ## Information
+    At step ``k`` the decision-maker knows the current levels of every receiver
+    (``obs["sigma"]``: a receiver estimates its noise level from its signal quality) and the
+    past, never the future regime path. The heuristics use Algorithm 1 costs
+    (``bank.evaluate``), which filter over the past window ``k - tau .. k`` with the past and
+    current ``R``; the ``rollout`` agent forecasts the future from the Markov statistics only.
 
     ## Action Space
     ``action_mode="assignment"`` (default): ``MultiDiscrete([n] * n)``, the clustering to use
@@ -231,7 +335,8 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
 
     ## Observation Space
     ``Dict``: ``assignment (n,)`` canonical labels, ``cluster_size (n,)`` size of each
-    receiver's cluster, ``sigma (n, 2)``, ``position_var (n,)`` each receiver's per-axis position
+    receiver's cluster, ``sigma (n, 2)`` the current noise levels (step ``k``; constant with
+    ``preset="paper"``), ``position_var (n,)`` each receiver's per-axis position
     variance, ``cost (4,)`` ``(J, J_G, J_C, J_L)`` now, ``time (1,)`` ``k / horizon``; in edit mode
     also ``action_mask``.
 
@@ -242,7 +347,8 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
 
     ## Starting State
     ``sigma ~ U(0, 1]`` per receiver and channel (new draw per reset unless ``sigma`` is
-    given); filters at the prior ``diag(prior_std^2)``; a random feasible clustering with
+    given; with ``preset="multipath"`` these are the base levels and the regime path is drawn
+    next); filters at the prior ``diag(prior_std^2)``; a random feasible clustering with
     ``ceil(n / max_size)`` near-equal clusters (``initial="singletons"`` for the worst one), or
     ``reset(options={"clustering": labels})``.
 
@@ -252,8 +358,8 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
     ``invalid_action="terminate"``.
 
     ## Rendering
-    ``render_mode="rgb_array"`` or ``"human"``: the receivers placed at their two noise
-    levels ``sigma`` and coloured by cluster, and ``J`` with its terms ``J_G, J_C, J_L``.
+    ``render_mode="rgb_array"`` or ``"human"``: the receivers placed at their current two noise
+    levels and coloured by cluster, and ``J`` with its terms ``J_G, J_C, J_L``.
 
     ## Step
     ``step(action)`` (1) re-clusters at time ``k`` if the partition changes, re-initialising the
@@ -264,12 +370,16 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
     ``gymnasium.make("selenv/ReceiverClustering-v0", n_agents=30, n_max_states=14, sigma=None,
     noise_correlation=0.9, dt=0.1, tau=20, weights=(1, 1, 1), horizon=500,
     prior_std=(1, 1, 1), action_mode="assignment", initial="random", invalid_action="noop",
-    invalid_action_penalty=0.0, render_mode=None)``. ``n_max_states=None`` lifts the
-    constraint.
+    invalid_action_penalty=0.0, render_mode=None, preset="multipath", p_enter=None,
+    p_leave=None, degraded_factor=None)``. ``n_max_states=None`` lifts the constraint.
+    ``sigma`` given explicitly sets the base levels (the regime path is still drawn);
+    ``p_enter``, ``p_leave``, ``degraded_factor`` (``None``: the preset's value) override the
+    multipath model and are a ``ValueError`` with ``preset="paper"``.
 
     ## Version History
     * v0: initial version (``invalid_action`` modes and rendering added without changing
-      valid trajectories).
+      valid trajectories). Time-varying noise (``preset="multipath"``) became the default;
+      ``preset="paper"`` keeps the earlier trajectories bit for bit.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
@@ -291,6 +401,10 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         invalid_action: str = "noop",
         invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
+        preset: str = "multipath",
+        p_enter: float | None = None,
+        p_leave: float | None = None,
+        degraded_factor: float | None = None,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
@@ -305,7 +419,12 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
             prior_std=prior_std,
             horizon=horizon,
             initial=initial,
+            preset=preset,
+            p_enter=p_enter,
+            p_leave=p_leave,
+            degraded_factor=degraded_factor,
         )
+        self.preset = preset
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         self.n = int(n_agents)
@@ -355,7 +474,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         ``options={"clustering": labels}`` sets the initial clustering (validated).
         """
         super().reset(seed=seed)
-        self.problem = make_clustering_problem(self.config, self.np_random)
+        self.problem = make_clustering_problem(self.config, self.np_random, self.horizon)
         opts = options or {}
         unknown = set(opts) - {"clustering"}
         if unknown:

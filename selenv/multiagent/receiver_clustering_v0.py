@@ -74,12 +74,19 @@ Per agent, ``assignment (n,)``, ``cluster_size (n,)``, ``sigma (n, 2)``, ``posit
 ``cost (4,)`` ``(J, J_G, J_C, J_L)``, ``time (1,)`` ``k / horizon`` (shared; as in the
 single-agent env), ``self (n,)`` the one-hot index of the agent and ``action_mask (n,)``.
 
+## Noise model
+As ``selenv/ReceiverClustering-v0`` (its docstring has the table): ``preset="multipath"``
+(default) switches each receiver between open sky and multipath / urban-canyon conditions (a
+two-state Markov chain: ``p_enter = 0.01``, ``p_leave = 0.05`` per step, noise std x
+``degraded_factor = 5`` while degraded), the path drawn at reset; ``preset="paper"`` keeps
+``sigma`` fixed. ``obs["sigma"]`` holds the current levels, never the future ones.
+
 ## Starting State and Episode End
-As ``selenv/ReceiverClustering-v0``: ``sigma ~ U(0, 1]`` unless given, filters at the prior,
-a random feasible clustering (``initial="singletons"``: all singletons) or
-``reset(options={"clustering": labels})``; other option keys are ignored. The same seed draws
-the same ``sigma`` and initial clustering as the single-agent env. All agents terminate
-together after ``horizon`` filter steps and leave ``env.agents``.
+As ``selenv/ReceiverClustering-v0``: ``sigma ~ U(0, 1]`` unless given (then the regime path),
+filters at the prior, a random feasible clustering (``initial="singletons"``: all singletons)
+or ``reset(options={"clustering": labels})``; other option keys are ignored. The same seed
+draws the same ``sigma``, regime path and initial clustering as the single-agent env. All
+agents terminate together after ``horizon`` filter steps and leave ``env.agents``.
 
 ## Rendering
 ``render_mode="rgb_array"`` / ``"human"``: the frame of ``selenv/ReceiverClustering-v0``.
@@ -87,10 +94,12 @@ together after ``horizon`` filter steps and leave ``env.agents``.
 ## Arguments
 ``parallel_env(n_agents=30, n_max_states=14, sigma=None, noise_correlation=0.9, dt=0.1, tau=20,
 weights=(1, 1, 1), horizon=500, prior_std=(1, 1, 1), initial="random", invalid_action="noop",
-invalid_action_penalty=0.0, render_mode=None)``.
+invalid_action_penalty=0.0, render_mode=None, preset="multipath", p_enter=None, p_leave=None,
+degraded_factor=None)``.
 
 ## Version History
-* v0: initial version.
+* v0: initial version; time-varying noise (``preset="multipath"``) became the default,
+  ``preset="paper"`` keeps the earlier trajectories.
 """
 
 from __future__ import annotations
@@ -182,7 +191,8 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
     Args:
         n_agents: number of receivers ``n`` (one agent each).
         n_max_states: ``N_max`` of Problem 1; ``None`` lifts the constraint.
-        sigma: optional (n_agents, 2) measurement std devs (sampled ``U(0, 1]`` when absent).
+        sigma: optional (n_agents, 2) measurement std devs (sampled ``U(0, 1]`` when absent);
+            the base levels with ``preset="multipath"``.
         noise_correlation: inter-receiver noise correlation ``r`` in [0, 1).
         dt: step ``h``.
         tau: window of Algorithm 1.
@@ -193,6 +203,10 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
         invalid_action: ``"noop"``, ``"raise"`` or ``"terminate"`` (module docstring).
         invalid_action_penalty: reward added for a masked label (float, default 0).
         render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
+        preset: ``"multipath"`` (time-varying noise, default) or ``"paper"`` (fixed ``sigma``).
+        p_enter: per-step probability of entering the degraded state (``None``: 0.01).
+        p_leave: per-step probability of leaving it (``None``: 0.05).
+        degraded_factor: noise std multiplier while degraded (``None``: 5).
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
@@ -218,6 +232,10 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
         invalid_action: str = "noop",
         invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
+        preset: str = "multipath",
+        p_enter: float | None = None,
+        p_leave: float | None = None,
+        degraded_factor: float | None = None,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
@@ -232,7 +250,12 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
             prior_std=prior_std,
             horizon=horizon,
             initial=initial,
+            preset=preset,
+            p_enter=p_enter,
+            p_leave=p_leave,
+            degraded_factor=degraded_factor,
         )
+        self.preset = preset
         self.n = n = int(n_agents)
         self.horizon = int(horizon)
         self.initial = initial
@@ -288,7 +311,7 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
         """
         if seed is not None or self._np_random is None:
             self._np_random, _ = seeding.np_random(seed)
-        self.problem = make_clustering_problem(self.config, self._np_random)
+        self.problem = make_clustering_problem(self.config, self._np_random, self.horizon)
         opts = options or {}
         labels = initial_clustering(self.problem, self.initial, opts, self._np_random)
         self._bank = ClusterFilterBank(self.problem, labels)

@@ -23,6 +23,12 @@ filter in selenv runs on ``P_axis``: 8x fewer flops than the full model, which
 The cost eq. (10) ``J = a_G J_G + a_C J_C + a_L J_L`` is computed from the per-axis posteriors
 (:func:`clustering_cost`); the Kalman forward passes of Algorithm 1 live in
 :mod:`selenv.scenarios.clustering_filters`.
+
+**Time-varying noise (our addition).** The paper draws ``sigma`` once; its model (1b) allows
+``R_k``. With :class:`MultipathRegimes` each receiver switches between open sky and a degraded
+(multipath / urban-canyon) state, a two-state Markov chain whose path is drawn with the rest of
+the realisation; ``sigma`` stays the base (open-sky) levels and ``sigma_at(k)`` gives the levels
+of step ``k``. ``config.regimes = None`` (the default of :class:`ClusteringConfig`) is the paper.
 """
 
 from __future__ import annotations
@@ -43,6 +49,7 @@ __all__ = [
     "ClusteringConfig",
     "ClusteringProblem",
     "CostBreakdown",
+    "MultipathRegimes",
     "axis_to_full",
     "canonical_labels",
     "clustering_cost",
@@ -67,6 +74,87 @@ def n_measurements(size: int) -> int:
     return MEASUREMENTS_PER_AGENT * size
 
 
+def _probability(value: Any, name: str, low_open: bool) -> float:
+    ok = isinstance(value, float | int | np.floating | np.integer) and not isinstance(value, bool)
+    v = float(value) if ok else np.nan
+    if not (np.isfinite(v) and (0.0 < v if low_open else 0.0 <= v) and v <= 1.0):
+        interval = "(0, 1]" if low_open else "[0, 1]"
+        raise ValueError(f"{name} must be a probability in {interval}, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True, kw_only=True)
+class MultipathRegimes:
+    """Reception conditions of each receiver: a two-state Markov chain (open sky / degraded).
+
+    A Gilbert-Elliott channel, the two-state "good / bad" land-mobile-satellite model of Lutz et
+    al. (1991): from one step to the next a receiver in open sky (state 0) enters multipath /
+    urban-canyon conditions (state 1) w.p. ``p_enter`` and a degraded one recovers w.p.
+    ``p_leave``, independently of the other receivers. Degraded, both its noise levels are
+    ``degraded_factor`` times its base levels. Mean sojourns: ``1 / p_enter`` steps in open
+    sky, ``1 / p_leave`` degraded; stationary fraction degraded ``p_enter / (p_enter +
+    p_leave)``, the distribution the chain starts from.
+
+    Attributes:
+        p_enter: per-step probability of entering the degraded state, in [0, 1].
+        p_leave: per-step probability of leaving it, in (0, 1].
+        degraded_factor: noise std multiplier while degraded, finite and >= 1.
+    """
+
+    p_enter: float = 0.01
+    p_leave: float = 0.05
+    degraded_factor: float = 5.0
+
+    def __post_init__(self) -> None:
+        _probability(self.p_enter, "p_enter", low_open=False)
+        _probability(self.p_leave, "p_leave", low_open=True)
+        f = self.degraded_factor
+        if isinstance(f, bool) or not isinstance(f, float | int | np.floating | np.integer):
+            raise ValueError(f"degraded_factor must be a number >= 1, got {f!r}")
+        if not (np.isfinite(f) and f >= 1.0):
+            raise ValueError(f"degraded_factor must be a finite number >= 1, got {f!r}")
+
+    @property
+    def degraded_fraction(self) -> float:
+        """Stationary probability of the degraded state, ``p_enter / (p_enter + p_leave)``."""
+        return float(self.p_enter) / (float(self.p_enter) + float(self.p_leave))
+
+    def draw(self, n: int, steps: int, rng: np.random.Generator) -> FloatArray:
+        """A path ``(steps + 1, n)`` of 0/1 states from the stationary distribution at step 0."""
+        start = (rng.random(n) < self.degraded_fraction).astype(float)
+        return self.sample(start, steps, rng)
+
+    def sample(self, start: FloatArray, steps: int, rng: np.random.Generator) -> FloatArray:
+        """A path ``(steps + 1, n)`` of 0/1 states from the states ``start`` (n,) at row 0."""
+        u = rng.random((int(steps), start.size))
+        out = np.empty((int(steps) + 1, start.size))
+        out[0] = start
+        for t in range(int(steps)):
+            bad = out[t] > 0.5
+            out[t + 1] = np.where(bad, u[t] >= self.p_leave, u[t] < self.p_enter)
+        return out
+
+    def forecast(self, start: FloatArray, steps: int) -> FloatArray:
+        """``P(degraded at t | states start at 0)`` for ``t = 1 .. steps``, ``(steps, n)``.
+
+        ``q_t = pi + (q_0 - pi) lam^t`` with ``lam = 1 - p_enter - p_leave`` (two-state chain).
+        """
+        pi = self.degraded_fraction
+        lam = 1.0 - float(self.p_enter) - float(self.p_leave)
+        decay = lam ** np.arange(1, int(steps) + 1)[:, None]
+        return pi + (np.asarray(start, dtype=float)[None, :] - pi) * decay
+
+    def noise_scale(self, states: FloatArray) -> FloatArray:
+        """Std multiplier of each state: 1 (open sky), ``degraded_factor`` (degraded).
+
+        A fraction ``q`` (a forecast's degraded probability) gives the expected variance,
+        ``sqrt(1 + q (f^2 - 1))``.
+        """
+        f = float(self.degraded_factor)
+        q = np.asarray(states, dtype=float)
+        return np.where(q >= 1.0, f, np.sqrt(1.0 + q * (f * f - 1.0)))
+
+
 @dataclass(frozen=True, kw_only=True)
 class ClusteringConfig:
     """Parameters of the receiver-clustering scenario (defaults: Greiff et al. Sec. IV-A).
@@ -82,6 +170,8 @@ class ClusteringConfig:
         weights: ``(alpha_G, alpha_C, alpha_L)`` of eq. (10), non-negative, not all zero.
         prior_std: 1-sigma of the initial belief ``(position, velocity, bias)`` per axis (the
             paper does not give ``P_0|0``).
+        regimes: time-varying noise (:class:`MultipathRegimes`), ``sigma`` being the base
+            levels; ``None`` (the paper) keeps ``sigma`` fixed.
     """
 
     n_agents: int = 30
@@ -92,6 +182,7 @@ class ClusteringConfig:
     tau: int = 20
     weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
     prior_std: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    regimes: MultipathRegimes | None = None
 
     def __post_init__(self) -> None:
         n = self.n_agents
@@ -125,6 +216,8 @@ class ClusteringConfig:
             raise ValueError(f"prior_std must be 3 finite numbers > 0, got {self.prior_std!r}")
         if self.sigma is not None:
             _check_sigma(self.sigma, int(n))
+        if self.regimes is not None and not isinstance(self.regimes, MultipathRegimes):
+            raise ValueError(f"regimes must be a MultipathRegimes or None, got {self.regimes!r}")
 
     @property
     def max_cluster_size(self) -> int:
@@ -210,14 +303,68 @@ class ClusteringProblem:
 
     Attributes:
         config: the :class:`ClusteringConfig`.
-        sigma: (n, 2) std devs ``(sigma_1i, sigma_2i)``.
+        sigma: (n, 2) std devs ``(sigma_1i, sigma_2i)``; the base (open-sky) levels when the
+            noise is time-varying.
+        regimes: ``None`` (fixed noise) or ``(K + 1, n)`` state of each receiver at steps
+            ``k = 0 .. K`` (needs ``config.regimes``): 1 degraded, 0 open sky, a fraction
+            ``q`` in between the expected variance of a forecast
+            (:meth:`MultipathRegimes.noise_scale`). Step ``k``'s measurement uses row ``k``.
+        sigma_path: derived, ``(K + 1, n, 2)`` levels per step (``None`` when fixed).
     """
 
     config: ClusteringConfig
     sigma: FloatArray
+    regimes: FloatArray | None = None
+    sigma_path: FloatArray | None = field(init=False, default=None, repr=False)
     _axis_cache: dict[tuple[int, ...], tuple[FloatArray, ...]] = field(
         default_factory=dict, repr=False
     )
+
+    def __post_init__(self) -> None:
+        if self.regimes is None:
+            return
+        model = self.config.regimes
+        if model is None:
+            raise ValueError("regimes needs config.regimes (a MultipathRegimes), got None")
+        q = np.array(self.regimes, dtype=float)
+        if q.ndim != 2 or q.shape[1] != self.n or q.shape[0] < 1:
+            raise ValueError(f"regimes must have shape (K + 1, {self.n}), got {q.shape}")
+        if not np.all((q >= 0.0) & (q <= 1.0)):
+            raise ValueError("regimes must lie in [0, 1] (1: degraded, 0: open sky)")
+        path = self.sigma[None, :, :] * model.noise_scale(q)[:, :, None]
+        q.setflags(write=False)
+        path.setflags(write=False)
+        object.__setattr__(self, "regimes", q)
+        object.__setattr__(self, "sigma_path", path)
+
+    @property
+    def horizon(self) -> int | None:
+        """Last step ``K`` of the noise path; ``None`` when the noise is fixed."""
+        return None if self.regimes is None else self.regimes.shape[0] - 1
+
+    @property
+    def time_varying(self) -> bool:
+        """Whether the noise levels change over time (a regime path is set)."""
+        return self.regimes is not None
+
+    def _check_step(self, k: Any, name: str = "k") -> int:
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 0:
+            raise ValueError(f"{name} must be an int >= 0, got {k!r}")
+        if self.regimes is not None and k > self.regimes.shape[0] - 1:
+            raise ValueError(
+                f"{name}={k} is beyond the drawn noise path (steps 0 .. {self.horizon})"
+            )
+        return int(k)
+
+    def sigma_at(self, k: int) -> FloatArray:
+        """(n, 2) noise levels of step ``k``'s measurement (``sigma`` when fixed)."""
+        k = self._check_step(k)
+        return self.sigma if self.sigma_path is None else self.sigma_path[k]
+
+    def regime_at(self, k: int) -> FloatArray:
+        """(n,) state of each receiver at step ``k`` (1 degraded; zeros when fixed)."""
+        k = self._check_step(k)
+        return np.zeros(self.n) if self.regimes is None else self.regimes[k].copy()
 
     @property
     def n(self) -> int:
@@ -303,19 +450,51 @@ class ClusteringProblem:
         F, Q, H = self._axis_cache[key]
         return F, Q, H
 
-    def axis_noise(self, members: Sequence[int]) -> FloatArray:
+    def _rho(self, s: int) -> FloatArray:
+        r = float(self.config.noise_correlation)
+        return np.full((s, s), r) + (1.0 - r) * np.eye(s)
+
+    def axis_noise(self, members: Sequence[int], k: int | None = None) -> FloatArray:
         """Per-axis measurement covariance (2s, 2s): ``R[(a,c),(b,c)] = rho_ab s_ca s_cb``.
 
-        ``rho_aa = 1``, ``rho_ab = r`` (eq. 4); channels ``c`` (y1, y2) are uncorrelated.
+        ``rho_aa = 1``, ``rho_ab = r`` (eq. 4); channels ``c`` (y1, y2) are uncorrelated. The
+        levels ``s`` are those of step ``k`` (:meth:`sigma_at`), or the base ``sigma`` if
+        ``k`` is ``None``.
         """
         idx = np.asarray(members, dtype=int)
         s = idx.size
-        r = float(self.config.noise_correlation)
-        rho = np.full((s, s), r) + (1.0 - r) * np.eye(s)
+        sigma = self.sigma if k is None else self.sigma_at(k)
+        rho = self._rho(s)
         R = np.zeros((2 * s, 2 * s))
         for c in range(2):
-            sc = self.sigma[idx, c]
+            sc = sigma[idx, c]
             R[c::2, c::2] = rho * np.outer(sc, sc)
+        return R
+
+    def axis_noise_steps(self, members: Any, k0: int, k1: int) -> FloatArray:
+        """Per-step :meth:`axis_noise` of ``B`` clusters of one size, ``(B, k1 - k0, 2s, 2s)``.
+
+        Args:
+            members: (B, s) receiver indices, one cluster per row.
+            k0: first step, ``>= 0``.
+            k1: one past the last step, ``>= k0`` (``k1 - 1`` within the noise path).
+        """
+        idx = np.asarray(members, dtype=int)
+        B, s = idx.shape
+        k0, k1 = self._check_step(k0, "k0"), int(k1)
+        if k1 < k0:
+            raise ValueError(f"k1 must be >= k0={k0}, got {k1}")
+        if k1 > k0:
+            self._check_step(k1 - 1, "k1 - 1")
+        if self.sigma_path is None:
+            S = np.broadcast_to(self.sigma[idx][:, None], (B, k1 - k0, s, 2))
+        else:
+            S = np.moveaxis(self.sigma_path[k0:k1][:, idx], 0, 1)  # (B, T, s, 2)
+        rho = self._rho(s)
+        R = np.zeros((B, k1 - k0, 2 * s, 2 * s))
+        for c in range(2):
+            sc = S[..., c]
+            R[..., c::2, c::2] = rho * (sc[..., :, None] * sc[..., None, :])  # as np.outer
         return R
 
     def axis_prior(self, size: int) -> FloatArray:
@@ -325,12 +504,13 @@ class ClusteringProblem:
 
     # -- full model, eqs. (3)-(6): for tests and users --------------------------------------
     def full_model(
-        self, members: Sequence[int]
+        self, members: Sequence[int], k: int | None = None
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """``(A, Q, C, R)`` of a cluster in the paper's coordinates (eqs. 3, 6).
 
         State ``x = (p_1; v_1; ...; p_s; v_s; theta)`` in R^{4s+2}, measurement
-        ``(y^{l_1}; ...; y^{l_s})`` in R^{4s} with ``y^i = (p^i - theta; p^i + theta)``.
+        ``(y^{l_1}; ...; y^{l_s})`` in R^{4s} with ``y^i = (p^i - theta; p^i + theta)``. ``R``
+        uses the levels of step ``k`` (:meth:`sigma_at`), or the base ``sigma`` if ``None``.
         """
         idx = np.asarray(members, dtype=int)
         s = idx.size
@@ -347,7 +527,8 @@ class ClusteringProblem:
             C[4 * a + 2 : 4 * a + 4, p], C[4 * a + 2 : 4 * a + 4, th] = I2, I2
         Q[th, th] = h * I2
         r = float(self.config.noise_correlation)
-        Rii = [np.diag(np.repeat(self.sigma[i] ** 2, 2)) for i in idx]  # diag(s1^2 I, s2^2 I)
+        sigma = self.sigma if k is None else self.sigma_at(k)
+        Rii = [np.diag(np.repeat(sigma[i] ** 2, 2)) for i in idx]  # diag(s1^2 I, s2^2 I)
         R = np.zeros((M, M))
         for a in range(s):
             for b in range(s):
@@ -376,13 +557,19 @@ class ClusteringProblem:
 
 
 def make_clustering_problem(
-    config: ClusteringConfig | None = None, rng: np.random.Generator | None = None
+    config: ClusteringConfig | None = None,
+    rng: np.random.Generator | None = None,
+    horizon: int | None = None,
 ) -> ClusteringProblem:
-    """Draw a realisation: ``sigma ~ U(0, 1]`` per receiver and channel unless given.
+    """Draw a realisation: ``sigma ~ U(0, 1]`` unless given, then the regime path if any.
+
+    ``sigma`` per receiver and channel first, then (with ``config.regimes``) the regime path of
+    steps ``0 .. horizon`` from the same generator, in that order.
 
     Args:
         config: scenario parameters (default: the paper's Sec. IV-A).
-        rng: generator for ``sigma`` (required when ``config.sigma`` is ``None``).
+        rng: generator for ``sigma`` and the regime path (required when either is drawn).
+        horizon: last step ``K`` of the regime path (required with ``config.regimes``).
     """
     cfg = ClusteringConfig() if config is None else config
     if cfg.sigma is not None:
@@ -392,4 +579,11 @@ def make_clustering_problem(
             raise ValueError("rng is required to draw sigma ~ U(0, 1] (config.sigma is None)")
         sigma = 1.0 - rng.random((int(cfg.n_agents), 2))  # U(0, 1]
     sigma.setflags(write=False)
-    return ClusteringProblem(config=cfg, sigma=sigma)
+    if cfg.regimes is None:
+        return ClusteringProblem(config=cfg, sigma=sigma)
+    if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 0:
+        raise ValueError(f"horizon must be an int >= 0 to draw the regime path, got {horizon!r}")
+    if rng is None:
+        raise ValueError("rng is required to draw the regime path (config.regimes is set)")
+    regimes = cfg.regimes.draw(int(cfg.n_agents), int(horizon), rng)
+    return ClusteringProblem(config=cfg, sigma=sigma, regimes=regimes)

@@ -12,16 +12,25 @@ clusterings by Algorithm 1:
    the current posterior ``P_k|k`` for every cluster that is unchanged (steps 3-9);
 3. evaluate eq. (10) on the resulting posteriors (step 10).
 
+**Time-varying noise.** Step ``t`` of every recursion uses the noise ``R_t`` of that step
+(:meth:`~selenv.scenarios.clustering.ClusteringProblem.axis_noise_steps`): the window pass of
+Algorithm 1 at time ``k`` uses ``R_{l+1} .. R_k``, the past and the current step only, and
+:meth:`ClusterFilterBank.step` uses ``R_{k+1}``. The per-cluster ``R`` cache is used only when
+the noise is fixed (it is keyed by the members alone).
+
 Speed: clusters are keyed by their member tuple and cached for the current time step, so a
 cluster shared by several candidates (or re-proposed by the GA) is filtered once; all new
 clusters of one size are stacked and filtered together by :func:`selenv.core.riccati.riccati_pass`
-(one batched solve per step instead of one Python loop per candidate). Re-clustering (Algorithm 2,
-lines 17-19) re-initialises the filters with the moments computed for the evaluation.
+(one batched solve per step instead of one Python loop per candidate).
+:meth:`ClusterFilterBank.evaluate_changes` costs local edits (a few clusters replaced) without
+building label vectors. Re-clustering (Algorithm 2, lines 17-19) re-initialises the filters with
+the moments computed for the evaluation.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -52,9 +61,16 @@ class ClusterFilterBank:
     Attributes:
         k: current time step (0 after construction: the posteriors are the prior).
         labels: current clustering, canonical (n,).
-        n_cost_evaluations: candidate clusterings costed by :meth:`evaluate` so far.
+        n_cost_evaluations: candidate clusterings costed by :meth:`evaluate` and
+            :meth:`evaluate_changes` so far.
         n_cluster_passes: cluster forward passes run by Algorithm 1 so far (cache misses).
     """
+
+    # per-time-step caches (reset by _new_time_step)
+    _window: dict[Key, FloatArray]
+    _stats: dict[Key, tuple[float, int, float, float]]
+    _prior_parts: tuple[FloatArray, float] | None
+    _cost: CostBreakdown | None
 
     def __init__(self, problem: ClusteringProblem, labels: Any) -> None:
         self.problem = problem
@@ -63,49 +79,77 @@ class ClusterFilterBank:
         self.labels = problem.check_clustering(labels, "labels")
         self.k = 0
         self._R: dict[Key, FloatArray] = {}
+        self._keys = cluster_keys(self.labels)
         self._hist: dict[Key, FloatArray] = {
-            key: problem.axis_prior(len(key))[None] for key in cluster_keys(self.labels)
+            key: problem.axis_prior(len(key))[None] for key in self._keys
         }
         self.n_cost_evaluations = 0
         self.n_cluster_passes = 0
         self._new_time_step()
 
+    def fork(self, problem: ClusteringProblem | None = None) -> ClusterFilterBank:
+        """An independent copy at the same time step, optionally on another ``problem``.
+
+        For simulations (rollout): ``problem`` must agree with this bank's on the noise of
+        steps ``<= k`` (the current step's Algorithm 1 caches are shared); it decides the noise
+        of the steps the copy runs. Counters start at 0; this bank is never changed.
+        """
+        new = object.__new__(ClusterFilterBank)
+        new.problem = self.problem if problem is None else problem
+        new.tau, new.weights, new.k = self.tau, self.weights, self.k
+        new.labels = self.labels.copy()
+        new._R = self._R if problem is None else {}
+        new._keys = list(self._keys)
+        new._hist = dict(self._hist)  # arrays are never written in place
+        new.n_cost_evaluations = new.n_cluster_passes = 0
+        new._new_time_step()
+        new._window.update(self._window)
+        new._stats.update(self._stats)
+        return new
+
     # -- state ------------------------------------------------------------------------------
     @property
     def clusters(self) -> list[Key]:
         """Member tuples of the current clusters (canonical order)."""
-        return cluster_keys(self.labels)
+        return list(self._keys)
+
+    def current_sigma(self) -> FloatArray:
+        """(n, 2) noise levels of the current step ``k`` (what the receivers observe now)."""
+        return self.problem.sigma_at(self.k)
 
     def posteriors(self) -> list[FloatArray]:
         """Per-axis ``P_k|k`` of each current cluster, (2s+1, 2s+1) each."""
-        return [self._hist[key][-1] for key in self.clusters]
+        return [self._hist[key][-1] for key in self._keys]
 
     def history(self, key: Key) -> FloatArray:
         """Stored posteriors ``P_l|l .. P_k|k`` of current cluster ``key``, (L, 2s+1, 2s+1)."""
         return self._hist[key]
 
     def cost(self) -> CostBreakdown:
-        """Eq. (10) of the current clustering at time ``k``."""
-        return clustering_cost(self.posteriors(), self.weights)
+        """Eq. (10) of the current clustering at time ``k`` (cached until it changes)."""
+        if self._cost is None:
+            self._cost = clustering_cost(self.posteriors(), self.weights)
+        return self._cost
 
     def receiver_position_variance(self) -> FloatArray:
         """(n,) per-axis position variance of each receiver in its cluster's posterior."""
         out = np.empty(self.problem.n)
-        for key in self.clusters:
+        for key in self._keys:
             P = self._hist[key][-1]
             out[list(key)] = np.diagonal(P)[0 : 2 * len(key) : 2]
         return out
 
     # -- time update ------------------------------------------------------------------------
     def step(self) -> None:
-        """Advance every cluster filter one step (11b, 12c), batched over equal sizes."""
+        """Advance every cluster filter one step (11b, 12c) with ``R_{k+1}``, batched by size."""
         by_size: dict[int, list[Key]] = defaultdict(list)
         for key in self._hist:
             by_size[len(key)].append(key)
         for keys in by_size.values():
             F, Q, H = self.problem.axis_model(keys[0])
             P = np.stack([self._hist[key][-1] for key in keys])
-            R = np.stack([self._noise(key) for key in keys])
+            R = self._noise(keys, self.k + 1, self.k + 2)
+            R = R[:, 0] if R.ndim == 4 else R  # R_{k+1}
             P_new = riccati_step(P, F, Q, H, R)
             for key, Pk in zip(keys, P_new, strict=True):
                 hist = np.concatenate([self._hist[key], Pk[None]])
@@ -141,6 +185,53 @@ class ClusterFilterBank:
         self.n_cost_evaluations += len(keysets)
         return out[0:1] if single else out
 
+    def evaluate_changes(
+        self, removed: Any, added: Sequence[Sequence[Key]]
+    ) -> tuple[FloatArray, float]:
+        """Cost eq. (10) of local changes of the current clustering (Algorithm 1), and ``J``.
+
+        Candidate ``e`` drops the current clusters ``removed[e]`` (indices into
+        :attr:`clusters`, ``-1`` for none) and adds the clusters ``added[e]`` (sorted member
+        tuples). The caller guarantees that the result is a feasible partition (this is not
+        checked; :func:`~selenv.envs.receiver_clustering.edit_cost_changes` builds them from
+        masked edits). Returns ``(J (E,), J_now)``, both by the same vectorised formula (their
+        difference is what a local search compares). Counts ``E`` evaluations.
+        """
+        self._ensure(set(self._keys))
+        cur = np.array([self._stats[key] for key in self._keys])  # (m, 4)
+        a_G, a_C, a_L = self.weights
+        J_now = a_G * cur[:, 0].sum() / cur[:, 1].sum() + a_C * cur[:, 2].max()
+        J_now += a_L * cur[:, 3].max()
+        if not added:
+            return np.zeros(0), float(J_now)
+        rem = np.asarray(removed, dtype=np.int64).reshape(len(added), -1)
+        m = cur.shape[0]
+        width = max((len(a) for a in added), default=0)
+        new_keys = sorted({key for keys in added for key in keys})
+        self._ensure(set(new_keys))
+        index = {key: i for i, key in enumerate(new_keys)}
+        stats = np.array([self._stats[key] for key in new_keys]).reshape(-1, 4)
+        stats = np.vstack([stats, [0.0, 0.0, -np.inf, -np.inf]])  # row -1: no cluster
+        add = np.full((len(added), width), -1, dtype=np.int64)
+        for e, keys in enumerate(added):
+            add[e, : len(keys)] = [index[key] for key in keys]
+        keep = np.ones((len(added), m), dtype=bool)
+        rows = np.repeat(np.arange(len(added)), rem.shape[1])
+        valid = rem.reshape(-1) >= 0
+        keep[rows[valid], rem.reshape(-1)[valid]] = False
+        a = stats[add]  # (E, width, 4)
+        trace = np.where(keep, cur[:, 0], 0.0).sum(1) + a[..., 0].sum(1)
+        size = np.where(keep, cur[:, 1], 0.0).sum(1) + a[..., 1].sum(1)
+        J_C = np.maximum(
+            np.where(keep, cur[:, 2], -np.inf).max(1), a[..., 2].max(1, initial=-np.inf)
+        )
+        J_L = np.maximum(
+            np.where(keep, cur[:, 3], -np.inf).max(1), a[..., 3].max(1, initial=-np.inf)
+        )
+        J = a_G * trace / size + a_C * J_C + a_L * J_L
+        self.n_cost_evaluations += len(added)
+        return J, float(J_now)
+
     def evaluate_breakdown(self, labels: Any) -> CostBreakdown:
         """:class:`CostBreakdown` of one candidate at time ``k`` (Algorithm 1)."""
         keys = cluster_keys(self.problem.check_clustering(labels, "labels"))
@@ -161,25 +252,38 @@ class ClusterFilterBank:
         self._ensure(set(keys))
         self._hist = {key: self._window[key] for key in keys}
         self.labels = canon
+        self._keys = keys
+        self._cost = None
         return True
 
     # -- internals --------------------------------------------------------------------------
-    def _noise(self, key: Key) -> FloatArray:
-        R = self._R.get(key)
-        if R is None:
-            if len(self._R) > 100_000:
-                self._R.clear()
-            R = self._R[key] = self.problem.axis_noise(key)
-        return R
+    def _noise(self, keys: list[Key], k0: int, k1: int) -> FloatArray:
+        """``R`` of clusters ``keys`` (one size) for steps ``k0 .. k1 - 1``.
+
+        Fixed noise: ``(B, p, p)`` from the per-cluster cache (keyed by the members, so it is
+        used only then); time-varying noise: ``(B, k1 - k0, p, p)``, one per step.
+        """
+        if self.problem.time_varying:
+            return self.problem.axis_noise_steps(np.array(keys, dtype=np.int64), k0, k1)
+        Rs = []
+        for key in keys:
+            R = self._R.get(key)
+            if R is None:
+                if len(self._R) > 100_000:
+                    self._R.clear()
+                R = self._R[key] = self.problem.axis_noise(key)
+            Rs.append(R)
+        return np.stack(Rs)
 
     def _new_time_step(self) -> None:
         """Reset the per-step caches: current clusters are known, the rest is computed lazily."""
-        self._window: dict[Key, FloatArray] = dict(self._hist)
-        self._stats: dict[Key, tuple[float, int, float, float]] = {}
-        self._prior_parts: tuple[FloatArray, float] | None = None
+        self._window = dict(self._hist)
+        self._stats = {}
+        self._prior_parts = None
+        self._cost = None
 
-    def _composed_prior(self, key: Key) -> FloatArray:
-        """Steps 1-2 of Algorithm 1: prior of cluster ``key`` at the window start."""
+    def _composed_priors(self, keys: list[Key]) -> FloatArray:
+        """Steps 1-2 of Algorithm 1: priors ``(B, 2s+1, 2s+1)`` of clusters ``keys`` (one size)."""
         if self._prior_parts is None:
             n = self.problem.n
             U = np.zeros((2 * n, 2 * n))  # per-axis unique covariance of all receivers at l
@@ -192,12 +296,17 @@ class ClusterFilterBank:
                 theta.append(P[2 * s, 2 * s])
             self._prior_parts = (U, float(np.mean(theta)))  # bias: mean over old clusters
         U, theta_var = self._prior_parts
-        s = len(key)
-        idx = np.ravel([[2 * i, 2 * i + 1] for i in key])
-        P0 = np.zeros((2 * s + 1, 2 * s + 1))
-        P0[: 2 * s, : 2 * s] = U[np.ix_(idx, idx)]
-        P0[2 * s, 2 * s] = theta_var
+        members = np.array(keys, dtype=np.int64)  # (B, s)
+        B, s = members.shape
+        rows = np.stack([2 * members, 2 * members + 1], axis=2).reshape(B, 2 * s)
+        P0 = np.zeros((B, 2 * s + 1, 2 * s + 1))
+        P0[:, : 2 * s, : 2 * s] = U[rows[:, :, None], rows[:, None, :]]
+        P0[:, 2 * s, 2 * s] = theta_var
         return P0
+
+    def _composed_prior(self, key: Key) -> FloatArray:
+        """Steps 1-2 of Algorithm 1: prior of cluster ``key`` at the window start."""
+        return self._composed_priors([key])[0]
 
     def _ensure(self, keys: set[Key]) -> None:
         """Forward passes (steps 3-9) for the clusters not in the window cache, by size."""
@@ -209,18 +318,25 @@ class ClusterFilterBank:
                 by_size[len(key)].append(key)
             for group in by_size.values():
                 F, Q, H = self.problem.axis_model(group[0])
-                P0 = np.stack([self._composed_prior(key) for key in group])
-                R = np.stack([self._noise(key) for key in group])
+                P0 = self._composed_priors(group)
+                R = self._noise(group, self.k - steps + 1, self.k + 1)  # R_{l+1} .. R_k
                 hist = riccati_pass(P0, F, Q, H, R, steps)
-                for key, h in zip(group, hist, strict=True):
-                    self._window[key] = h
+                self._store(group, hist)
             self.n_cluster_passes += len(missing)
         for key in keys:
             if key not in self._stats:
-                P = self._window[key][-1]
-                s = len(key)
-                pos = np.diagonal(P)[0 : 2 * s : 2]
-                self._stats[key] = (2.0 * float(np.trace(P)), n_states(s), pos.mean(), pos.max())
+                self._store([key], self._window[key][None])
+
+    def _store(self, keys: list[Key], hist: FloatArray) -> None:
+        """Cache the windows ``hist`` (B, L, d, d) of ``keys`` (one size) and their statistics."""
+        s = len(keys[0])
+        P = hist[:, -1]
+        trace = 2.0 * np.trace(P, axis1=1, axis2=2)
+        pos = np.diagonal(P, axis1=1, axis2=2)[:, 0 : 2 * s : 2]
+        rows = zip(trace.tolist(), pos.mean(1).tolist(), pos.max(1).tolist(), strict=True)
+        for key, h, (tr, mean, worst) in zip(keys, hist, rows, strict=True):
+            self._window[key] = h
+            self._stats[key] = (tr, n_states(s), mean, worst)
 
     def _cost_from_stats(self, keys: list[Key]) -> float:
         """Eq. (10) from cached per-cluster statistics (same formula as ``clustering_cost``)."""
