@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 bench: $(STAMP)
-	$(VENV)/bin/selenv bench --json bench_results.json --plot bench_plots
+	$(VENV)/bin/selenv bench --episodes 5 --json bench_results.json --plot bench_plots
 
 test: $(STAMP)
 	$(PY) -m pytest -q
