@@ -93,7 +93,7 @@ class _MaskedChoice(Agent):
 
 
 _ID = (CL_ENV_ID,)
-register_agent(AgentSpec("greedy", _ID, GreedySchedule, "best previewed drop of the objective (fused update)"))
+register_agent(AgentSpec("greedy", _ID, GreedySchedule, "best previewed objective drop"))
 register_agent(AgentSpec("round_robin", _ID, RoundRobinSchedule, "pairs in cyclic order"))
 register_agent(AgentSpec("random", _ID, lambda: _MaskedChoice("random"), "random available pairs"))
 register_agent(AgentSpec("all", _ID, lambda: _MaskedChoice("all"), "every available pair"))
