@@ -198,3 +198,32 @@ def test_learned_surrogates_as_fusion_methods() -> None:
     with pytest.raises(ValueError, match="trained with R"):
         for _ in range(20):
             other_R.step()
+
+
+def test_presets_and_topology() -> None:
+    bench = gym.make(ENV_ID).unwrapped
+    assert (bench.preset, bench.config.n_agents, bench.budget, bench.horizon) == (
+        "benchmark",
+        6,
+        1,
+        60,
+    )
+    assert bench.objective == "trace" and len(bench.pairs) == 30
+    dense = gym.make(ENV_ID, preset="dense").unwrapped  # the former defaults
+    assert (dense.config.n_agents, dense.budget, dense.horizon, dense.objective) == (
+        4,
+        2,
+        200,
+        "logdet",
+    )
+    paper = gym.make(ENV_ID, preset="paper").unwrapped
+    assert paper.pairs == ((0, 1), (1, 0)) and paper.config.relative_every == 5
+    assert gym.make(ENV_ID, preset="dense", budget=3).unwrapped.budget == 3  # keywords win
+    chain = gym.make(ENV_ID, n_agents=4, topology="chain").unwrapped
+    assert chain.pairs == ((0, 1), (1, 2), (2, 3), (1, 0), (2, 1), (3, 2))
+    with pytest.raises(ValueError, match="preset"):
+        gym.make(ENV_ID, preset="city")
+    with pytest.raises(ValueError, match="topology"):
+        gym.make(ENV_ID, topology="ring")
+    with pytest.raises(ValueError, match="not both"):
+        gym.make(ENV_ID, topology="chain", relative_pairs=((0, 1),))
