@@ -233,7 +233,10 @@ def test_metadata_disagreeing_with_model_is_rejected(tmp_path: Path) -> None:
     meta = json.loads(zip_path.with_suffix(".json").read_text())
     meta["obs_layout"].update(d=8, whitened_dim=16)
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match=r"copy\.zip.*width is 14.*d=8"):
+    # the policy is rebuilt from the metadata (safe_load): a wrong width cannot take the weights
+    with pytest.raises(
+        ValueError, match=r"(?s)copy\.zip: weights do not fit its metadata.*size mismatch"
+    ):
         SB3PolicyAgent(zip_path)
     meta["obs_layout"] = {"m": 2, "d": 7, "whitened_dim": 15}
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
@@ -241,8 +244,7 @@ def test_metadata_disagreeing_with_model_is_rejected(tmp_path: Path) -> None:
         SB3PolicyAgent(zip_path)
     meta["obs_layout"] = {"m": 2, "d": 7, "whitened_dim": 14, "n_candidates_trained": 50}
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match=r"200 candidates .* n_candidates_trained=50"):
-        SB3PolicyAgent(zip_path)
+    SB3PolicyAgent(zip_path)  # pool-size independent weights: any build size takes them
     meta["obs_layout"]["n_candidates_trained"] = 200
     meta["env_id"] = "selenv/LandmarkSelection-v0"
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
@@ -266,5 +268,5 @@ def test_missing_or_broken_files_are_value_errors(tmp_path: Path) -> None:
         SB3PolicyAgent(zip_path)
     shutil.copy(DEFAULT_CHECKPOINT.with_suffix(".json"), zip_path.with_suffix(".json"))
     zip_path.write_bytes(b"this is not a zip file")
-    with pytest.raises(ValueError, match=r"cannot load checkpoint .*copy\.zip"):
+    with pytest.raises(ValueError, match=r"copy\.zip is not a readable zip"):
         SB3PolicyAgent(zip_path)

@@ -22,12 +22,13 @@ from typing import Any
 
 import gymnasium as gym
 import torch
-from sb3_contrib import MaskablePPO
 
 from learned.config import parse_config
-from learned.rl.agent import DEFAULT_CHECKPOINTS, LOAD_CUSTOM_OBJECTS, load_metadata
+from learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from learned.rl.ranking import collect_clustering_ranking, fit_ranking
+from learned.rl.safe_load import model_from_checkpoint
 from learned.rl.training import evaluate_checkpoint
+from learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/ReceiverClustering-v0"
 
@@ -78,7 +79,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         behaviour=cfg.checkpoint,
         behaviour_top_k=cfg.behaviour_top_k,
     )
-    model = MaskablePPO.load(cfg.checkpoint, device="cpu", custom_objects=LOAD_CUSTOM_OBJECTS)
+    # weights read safely (never SB3's load(), which unpickles the zip), onto a fresh model
+    env = gym.make(ENV_ID, **{**kwargs, "action_mode": "edit"})
+    env = CandidateViewWrapper(env, view_for(ENV_ID, env, meta.get("view")))
+    model = model_from_checkpoint(cfg.checkpoint, meta, env)
     fit = fit_ranking(
         model.policy,
         data,

@@ -23,6 +23,7 @@ import numpy as np
 
 from learned.config import parse_config
 from learned.rl.marl import SharedPolicyEnv
+from learned.rl.safe_load import load_policy
 from learned.rl.training import PPOConfig, train
 from selenv.agents.fim import CooperativeGreedyPolicy
 from selenv.multiagent import fim_selection_v0
@@ -82,10 +83,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def _evaluate(cfg: Config, kwargs: dict[str, Any], meta: dict[str, Any]) -> dict[str, Any]:
     """Final objectives of the shared policy and the greedy schemes on held-out seeds."""
-    from sb3_contrib import MaskablePPO
-
     if cfg.eval_episodes:
-        model = MaskablePPO.load(cfg.out, device="cpu")
+        model = load_policy(cfg.out, meta)  # weights only: never unpickles the zip
         seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
         greedy = CooperativeGreedyPolicy()
         runs = {

@@ -27,18 +27,17 @@ import numpy as np
 from gymnasium import spaces
 
 from learned.rl.candidate_policy import (
-    ALGORITHMS,
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
     obs_layout,
 )
+from learned.rl.safe_load import load_policy
 from learned.rl.views import CandidateView, view_for
 from selenv.agents.base import Agent
 
 __all__ = [
     "CHECKPOINT_DIR",
     "DEFAULT_CHECKPOINTS",
-    "LOAD_CUSTOM_OBJECTS",
     "SB3PolicyAgent",
     "load_metadata",
     "make_ppo_agent",
@@ -52,14 +51,6 @@ DEFAULT_CHECKPOINTS = {
     "selenv/LandmarkSelection-v0": CHECKPOINT_DIR / "landmark_selection_ppo.zip",
     "selenv/CLScheduling-v0": CHECKPOINT_DIR / "cl_scheduling_ppo.zip",
     "selenv/ReceiverClustering-v0": CHECKPOINT_DIR / "receiver_clustering_ppo.zip",
-}
-
-#: objects of the saved model that acting (or a ranking fit with its own optimiser) does not
-#: need and that may not unpickle elsewhere: pass as ``custom_objects`` to ``MaskablePPO.load``
-LOAD_CUSTOM_OBJECTS: dict[str, Any] = {
-    "learning_rate": 0.0,
-    "lr_schedule": lambda _: 0.0,
-    "clip_range": lambda _: 0.0,
 }
 
 
@@ -138,26 +129,8 @@ class SB3PolicyAgent(Agent):
             raise ValueError(
                 f"checkpoint {self.checkpoint} was trained on {trained_on!r}, not {env_id!r}"
             )
-        algo_name = self.metadata.get("training", {}).get("algorithm", "MaskablePPO")
-        by_name = {algo.__name__: (algo, pol) for algo, pol in ALGORITHMS.values()}
-        if algo_name not in by_name:
-            raise ValueError(
-                f"checkpoint {self.checkpoint}: metadata training.algorithm={algo_name!r}, "
-                f"expected one of {sorted(by_name)}"
-            )
-        algorithm, expected_policy = by_name[algo_name]
-        try:
-            model = algorithm.load(
-                self.checkpoint, device="cpu", custom_objects=LOAD_CUSTOM_OBJECTS
-            )
-        except Exception as exc:  # zip, pickle and torch errors alike
-            raise ValueError(f"cannot load checkpoint {self.checkpoint}: {exc}") from exc
-        policy = model.policy
-        if not isinstance(policy, expected_policy):
-            raise ValueError(
-                f"checkpoint {self.checkpoint} holds a {type(policy).__name__}, "
-                f"expected a {expected_policy.__name__} ({algo_name})"
-            )
+        # never SB3's load(): it unpickles the zip's data (code execution); see safe_load
+        policy = load_policy(self.checkpoint, self.metadata)
         self.masked = isinstance(policy, CandidateScoringPolicy)  # MaskablePPO's policy
         layout = obs_layout(policy.observation_space)
         meta_layout = self.metadata["obs_layout"]
