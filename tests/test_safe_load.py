@@ -35,7 +35,10 @@ def _copy_with(tmp_path: Path, name: str, replace: dict[str, bytes]) -> Path:
     out = tmp_path / f"{name}.zip"
     with zipfile.ZipFile(SHIPPED) as src, zipfile.ZipFile(out, "w") as dst:
         for item in src.infolist():
-            dst.writestr(item, replace.get(item.filename, src.read(item)))
+            if item.filename in replace:  # deflated, as a zip bomb would be
+                dst.writestr(item.filename, replace[item.filename], zipfile.ZIP_DEFLATED)
+            else:
+                dst.writestr(item, src.read(item))
     shutil.copy(SHIPPED.with_suffix(".json"), out.with_suffix(".json"))
     return out
 
@@ -114,3 +117,21 @@ def test_model_from_checkpoint_continues_from_the_weights() -> None:
     shipped = load_policy(SHIPPED, meta).state_dict()
     assert all(th.equal(v, shipped[k]) for k, v in model.policy.state_dict().items())
     model.learn(64)  # trains on from there
+
+
+def test_oversized_truncated_and_malformed_metadata(tmp_path: Path) -> None:
+    from learned.rl import safe_load
+
+    big = _copy_with(tmp_path, "big", {"policy.pth": b"\0" * (safe_load.MAX_WEIGHTS_BYTES + 1)})
+    assert big.stat().st_size < 2**20  # compresses to almost nothing: a zip-bomb-like entry
+    with pytest.raises(ValueError, match="more than MAX_WEIGHTS_BYTES"):
+        read_weights(big)
+    cut = tmp_path / "cut.zip"
+    cut.write_bytes(SHIPPED.read_bytes()[: SHIPPED.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"cut\.zip (is not a readable zip|has no policy\.pth)"):
+        read_weights(cut)
+    meta = load_metadata(SHIPPED)
+    with pytest.raises(ValueError, match="'training' must be an object"):
+        load_policy(SHIPPED, {**meta, "training": "x"})
+    with pytest.raises(ValueError, match="architecture"):
+        load_policy(SHIPPED, {**meta, "architecture": {**meta["architecture"], "hidden": "wide"}})

@@ -101,7 +101,12 @@ def policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dict[str
     Raises:
         ValueError: an unknown algorithm, policy or features extractor, or missing fields.
     """
-    algo = metadata.get("training", {}).get("algorithm", "MaskablePPO")
+    training = metadata.get("training", {})
+    if not isinstance(training, dict):
+        raise ValueError(
+            f"checkpoint {name}: metadata 'training' must be an object, got {training!r}"
+        )
+    algo = training.get("algorithm", "MaskablePPO")
     if algo not in POLICY_CLASSES:
         known = sorted(POLICY_CLASSES)
         raise ValueError(f"checkpoint {name}: training.algorithm={algo!r}, expected one of {known}")
