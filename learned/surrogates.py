@@ -377,13 +377,21 @@ class Surrogate:
             std = np.asarray(norm["std"], dtype=np.float32)
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"surrogate metadata {js} is invalid: {exc!s}") from None
+        if not pt.is_file():
+            raise ValueError(f"surrogate weights {pt} are missing (metadata {js})")
         try:
             state = th.load(pt, map_location="cpu", weights_only=True)
+        except Exception as exc:  # empty, truncated or hostile files alike: refuse
+            msg = (str(exc).splitlines() or [type(exc).__name__])[0]
+            raise ValueError(
+                f"surrogate weights {pt} are not a readable tensor file: {msg}"
+            ) from None
+        if not isinstance(state, dict):
+            raise ValueError(f"surrogate weights {pt} must map parameter names to tensors")
+        try:
             sur.net.load_state_dict(state)
-        except FileNotFoundError:
-            raise ValueError(f"surrogate weights {pt} are missing (metadata {js})") from None
-        except (RuntimeError, OSError, EOFError, ValueError) as exc:
-            msg = str(exc).splitlines()[0]
+        except (RuntimeError, TypeError, ValueError) as exc:
+            msg = (str(exc).splitlines() or [type(exc).__name__])[0]
             raise ValueError(f"surrogate weights {pt} do not match metadata {js}: {msg}") from None
         if mean.shape != sur.net.mean.shape or not (
             np.allclose(mean, sur.net.mean.numpy()) and np.allclose(std, sur.net.std.numpy())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 from typing import Any
@@ -229,6 +230,23 @@ def test_mismatches_raise(
     del meta["kind"]
     js.write_text(json.dumps(meta))
     with pytest.raises(ValueError, match=r"c\.json"):
+        Surrogate.load(pt)
+    meta["kind"] = sur.kind
+    js.write_text(json.dumps(meta))
+    meta["normalisation"]["mean"][0] -= 1.0
+    js.write_text(json.dumps(meta))
+    good = pt.read_bytes()
+    for bad in (b"", good[: len(good) // 2], b"not a tensor file"):  # empty, truncated, junk
+        pt.write_bytes(bad)
+        with pytest.raises(ValueError, match=r"c\.pt are not a readable tensor file"):
+            Surrogate.load(pt)
+    buf = io.BytesIO()
+    torch.save([torch.zeros(2)], buf)
+    pt.write_bytes(buf.getvalue())
+    with pytest.raises(ValueError, match="map parameter names to tensors"):
+        Surrogate.load(pt)
+    pt.unlink()
+    with pytest.raises(ValueError, match=r"c\.pt are missing"):
         Surrogate.load(pt)
     js.write_text("{not json")
     with pytest.raises(ValueError, match=r"c\.json.*not valid JSON"):
