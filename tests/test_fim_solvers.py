@@ -129,3 +129,23 @@ def test_cooperative_greedy_matches_its_definition():
     )
     with pytest.raises(ValueError, match="mode"):
         cooperative_greedy(Q0, pools, budgets, mode="joint")
+
+
+def test_solver_options_are_validated() -> None:
+    import numpy as np
+
+    from selenv.agents.fim_solvers import brute_force, swap
+
+    rng = np.random.default_rng(0)
+    Q0, H, R = np.eye(3), rng.normal(size=(8, 3)), np.ones(8)
+    with pytest.raises(ValueError, match="max_subsets must be an int"):
+        brute_force(Q0, H, R, 2, max_subsets=float("nan"))  # NaN used to skip the size guard
+    with pytest.raises(ValueError, match="max_rounds must be >= 0"):
+        swap(Q0, H, R, 2, max_rounds=-1)
+
+
+def test_multiagent_budgets_type() -> None:
+    from selenv.multiagent import fim_selection_v0
+
+    with pytest.raises(TypeError, match="budgets must be an int or a sequence"):
+        fim_selection_v0.parallel_env(budgets=2.0)

@@ -41,6 +41,7 @@ from selenv.core.information import (
     logdet_objective,
 )
 from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd, validate_spd
+from selenv.scenarios.clustering_labels import check_int
 
 __all__ = [
     "MAX_BRUTE_FORCE_SUBSETS",
@@ -145,6 +146,7 @@ def brute_force_whitened(
     """
     N = G.shape[0]
     budget = _check_budget(budget, N)
+    max_subsets = check_int(max_subsets, "max_subsets", 1)  # NaN would skip the guard
     n_sub = math.comb(N, budget)
     if n_sub > max_subsets:
         raise ValueError(
@@ -215,6 +217,7 @@ def swap_whitened(
     """
     N = G.shape[0]
     budget = _check_budget(budget, N)
+    max_rounds = check_int(max_rounds, "max_rounds", 0)
     start = greedy_whitened(Q0, G, budget) if initial is None else None
     sel = np.array(start.indices if start else list(initial or []), dtype=np.intp)
     if len(set(sel.tolist())) != budget:

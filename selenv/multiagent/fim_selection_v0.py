@@ -133,7 +133,12 @@ class FIMSelectionParallelEnv(ParallelEnv):
         n_ag = self.config.n_agents
         self.possible_agents = [f"agent_{i}" for i in range(n_ag)]
         self._pools = {a: probe.pool(i) for i, a in enumerate(self.possible_agents)}
-        b = [budgets] * n_ag if isinstance(budgets, int | np.integer) else list(budgets)
+        if isinstance(budgets, int | np.integer) and not isinstance(budgets, bool):
+            b = [budgets] * n_ag
+        elif isinstance(budgets, Sequence) and not isinstance(budgets, str):
+            b = list(budgets)
+        else:
+            raise TypeError(f"budgets must be an int or a sequence of ints, got {budgets!r}")
         if len(b) != n_ag:
             raise ValueError(f"budgets must be an int or {n_ag} ints (one per agent), got {b}")
         self.budgets: dict[str, int] = {}
