@@ -227,3 +227,17 @@ def test_presets_and_topology() -> None:
         gym.make(ENV_ID, topology="ring")
     with pytest.raises(ValueError, match="not both"):
         gym.make(ENV_ID, topology="chain", relative_pairs=((0, 1),))
+
+
+@pytest.mark.parametrize(
+    ("kw", "name"),
+    [
+        ({"relative_every": float("nan")}, "relative_every"),  # used to give 0 measurements
+        ({"relative_every": 2.5}, "relative_every"),
+        ({"zupt_every": 0}, "zupt_every"),
+        ({"beacon_agents": (0.5,)}, "beacon_agents"),  # used to fail at step 17 (IndexError)
+    ],
+)
+def test_cadences_and_indices_must_be_integers(kw: dict, name: str) -> None:
+    with pytest.raises(ValueError, match=name):
+        gym.make(ENV_ID, **kw)

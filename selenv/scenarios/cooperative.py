@@ -109,12 +109,14 @@ class CLConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < low:
                 raise ValueError(f"{name} must be an int >= {low}, got {v!r}")
-        if self.zupt_every is not None and self.zupt_every < 1:
-            raise ValueError(f"zupt_every must be >= 1 or None, got {self.zupt_every!r}")
+        for name in ("relative_every", "zupt_every"):  # cadences: whole steps (NaN, 2.5 refused)
+            v = getattr(self, name)
+            if v is None and name == "zupt_every":
+                continue
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {v!r}")
         if not (np.isfinite(self.zupt_sigma) and self.zupt_sigma > 0):
             raise ValueError(f"zupt_sigma must be > 0, got {self.zupt_sigma!r}")
-        if self.relative_every < 1:
-            raise ValueError(f"relative_every must be >= 1, got {self.relative_every!r}")
         if self.model not in MODELS:
             raise ValueError(f"model must be one of {sorted(MODELS)}, got {self.model!r}")
         for name in ("dt", "track_size", "speed", "range_sigma"):
@@ -131,7 +133,7 @@ class CLConfig:
             raise ValueError("beacons must be finite (x, y, z) triples")
         n = int(self.n_agents)
         for i in self.beacon_agents:
-            if not 0 <= i < n:
+            if isinstance(i, bool) or not isinstance(i, int | np.integer) or not 0 <= i < n:
                 raise ValueError(f"beacon_agents holds {i}, outside [0, {n})")
         for pair in self.relative_pairs:
             if len(pair) != 2 or not all(0 <= a < n for a in pair) or pair[0] == pair[1]:
