@@ -149,3 +149,22 @@ def test_multiagent_budgets_type() -> None:
 
     with pytest.raises(TypeError, match="budgets must be an int or a sequence"):
         fim_selection_v0.parallel_env(budgets=2.0)
+
+
+def test_vns_options_and_exhausted_neighbourhoods() -> None:
+    import numpy as np
+
+    from selenv.agents.fim_solvers import brute_force
+    from selenv.agents.vns import vns
+
+    rng = np.random.default_rng(1)
+    Q0, H, R = np.eye(3), rng.normal(size=(8, 3)), np.ones(8)
+    with pytest.raises(ValueError, match="initial must hold integer indices"):
+        vns(Q0, H, R, 2, initial=[0.9, 3.2])  # used to be truncated to [0, 3]
+    with pytest.raises(ValueError, match=r"l_max must be an int <= min\(K, N - K\) = 2"):
+        vns(Q0, H, R, 2, l_max=5)  # used to fail with "not enough values to unpack"
+    sel = vns(Q0, H, R, 2, m_l=(10**6,), rng=0)  # every neighbourhood is enumerated once
+    # C(2,1) C(6,1) + C(2,2) C(6,2) = 27 candidates per pass, a few passes; before the fix it
+    # re-enumerated each exhausted neighbourhood until 10**6 draws (minutes)
+    assert sel.evaluations < 200
+    assert sel.objective == pytest.approx(brute_force(Q0, H, R, 2).objective)

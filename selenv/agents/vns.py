@@ -84,10 +84,20 @@ def vns_whitened(
     if initial is None:
         sel = np.sort(np.argsort(-single, kind="stable")[:K])
     else:
-        sel = np.array(sorted(int(i) for i in initial), dtype=np.intp)
+        init = np.asarray(initial)
+        if init.dtype == bool or not np.issubdtype(init.dtype, np.integer):
+            raise ValueError(
+                f"initial must hold integer indices, got {initial!r}"
+            )  # 2.7 -> 2 no more
+        sel = np.sort(init.astype(np.intp).reshape(-1))
         if sel.size != K or np.unique(sel).size != K or sel.min() < 0 or sel.max() >= N:
             raise ValueError(f"initial must be {K} distinct indices in [0, {N}), got {initial!r}")
-    l_max = min(K, N - K, len(m_l)) if l_max is None else int(l_max)
+    widest = min(K, N - K)  # no swap of more than this many exists
+    if l_max is not None and (
+        isinstance(l_max, bool) or not isinstance(l_max, int | np.integer) or l_max > widest
+    ):
+        raise ValueError(f"l_max must be an int <= min(K, N - K) = {widest}, got {l_max!r}")
+    l_max = min(widest, len(m_l)) if l_max is None else int(l_max)
     if l_max < 1 or not m_l or min(m_l) < 1:
         raise ValueError(f"l_max and every M_l must be >= 1, got l_max={l_max}, m_l={m_l!r}")
 
@@ -101,7 +111,8 @@ def vns_whitened(
     while size <= l_max:
         M = m_l[min(size, len(m_l)) - 1]
         unsel = np.setdiff1d(np.arange(N), sel, assume_unique=True)
-        if batched and math.comb(K, size) * math.comb(N - K, size) <= M:
+        exhaustive = batched and math.comb(K, size) * math.comb(N - K, size) <= M
+        if exhaustive:
             # the whole neighbourhood fits in one batch: evaluate all of V_l exactly once
             pairs = itertools.product(
                 itertools.combinations(range(K), size), itertools.combinations(unsel, size)
@@ -123,7 +134,7 @@ def vns_whitened(
             size, j = 1, 0
         else:
             j += n_draw
-            if j >= M:
+            if exhaustive or j >= M:  # V_l was enumerated whole: drawing again cannot help
                 size, j = size + 1, 0
     return _finish(Q0, G, sel.tolist(), evals)
 
