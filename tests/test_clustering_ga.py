@@ -473,3 +473,11 @@ def test_bad_evaluate_output_is_rejected():
         GeneticClustering(lambda c: np.full(len(c), np.nan), x0, 2)
     with pytest.raises(ValueError, match="max_size"):
         GeneticClustering(lambda c: np.zeros(len(c)), x0, 0)
+
+
+def test_huge_labels_are_compacted_before_counting() -> None:
+    # labels [0, 10**12] used to allocate a 10**12-bin bincount (7 TiB MemoryError)
+    ga = GeneticClustering(lambda c: c.sum(axis=1).astype(float), [0, 10**12, 0], 2, rng=0)
+    assert ga.best[0] == 0 and np.bincount(ga.best).max() <= 2  # canonical and feasible
+    with pytest.raises(ValueError, match=r"cluster 10000000000 has 3 members"):
+        GeneticClustering(lambda c: c.sum(axis=1).astype(float), [10**10] * 3, 2, rng=0)

@@ -362,12 +362,14 @@ class GeneticClustering:
     def _initialize(self, x: IntArray, name: str) -> None:
         if x.size != self.n:
             raise ValueError(f"{name} must have n={self.n} entries, got {x.size}")
-        sizes = np.bincount(x)
+        canon = canonical_labels(x)  # compacted first: labels like 10**12 allocate nothing
+        sizes = np.bincount(canon)
         if np.any(over := sizes > self.max_size):
-            c = int(np.argmax(over))
-            msg = f"cluster {c} has {sizes[c]} members, max_size={self.max_size}"
+            k = int(np.argmax(over))
+            c = int(x[np.argmax(canon == k)])  # named by the label as given
+            msg = f"cluster {c} has {int(sizes[k])} members, max_size={self.max_size}"
             raise ValueError(f"{name} is infeasible: {msg}")
-        x = canonical_labels(x)
+        x = canon
         N_S, rng = self.config.population_size, self._rng
         if self._mutations:
             others = [self._mutate([x]) for _ in range(N_S - 1)]
