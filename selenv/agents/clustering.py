@@ -35,7 +35,7 @@ from selenv.envs.receiver_clustering import (
 )
 from selenv.scenarios.clustering import ClusteringProblem
 from selenv.scenarios.clustering_filters import ClusterFilterBank
-from selenv.scenarios.clustering_labels import random_feasible_clustering
+from selenv.scenarios.clustering_labels import check_int, random_feasible_clustering
 
 __all__ = [
     "CLUSTERING_ENV_ID",
@@ -150,9 +150,7 @@ class GreedyMoveAgent(Agent):
     name = "greedy"
 
     def __init__(self, every: int = 5, swaps: bool = True) -> None:
-        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"every must be an int >= 1, got {every!r}")
-        self.every = every
+        self.every = check_int(every, "every", 1)
         self.swaps = swaps
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102

@@ -66,6 +66,7 @@ from selenv.agents.fim_solvers import (
     partition_swap_whitened,
 )
 from selenv.envs.receiver_clustering import apply_edit, edit_cost_changes, edit_mask
+from selenv.scenarios.clustering_labels import check_int
 
 __all__ = [
     "CLUSTERING_MODULE",
@@ -208,9 +209,7 @@ class ClusteringGreedyPolicy(MultiAgentPolicy):
     name = "greedy"
 
     def __init__(self, every: int = 5, swaps: bool = True) -> None:
-        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"every must be an int >= 1, got {every!r}")
-        self.every = every
+        self.every = check_int(every, "every", 1)
         self.swaps = swaps
 
     def allowed_edits(self, labels: np.ndarray, max_size: int) -> np.ndarray:
