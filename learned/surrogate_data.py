@@ -5,9 +5,9 @@ A sample is one relative-range update of the cooperative-localisation simulator
 agents' beliefs after a single-step propagation, the Jacobians and the noise,
 ``(P_i, P_j, H_i, H_j, R)``, labelled by the exact batched solvers of ``selenv.core``:
 
-* ``omega`` -- ``w*`` of DMV (eq. 6), :func:`~selenv.core.fusion_batch.dmv_omega_batch`;
+* ``omega`` -- ``w*`` of DMV (eq. 6), :func:`~selenv.core.fusion.batch.dmv_omega_batch`;
 * ``C`` and ``C_diag`` -- ``C* = L_i^-1 X* L_j^-T`` of PECMV (eqs. 8, 12) and its diagonal
-  (the label of LPECMV method 3), :func:`~selenv.core.fusion_batch.pecmv_batch`;
+  (the label of LPECMV method 3), :func:`~selenv.core.fusion.batch.pecmv_batch`;
 * ``log_det_pecmv`` -- the optimal value of eq. (8a).
 
 Generation. Task ``t`` draws a scenario from its own seed (``SeedSequence(seed).spawn``), runs
@@ -48,7 +48,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import selenv
-from selenv.core.fusion_batch import dmv_omega_batch, pecmv_batch
+from selenv.core.fusion.batch import dmv_omega_batch, pecmv_batch
 from selenv.core.linalg import FloatArray
 from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 

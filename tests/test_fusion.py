@@ -340,7 +340,7 @@ def test_pecmv_reduced_problem_barrier_fallback_matches(
     rng: np.random.Generator, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """When Clarabel stalls, the barrier path alone must reach the same optimum."""
-    import selenv.core.fusion_sdp as fusion_sdp
+    import selenv.core.fusion.sdp as fusion_sdp
 
     cases: list[Problem] = []
     while len(cases) < 3:

@@ -3,8 +3,8 @@
 Chen & Kia 2022, Sec. III: a network maps the features of eq. (13) to ``omega_hat`` (LDMV,
 replacing the minimisation of eq. 6) or to a contraction ``C_hat`` with ``||C_hat||_2 < 1``
 (LPECMV, replacing the MAXDET problem eq. 8, with ``X_hat = L_i C_hat L_j^T``, eq. 11). The
-update itself is the exact one of :func:`~selenv.core.fusion_dmv.dmv_update` /
-:func:`~selenv.core.fusion_pecmv.pecmv_update` with that optimiser plugged in, so the result is
+update itself is the exact one of :func:`~selenv.core.fusion.dmv.dmv_update` /
+:func:`~selenv.core.fusion.pecmv.pecmv_update` with that optimiser plugged in, so the result is
 a valid DMV bound (any ``omega`` in [0, 1]) or an admissible joint covariance (Lemma III.1) even
 when the prediction is poor; only optimality is learned.
 
@@ -22,8 +22,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-from selenv.core.fusion_dmv import DMVResult, dmv_update
-from selenv.core.fusion_pecmv import PECMVResult, pecmv_update
+from selenv.core.fusion.dmv import DMVResult, dmv_update
+from selenv.core.fusion.pecmv import PECMVResult, pecmv_update
 
 __all__ = [
     "SHIPPED_KINDS",
@@ -111,7 +111,7 @@ def ldmv_update(
 ) -> DMVResult:
     """LDMV: the DMV update (eqs. 4-5) with ``omega = surrogate.predict_omega(...)``.
 
-    Shapes and the result as :func:`~selenv.core.fusion_dmv.dmv_update`; ``surrogate``
+    Shapes and the result as :func:`~selenv.core.fusion.dmv.dmv_update`; ``surrogate``
     defaults to the shipped LDMV checkpoint (:data:`SURROGATE_HOOK`).
 
     Raises:
@@ -138,7 +138,7 @@ def lpecmv_update(
 ) -> PECMVResult:
     """LPECMV: the PECMV update (eq. 9) with ``X = L_i C_hat L_j^T``, ``C_hat`` predicted.
 
-    Shapes and the result as :func:`~selenv.core.fusion_pecmv.pecmv_update`; ``surrogate``
+    Shapes and the result as :func:`~selenv.core.fusion.pecmv.pecmv_update`; ``surrogate``
     defaults to the shipped LPECMV checkpoint :data:`SURROGATE_HOOK` of ``variant``:
     ``"lpecmv"`` (method 3, diagonal ``C``) or ``"lpecmv_full"`` (method 1, full ``C``).
 

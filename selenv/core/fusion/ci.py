@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from selenv.core.fusion_common import logdet_from_chol, root_increasing, spd, tri_solve, vector
+from selenv.core.fusion.common import logdet_from_chol, root_increasing, spd, tri_solve, vector
 from selenv.core.linalg import FloatArray
 
 __all__ = ["CI_METHODS", "CIResult", "covariance_intersection"]

@@ -54,7 +54,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import cho_solve
 from scipy.linalg.lapack import dpotrf, dpotrs
 
-from selenv.core.fusion_common import (
+from selenv.core.fusion.common import (
     Pair,
     chol,
     correction,

@@ -12,7 +12,7 @@ Both solve the MAXDET problem of the notes (eq. 8 after Woodbury)::
   compilation). The joint constraint is ``>= 0`` rather than ``>= eps I``: the optimum usually
   has ``||C||_2 = 1`` (a singular joint covariance), which ``eps > 0`` would only approach.
 * :func:`solve_reduced` solves the same problem after the exact reduction of
-  :mod:`selenv.core.fusion_pecmv` (unit covariances, ``R = I``, ``D`` of size at most m x m)
+  :mod:`selenv.core.fusion.pecmv` (unit covariances, ``R = I``, ``D`` of size at most m x m)
   straight through Clarabel's conic interface, without cvxpy, then refines ``D`` by Newton
   steps on the log-barrier problem (:func:`polish_reduced`): 1-5 ms for m = 2, 3. The polish
   matters: an interior-point ``D`` is accurate to ~1e-5 only (the objective is flat to second
@@ -55,7 +55,7 @@ def _psd_block(coef: FloatArray, const: FloatArray) -> tuple[FloatArray, FloatAr
 def solve_reduced(T_i: FloatArray, T_j: FloatArray) -> FloatArray:
     """Maximiser ``D`` (p, q) of the reduced PECMV problem by Clarabel.
 
-    The reduced problem (unit prior covariances, unit noise; see :mod:`fusion_pecmv`)::
+    The reduced problem (unit prior covariances, unit noise; see :mod:`selenv.core.fusion.pecmv`)::
 
         maximise log det Y  s.t. [[I_p - Y, W], [W^T, S]] >= 0,  [[I_p, D], [D^T, I_q]] >= 0,
         W = T_i + D T_j (p, m),  S = T_i^T T_i + T_i^T D T_j + T_j^T D^T T_i + T_j^T T_j + I_m

@@ -35,21 +35,26 @@ optimiser instead of solving for it; ``validate=False`` skips the input checks o
 
 Bad input (non-symmetric, not positive definite, NaN/inf, mismatched shapes) raises
 ``ValueError`` naming the argument. The derivations are in ``shared/notes/fusion_math.md`` and
-in the docstrings of :mod:`~selenv.core.fusion_dmv` and :mod:`~selenv.core.fusion_pecmv`
-(the exact m-dimensional reduction of PECMV). Layout: ``fusion_ci``, ``fusion_dmv``,
-``fusion_pecmv``, ``fusion_learned`` (surrogate-driven updates), ``fusion_sdp`` (conic
-solvers), ``fusion_batch`` (vectorised labels) and ``fusion_common`` (validation, root
-finders).
+in the docstrings of :mod:`~selenv.core.fusion.dmv` and :mod:`~selenv.core.fusion.pecmv`
+(the exact m-dimensional reduction of PECMV). Layout of this subpackage: ``ci``, ``dmv``,
+``pecmv``, ``surrogate`` (surrogate-driven updates), ``sdp`` (conic solvers), ``batch``
+(vectorised labels) and ``common`` (validation, root finders); the submodules are not public
+API, import from ``selenv.core.fusion``.
+
+``selenv.core`` imports nothing from ``learned``: the one plugin point is
+:data:`SURROGATE_HOOK` (``"module:attr"`` of a surrogate loader, imported lazily on the first
+LDMV / LPECMV call without an explicit ``surrogate=``), which the shipped hook points at
+``learned.surrogates``.
 """
 
 from __future__ import annotations
 
-from selenv.core.fusion_batch import PECMVBatchResult, dmv_omega_batch, pecmv_batch
-from selenv.core.fusion_ci import CI_METHODS, CIResult, covariance_intersection
-from selenv.core.fusion_common import joint_covariance_is_admissible
-from selenv.core.fusion_dmv import DMVResult, dmv_cost, dmv_update
-from selenv.core.fusion_learned import SURROGATE_HOOK, ldmv_update, load_surrogate, lpecmv_update
-from selenv.core.fusion_pecmv import PECMV_METHODS, PECMVResult, pecmv_objective, pecmv_update
+from selenv.core.fusion.batch import PECMVBatchResult, dmv_omega_batch, pecmv_batch
+from selenv.core.fusion.ci import CI_METHODS, CIResult, covariance_intersection
+from selenv.core.fusion.common import joint_covariance_is_admissible
+from selenv.core.fusion.dmv import DMVResult, dmv_cost, dmv_update
+from selenv.core.fusion.surrogate import SURROGATE_HOOK, ldmv_update, load_surrogate, lpecmv_update
+from selenv.core.fusion.pecmv import PECMV_METHODS, PECMVResult, pecmv_objective, pecmv_update
 
 __all__ = [
     "CI_METHODS",

@@ -17,16 +17,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from selenv.core.fusion_common import Pair, finite_matrix, root_increasing_batch
-from selenv.core.fusion_dmv import _B_NOT_PD, _W_PROBE, _check_dims, _cubic
-from selenv.core.fusion_pecmv import _solve
+from selenv.core.fusion.common import Pair, finite_matrix, root_increasing_batch
+from selenv.core.fusion.dmv import _B_NOT_PD, _W_PROBE, _check_dims, _cubic
+from selenv.core.fusion.pecmv import _solve
 from selenv.core.linalg import SYM_RTOL, FloatArray, as_float_array, check_shape, validate_spd
 
 __all__ = ["PECMVBatchResult", "dmv_omega_batch", "pecmv_batch"]
 
 
 def _omega_scalar_batch(a: FloatArray, b: FloatArray, n: int) -> FloatArray:
-    """Vectorised ``fusion_dmv._omega_scalar``: the same cubic, the same safeguarded Newton."""
+    """Vectorised ``selenv.core.fusion.dmv._omega_scalar``: the same cubic, the same safeguarded Newton."""
     c3, c2, c1, c0 = (
         np.broadcast_to(np.asarray(c, dtype=np.float64), a.shape) for c in _cubic(a, b, n)
     )

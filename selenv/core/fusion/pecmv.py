@@ -33,7 +33,7 @@ sees of agent i) and ``e = G_j u_j + v`` (agent j's part plus noise, ``z = s + e
   bound; it is admissible iff ``Dt = -L_A^-1 (Bhat + I) L_B^-T`` (``Ahat = L_A L_A^T``,
   ``Bhat = L_B L_B^T``) has ``||Dt||_2 <= 1``, and then ``C = (L_A^-1 G_i)^T Dt (L_B^-1 G_j)``.
 * otherwise the constraint ``||D|| <= 1`` is active and the reduced MAXDET problem (blocks of
-  size at most 2m) is solved by Clarabel directly (:func:`~selenv.core.fusion_sdp.solve_reduced`,
+  size at most 2m) is solved by Clarabel directly (:func:`~selenv.core.fusion.sdp.solve_reduced`,
   about a millisecond against ~0.1 s for the full cvxpy problem).
 
 For ``m = 1`` (``alpha = ||G_i||``, ``beta = ||G_j||``) these are the closed form of the notes:
@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import cho_solve
 from scipy.linalg.lapack import dpotrf
 
-from selenv.core.fusion_common import (
+from selenv.core.fusion.common import (
     Pair,
     chol,
     correction,
@@ -63,7 +63,7 @@ from selenv.core.fusion_common import (
     tri_solve,
     validate_pair,
 )
-from selenv.core.fusion_sdp import pecmv_sdp_cvxpy, solve_reduced
+from selenv.core.fusion.sdp import pecmv_sdp_cvxpy, solve_reduced
 from selenv.core.linalg import FloatArray
 
 __all__ = [
