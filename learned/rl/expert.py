@@ -12,7 +12,9 @@ evaluation.
 
 DAgger (Ross et al. 2011): round 0 follows the labeller's own choices; later rounds follow
 the current learner (``behaviour``), so the labels cover the states the learner visits.
-Only decisions with at least one open pair are labelled (stop-only steps carry no choice).
+Only decisions whose evaluated actions differ are labelled: stop-only steps carry no choice,
+and early in an episode every pair's fused update is a no-op (DMV's ``w* = 1``), so stop and
+the pairs tie exactly (about the first ten steps of the benchmark preset).
 
 Seeds: training episodes are seeded ``10**6 * (seed + 1) + k`` (``k = 0, 1, ...`` per
 worker stride), disjoint from the held-out evaluation seeds ``< 10**6`` of the docs.
@@ -94,12 +96,14 @@ def _collect(job: _Job) -> RankingData:
         mask = np.asarray(obs["action_mask"], dtype=bool)
         if mask[:-1].any():
             choice, scores = labeller.scores()
-            d = np.full(n_actions, np.inf)
-            for a, s in scores.items():
-                d[a] = -s
-            rows.append(view(obs))
-            deltas.append(d)
-            bar.update(1)
+            values = list(scores.values())
+            if max(values) > min(values):  # ties (every pair a no-op) carry no label
+                d = np.full(n_actions, np.inf)
+                for a, s in scores.items():
+                    d[a] = -s
+                rows.append(view(obs))
+                deltas.append(d)
+                bar.update(1)
             action = choice if agent is None else int(agent.act(obs, info))
             if rng.random() < job.explore:
                 action = int(rng.choice(np.flatnonzero(mask)))
@@ -131,7 +135,7 @@ def collect_cl_rollout_labels(
 
     Args:
         env_kwargs: ``CLScheduling-v0`` keyword arguments (``{}``: the benchmark preset).
-        n_states: labelled decisions to collect (each has at least one open pair).
+        n_states: labelled decisions to collect (each with actions of different scores).
         seed: training seed (episode seeds: :func:`train_seed`).
         view: candidate view of the policy (the shipped CL checkpoint's ``cl_pairs_fused``).
         top_k: pairs the labeller scores per decision (besides stop).
