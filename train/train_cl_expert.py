@@ -5,9 +5,10 @@ reference visits, every later round the states the current policy visits; every 
 decision carries rollout's score of stop and of its ``top_k`` pairs; the candidate-scoring
 policy's logits are fitted to all labels so far (ListNet, :func:`learned.rl.ranking.fit_ranking`).
 The policy starts from ``--checkpoint`` (default: the shipped CL policy, a softened greedy on
-the previewed fused gains) and keeps its ``cl_pairs_fused`` view, so at play time it costs
-one greedy preview plus one network evaluation per decision instead of rollout's
-``top_k + 1`` simulated trajectories.
+the previewed fused gains) and plays in the ``cl_pairs_fused_top3`` view: the candidates
+rollout considers (stop and the three pairs of largest previewed gain), ranked by the
+network. At play time it costs one greedy preview plus one network evaluation per decision
+instead of rollout's ``top_k + 1`` simulated trajectories.
 
 The result is evaluated by ``selenv bench`` against ``greedy`` and ``rollout`` on the
 held-out seeds ``--eval-seed .. --eval-seed + --eval-episodes - 1`` (training episodes use
@@ -46,6 +47,7 @@ class Config:
     out: str = "runs/cl_expert.zip"
     force: bool = False  # overwrite --out
     env_kwargs: str = "{}"  # the benchmark preset
+    view: str = "cl_pairs_fused_top3"  # the labeller's candidate set (stop + top-3 by gain)
     rounds: int = 3
     states_per_round: int = 1500
     top_k: int = 3  # the labeller: the bench's ``rollout`` reference
@@ -115,12 +117,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     torch.set_num_threads(1)
     start = time.perf_counter()
     env = gym.make(CL_ID, **kwargs)
-    view = src.get("view", "cl_pairs_fused")
+    view = cfg.view
     wrapped = CandidateViewWrapper(env, view_for(CL_ID, env, view))
     model = model_from_checkpoint(cfg.checkpoint, src, wrapped, device="cpu")
     n = int(wrapped.observation_space["action_mask"].shape[0])
     meta: dict[str, Any] = {
         **src,
+        "view": view,
         "env_kwargs": kwargs,
         "obs_layout": {**src["obs_layout"], "n_candidates_trained": n},
         "expert_iteration": {

@@ -239,7 +239,7 @@ class SB3PolicyAgent(Agent):
             )
         mask = np.asarray(cand["action_mask"], dtype=bool)
         if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:  # env's own
-            mask = np.asarray(info["action_mask"], dtype=bool)
+            mask = mask & np.asarray(info["action_mask"], dtype=bool)  # a view may restrict
         if self.verify_top_k:
             return self.view.env_action(obs, self._verified(obs, cand, mask))
         if self.deterministic and self.lean:

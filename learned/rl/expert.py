@@ -78,6 +78,7 @@ def _collect(job: _Job) -> RankingData:
     rows: list[dict[str, np.ndarray]] = []
     deltas: list[np.ndarray] = []
     episode = 0
+    mismatches = 0
 
     def reset() -> tuple[Any, dict[str, Any]]:
         nonlocal episode
@@ -98,12 +99,17 @@ def _collect(job: _Job) -> RankingData:
             choice, scores = labeller.scores()
             values = list(scores.values())
             if max(values) > min(values):  # ties (every pair a no-op) carry no label
+                row = view(obs)
+                allowed = np.asarray(row["action_mask"], dtype=bool)
                 d = np.full(n_actions, np.inf)
                 for a, s in scores.items():
-                    d[a] = -s
-                rows.append(view(obs))
-                deltas.append(d)
-                bar.update(1)
+                    if allowed[a]:  # a restricted view (top-k) may differ on exact gain ties
+                        d[a] = -s
+                mismatches += int(set(np.flatnonzero(allowed)) != set(scores))
+                if np.isfinite(d).sum() > 1:
+                    rows.append(row)
+                    deltas.append(d)
+                    bar.update(1)
             action = choice if agent is None else int(agent.act(obs, info))
             if rng.random() < job.explore:
                 action = int(rng.choice(np.flatnonzero(mask)))
@@ -114,6 +120,8 @@ def _collect(job: _Job) -> RankingData:
             obs, info = reset()
     bar.close()
     env.close()
+    if mismatches:
+        print(f"worker {job.worker}: {mismatches} decisions where the view's candidates differ")
     stacked = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
     return RankingData(stacked, np.stack(deltas))
 
@@ -123,7 +131,7 @@ def collect_cl_rollout_labels(
     n_states: int,
     seed: int,
     *,
-    view: str | None = "cl_pairs_fused",
+    view: str | None = "cl_pairs_fused_top3",
     top_k: int = 3,
     horizon: int = 5,
     explore: float = 0.05,
@@ -137,7 +145,8 @@ def collect_cl_rollout_labels(
         env_kwargs: ``CLScheduling-v0`` keyword arguments (``{}``: the benchmark preset).
         n_states: labelled decisions to collect (each with actions of different scores).
         seed: training seed (episode seeds: :func:`train_seed`).
-        view: candidate view of the policy (the shipped CL checkpoint's ``cl_pairs_fused``).
+        view: candidate view of the policy; ``cl_pairs_fused_top3`` allows exactly the
+            labeller's candidates (stop and the ``top_k`` pairs by previewed gain).
         top_k: pairs the labeller scores per decision (besides stop).
         horizon: filter steps the labeller simulates after the current one.
         explore: probability of a random allowed action instead of the behaviour's.

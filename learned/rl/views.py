@@ -110,6 +110,10 @@ class CLView(CandidateView):
     log det P_j, log std_i, log std_j]`` (agent ``i`` measures, ``j`` is measured: the fused
     gain depends on how the two compare); ``features`` = ``[0, time, 0, 0]``. Stop: gain 0,
     whitened 0, features ``[1, time, 0, 0]``.
+
+    ``top_k`` (view ``"cl_pairs_fused_top3"``, needs ``previewer``): only stop and the
+    ``top_k`` open pairs by previewed gain (ties by index) stay allowed in ``action_mask`` --
+    the candidate set of the ``rollout`` reference, which a policy distilled from it ranks.
     """
 
     name = "cl_pairs"
@@ -119,11 +123,15 @@ class CLView(CandidateView):
         self,
         pairs: tuple[tuple[int, int], ...],
         previewer: Callable[[int], float] | None = None,
+        top_k: int | None = None,
     ) -> None:
         self.pairs = tuple(pairs)
         self.previewer = previewer
+        if top_k is not None and (previewer is None or top_k < 1):
+            raise ValueError(f"top_k needs a previewer and must be >= 1, got {top_k!r}")
+        self.top_k = top_k
         if previewer is not None:
-            self.name = "cl_pairs_fused"
+            self.name = "cl_pairs_fused" if top_k is None else f"cl_pairs_fused_top{top_k}"
         self.i = np.array([p[0] for p in self.pairs], dtype=np.intp)
         self.j = np.array([p[1] for p in self.pairs], dtype=np.intp)
 
@@ -149,8 +157,14 @@ class CLView(CandidateView):
         if self.previewer is None:
             gain[:P] = obs["pair_gain"]
         else:
-            for p in np.flatnonzero(mask[:P]):
-                gain[p] = max(self.previewer(int(p)), 0.0)
+            open_ = np.flatnonzero(mask[:P])
+            raw = np.array([self.previewer(int(p)) for p in open_])
+            gain[open_] = np.maximum(raw, 0.0)
+            if self.top_k is not None and open_.size > self.top_k:
+                keep = open_[np.lexsort((open_, -raw))[: self.top_k]]  # rollout's ranking
+                mask = np.zeros_like(mask)
+                mask[keep] = 1
+                mask[P] = obs["action_mask"][P]
         selected = np.zeros(P + 1, np.int8)
         selected[:P] = 1 - mask[:P]
         return {
@@ -281,6 +295,9 @@ VIEWS: dict[str, dict[str, Callable[[Any], CandidateView]]] = {
     "selenv/CLScheduling-v0": {
         "cl_pairs": lambda env: CLView(env.unwrapped.pairs),
         "cl_pairs_fused": lambda env: CLView(env.unwrapped.pairs, env.unwrapped.preview_gain),
+        "cl_pairs_fused_top3": lambda env: CLView(
+            env.unwrapped.pairs, env.unwrapped.preview_gain, top_k=3
+        ),
     },
     "selenv/ReceiverClustering-v0": {
         "clustering_edits": lambda env: ClusteringEditView(
