@@ -19,7 +19,16 @@ script swaps LDMV's SGD for Adam, see ``train.train_surrogate.DEFAULT_OPTIMIZER`
 The input standardisation is a pair of buffers inside the module, so the state dict carries it.
 :class:`Surrogate` wraps a module with its metadata: ``save`` writes ``<path>.pt`` (state dict)
 and ``<path>.json`` (kind, method, architecture, normalisation, n, m, R, training data summary,
-metrics, versions); ``load`` checks the two against each other. ``predict_omega`` and
+metrics, versions); ``load`` checks the two against each other: every field has its type
+(``method``, ``n``, ``m`` ints, ``activation`` one of ``sigmoid``/``tanh``/``relu``), the
+redundant fields agree with each other (``architecture.output`` is the one of ``kind`` and
+``method``, a barrier ``training.loss`` means method 1, ``n_features`` is that of ``n, m``), and
+whatever the state dict implies agrees with them: the input width is ``n_features(n, m)``, the
+hidden widths are ``architecture.hidden``, the output width is ``1`` (LDMV), ``n`` (LPECMV
+method 3) or ``n * n`` (methods 1 and 2), and the parameter count is
+``architecture.n_parameters``. Methods 1 and 2 have the same weight shapes, so they are told
+apart by ``architecture.output`` (and ``training.loss``); the activation has no parameters,
+so only its name is checked. ``predict_omega`` and
 ``predict_C`` are batched numpy in, numpy out: float32 inference through a numpy copy of the
 forward pass (:meth:`Surrogate.forward_features`), no per-sample loop.
 """
@@ -38,7 +47,7 @@ from torch import nn
 
 import selenv
 from learned.surrogate_data import features, n_features
-from selenv.core.linalg import FloatArray
+from selenv.core.linalg import FloatArray, as_float_array, check_finite
 
 __all__ = [
     "C_SCALE",
@@ -73,6 +82,13 @@ TABLE_II: dict[str, dict[str, Any]] = {
 }  # fmt: skip
 
 
+def _need_int(value: object, what: str) -> int:
+    """``value`` if it is an int (not a bool, float or str), else ``TypeError`` naming ``what``."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise TypeError(f"{what} must be an int, got {value!r}")
+    return int(value)
+
+
 def _out_dim(kind: str, method: int, n: int) -> int:
     if kind == "ldmv":
         return 1
@@ -89,6 +105,10 @@ class SurrogateNet(nn.Module):
         hidden: hidden layer widths; activation: ``sigmoid``, ``tanh`` or ``relu``.
 
     Buffers ``mean`` and ``std`` (n(n+1) + 2mn,) hold the input standardisation.
+
+    Raises:
+        TypeError: ``method``, ``n``, ``m`` or a hidden width is not an int.
+        ValueError: unknown ``kind`` / ``method`` / ``activation``, or sizes below 1.
     """
 
     mean: th.Tensor
@@ -98,11 +118,18 @@ class SurrogateNet(nn.Module):
         self, *, kind: str, method: int, n: int, m: int, hidden: tuple[int, ...], activation: str
     ) -> None:
         super().__init__()
-        if kind not in KINDS:
+        for value, what in (
+            (method, "method"),
+            (n, "n"),
+            (m, "m"),
+            *((h, "hidden") for h in hidden),
+        ):
+            _need_int(value, what)
+        if not isinstance(kind, str) or kind not in KINDS:
             raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-        if activation not in _ACTIVATIONS:
+        if not isinstance(activation, str) or activation not in _ACTIVATIONS:
             raise ValueError(f"activation must be in {sorted(_ACTIVATIONS)}, got {activation!r}")
         if n < 1 or m < 1 or not hidden or min(hidden) < 1:
             raise ValueError(f"need n, m >= 1 and hidden widths >= 1, got {n}, {m}, {hidden}")
@@ -159,8 +186,12 @@ class Surrogate:
         hidden: tuple[int, ...] | None = None,
         activation: str | None = None,
     ) -> Surrogate:
-        """A fresh surrogate with Table II's architecture unless ``hidden``/``activation`` given."""
-        if kind not in KINDS:
+        """A fresh surrogate with Table II's architecture unless ``hidden``/``activation`` given.
+
+        Raises:
+            TypeError, ValueError: as :class:`SurrogateNet`.
+        """
+        if not isinstance(kind, str) or kind not in KINDS:
             raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
         t2 = TABLE_II[kind]
         hidden = tuple(t2["hidden"] if hidden is None else hidden)
@@ -200,7 +231,18 @@ class Surrogate:
         return self.net.m
 
     def set_normalisation(self, X: np.ndarray) -> None:
-        """Standardise with the mean and std of training features ``X`` (B, d); std floor 1."""
+        """Standardise with the mean and std of training features ``X`` (B, d); std floor 1.
+
+        Raises:
+            TypeError: ``X`` is not real numeric.
+            ValueError: ``X`` is not ``(B, n_features)`` with ``B >= 1``, or not finite; the
+                surrogate is left unchanged.
+        """
+        X = as_float_array(X, "X")
+        d = int(self.net.mean.shape[0])
+        if X.ndim != 2 or X.shape[1] != d or X.shape[0] == 0:
+            raise ValueError(f"X must have shape (B, {d}) with B >= 1, got {X.shape}")
+        check_finite(X, "X")
         mean = X.mean(axis=0)
         std = X.std(axis=0)
         std = np.where(std > 1e-8, std, 1.0)
@@ -210,7 +252,8 @@ class Surrogate:
     # -- numpy path ---------------------------------------------------------------------------
 
     def _forward(self, P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> tuple[np.ndarray, bool]:
-        P_i, P_j, H_i, H_j = (np.asarray(a, dtype=np.float64) for a in (P_i, P_j, H_i, H_j))
+        P_i, P_j = as_float_array(P_i, "P_i"), as_float_array(P_j, "P_j")
+        H_i, H_j = as_float_array(H_i, "H_i"), as_float_array(H_j, "H_j")
         single = P_i.ndim == 2
         if single:
             P_i, P_j, H_i, H_j = (a[None] for a in (P_i, P_j, H_i, H_j))
@@ -292,6 +335,7 @@ class Surrogate:
         ((n, n) / (m, n)). Feed to ``dmv_update(..., omega=...)``.
 
         Raises:
+            TypeError: an input is not real numeric (complex, bool, str, object).
             ValueError: not an LDMV surrogate, (n, m) of the call differ from the checkpoint's,
                 or non-finite input.
         """
@@ -308,6 +352,7 @@ class Surrogate:
         that norm (``meta["architecture"]["output"]`` says so).
 
         Raises:
+            TypeError: an input is not real numeric (complex, bool, str, object).
             ValueError: not an LPECMV surrogate, (n, m) mismatch, or non-finite input.
         """
         self._need("lpecmv")
@@ -348,9 +393,15 @@ class Surrogate:
     def load(cls, path: str | Path) -> Surrogate:
         """Read a checkpoint written by :meth:`save` (``path`` with or without suffix).
 
+        The metadata is checked field by field and against the weights (see the module
+        docstring) before the weights are loaded, so a JSON that describes other weights (e.g.
+        method-1 weights labelled method 2, which have the same shapes) is refused instead of
+        predicting wrongly.
+
         Raises:
             ValueError: the JSON or weights are missing or unreadable, the metadata is
-                incomplete, or it does not match the weights (the message names the file).
+                incomplete, has a field of the wrong type or value, or does not match the
+                weights (the message names the file and the field).
         """
         pt = Path(path).with_suffix(".pt")
         js = pt.with_suffix(".json")
@@ -361,16 +412,18 @@ class Surrogate:
         except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"surrogate metadata {js} is not valid JSON: {exc}") from None
         try:
+            if not isinstance(meta, dict):
+                raise ValueError(f"it must hold a JSON object, got {type(meta).__name__}")
             if meta["format"] != FORMAT:
                 raise ValueError(f"format {meta['format']!r} is not {FORMAT!r}")
-            arch = meta["architecture"]
+            spec = _meta_spec(meta)
             sur = cls.create(
-                meta["kind"],
-                method=int(meta["method"]),
-                n=int(meta["n"]),
-                m=int(meta["m"]),
-                hidden=tuple(int(h) for h in arch["hidden"]),
-                activation=str(arch["activation"]),
+                spec["kind"],
+                method=spec["method"],
+                n=spec["n"],
+                m=spec["m"],
+                hidden=spec["hidden"],
+                activation=spec["activation"],
             )
             norm = meta["normalisation"]
             mean = np.asarray(norm["mean"], dtype=np.float32)
@@ -388,6 +441,9 @@ class Surrogate:
             ) from None
         if not isinstance(state, dict):
             raise ValueError(f"surrogate weights {pt} must map parameter names to tensors")
+        problem = _weights_disagree(state, spec, meta)
+        if problem:
+            raise ValueError(f"surrogate weights {pt} do not match metadata {js}: {problem}")
         try:
             sur.net.load_state_dict(state)
         except (RuntimeError, TypeError, ValueError) as exc:
@@ -399,6 +455,122 @@ class Surrogate:
             raise ValueError(f"normalisation in {js} does not match the buffers in {pt}")
         sur.meta = {**meta, "path": str(pt)}
         return sur
+
+
+def _meta_spec(meta: dict[str, Any]) -> dict[str, Any]:
+    """The architecture fields of a checkpoint's metadata, type-checked and cross-checked.
+
+    Raises:
+        KeyError: a required field is missing.
+        ValueError: a field of the wrong type or value, or fields that contradict each other
+            (the message names the field).
+    """
+
+    def int_field(value: object, field: str, lo: int = 1) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+            raise ValueError(f"{field} must be an int >= {lo}, got {value!r}")
+        return value
+
+    kind = meta["kind"]
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    method = int_field(meta["method"], "method")
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if kind == "ldmv" and method != 3:
+        raise ValueError(f"method of an 'ldmv' surrogate must be 3 (unused), got {method!r}")
+    n, m = int_field(meta["n"], "n"), int_field(meta["m"], "m")
+    arch = meta["architecture"]
+    if not isinstance(arch, dict):
+        raise ValueError(f"architecture must be a JSON object, got {type(arch).__name__}")
+    hidden = arch["hidden"]
+    if not isinstance(hidden, list) or not hidden:
+        raise ValueError(f"architecture.hidden must be a non-empty list of ints, got {hidden!r}")
+    hidden = tuple(int_field(h, "architecture.hidden[]") for h in hidden)
+    activation = arch["activation"]
+    if not isinstance(activation, str) or activation not in _ACTIVATIONS:
+        raise ValueError(
+            f"architecture.activation must be one of {sorted(_ACTIVATIONS)}, got {activation!r}"
+        )
+    output = arch["output"]
+    if output != _output_doc(kind, method):
+        implied = [
+            (k, mt) for k, mt in (("ldmv", 3), ("lpecmv", 1), ("lpecmv", 2), ("lpecmv", 3))
+            if _output_doc(k, mt) == output
+        ]  # fmt: skip
+        says = f" (the output of kind {implied[0][0]!r}, method {implied[0][1]})" if implied else ""
+        raise ValueError(
+            f"architecture.output {output!r}{says} contradicts kind {kind!r}, method {method}, "
+            f"whose output is {_output_doc(kind, method)!r}"
+        )
+    if "n_features" in meta and meta["n_features"] != n_features(n, m):
+        raise ValueError(
+            f"n_features is {meta['n_features']!r}, but n = {n}, m = {m} give {n_features(n, m)}"
+        )
+    loss = (
+        (meta.get("training") or {}).get("loss") if isinstance(meta.get("training"), dict) else None
+    )
+    if isinstance(loss, str) and "barrier" in loss and (kind, method) != ("lpecmv", 1):
+        raise ValueError(
+            f"training.loss {loss!r} is the barrier loss of LPECMV method 1, but the metadata "
+            f"says kind {kind!r}, method {method}"
+        )
+    return {"kind": kind, "method": method, "n": n, "m": m, "hidden": hidden,
+            "activation": activation}  # fmt: skip
+
+
+def _weights_disagree(state: dict[str, Any], spec: dict[str, Any], meta: dict[str, Any]) -> str:
+    """What the state dict implies that the metadata contradicts (``""``: nothing found).
+
+    Reads the ``body.<i>.weight`` matrices of the linear layers: input width, hidden widths,
+    output width (the kind / method), and the parameter count. Anything not in that layout is
+    left to ``load_state_dict``, whose error is reported as is.
+    """
+    layers: list[tuple[int, Any]] = []
+    for key, value in state.items():
+        parts = str(key).split(".")
+        if len(parts) == 3 and parts[0] == "body" and parts[1].isdigit() and parts[2] == "weight":
+            if not isinstance(value, th.Tensor) or value.ndim != 2:
+                return ""
+            layers.append((int(parts[1]), value))
+    if not layers:
+        return ""
+    layers.sort(key=lambda item: item[0])
+    shapes = [tuple(int(s) for s in w.shape) for _, w in layers]  # (out, in) per layer
+    n, m, kind, method = spec["n"], spec["m"], spec["kind"], spec["method"]
+    if shapes[0][1] != n_features(n, m):
+        return (
+            f"n = {n}, m = {m} give {n_features(n, m)} input features, but the first layer of "
+            f"the weights takes {shapes[0][1]}"
+        )
+    hidden = [out for out, _ in shapes[:-1]]
+    if hidden != list(spec["hidden"]):
+        return f"architecture.hidden is {list(spec['hidden'])}, but the weights have {hidden}"
+    out = shapes[-1][0]
+    if out != _out_dim(kind, method, n):
+        options = [("ldmv", 3), ("lpecmv", 3), ("lpecmv", 1), ("lpecmv", 2)]
+        implied = [(k, mt) for k, mt in options if _out_dim(k, mt, n) == out]
+        what = (
+            ", ".join(
+                "kind 'ldmv'" if k == "ldmv" else f"kind 'lpecmv' method {mt}" for k, mt in implied
+            )
+            or f"no surrogate with n = {n}"
+        )
+        field = "method" if any(k == kind for k, _ in implied) else "kind"
+        return (
+            f"{field} is {spec[field]!r}, but the output layer of the weights has width {out}, "
+            f"which means {what} (kind {kind!r}, method {method} would have width "
+            f"{_out_dim(kind, method, n)})"
+        )
+    count = sum(
+        int(v.numel())
+        for k, v in state.items()
+        if isinstance(v, th.Tensor) and str(k).startswith("body.")
+    )
+    declared = meta["architecture"].get("n_parameters")
+    if declared is not None and declared != count:
+        return f"architecture.n_parameters is {declared!r}, but the weights have {count}"
+    return ""
 
 
 def _output_doc(kind: str, method: int) -> str:

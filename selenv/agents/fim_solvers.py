@@ -22,6 +22,13 @@ Multi-agent (disjoint pools, a budget per pool, i.e. a partition matroid): ``coo
 (the paper's per-agent schemes), and the centralised ``partition_greedy_whitened`` (greedy over
 the union of the pools, each pick the best gain among the pools with budget left: >= OPT / 2,
 Fisher, Nemhauser & Wolsey 1978) and ``partition_swap_whitened`` (then swaps within a pool).
+
+Validation: the raw-array solvers go through :func:`~selenv.core.information.as_candidates`
+(real types only: complex, bool, str, object raise ``TypeError``; shapes name the argument
+that disagrees with the others; finiteness, SPD-ness and the valid range of
+:func:`~selenv.core.linalg.check_magnitude`); the ``*_whitened`` solvers check ``Q0`` and ``G``
+with :func:`~selenv.core.information.whitened_pool`. Index arguments (``initial``, ``groups``)
+must hold integers: a fraction is refused, never truncated.
 """
 
 from __future__ import annotations
@@ -39,8 +46,15 @@ from selenv.core.information import (
     as_candidates,
     information_matrix,
     logdet_objective,
+    whitened_pool,
 )
-from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd, validate_spd
+from selenv.core.linalg import (
+    FloatArray,
+    check_magnitude,
+    cholesky_spd,
+    logdet_spd,
+    validate_spd,
+)
 from selenv.scenarios.clustering_labels import check_int
 
 __all__ = [
@@ -90,18 +104,44 @@ def _check_budget(budget: object, N: int) -> int:
     return int(budget)
 
 
+def int_indices(value: object, name: str) -> np.ndarray:
+    """``value`` as a 1-D ``intp`` array of indices; fractions are refused, never truncated.
+
+    Raises:
+        TypeError: not numeric (complex, str, object) or bool.
+        ValueError: non-integer values (e.g. ``2.5``).
+    """
+    try:
+        arr = np.asarray(list(value) if not isinstance(value, np.ndarray) else value)  # type: ignore[call-overload]
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be a sequence of int indices, got {value!r}") from exc
+    if arr.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    if arr.dtype == bool or arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must hold int indices, got dtype {arr.dtype}")
+    if arr.dtype.kind == "f":
+        raise ValueError(f"{name} must hold integer indices, got {value!r}")
+    return arr.astype(np.intp).reshape(-1)
+
+
 def _finish(Q0: FloatArray, G: FloatArray, indices: Sequence[int], evals: int) -> Selection:
     idx = tuple(int(k) for k in indices)
     return Selection(idx, logdet_objective(Q0, G, list(idx)), evals)
 
 
 def greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selection:
-    """Algorithm 1 with rank-one / block gain updates: ``O(N d^2 + B N m d)``."""
-    budget = _check_budget(budget, G.shape[0])
-    state = LogDetGainState(Q0, G, track_gains=True)
+    """Algorithm 1 with rank-one / block gain updates: ``O(N d^2 + B N m d)``.
+
+    Raises:
+        TypeError: not real numeric, or ``budget`` not an int.
+        ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
+            [0, N].
+    """
+    state = LogDetGainState(Q0, G, track_gains=True)  # validates Q0 and G
+    budget = _check_budget(budget, state.N)
     for _ in range(budget):
         state.add(int(np.argmax(state.masked_gains())))  # line 4: best marginal gain
-    return _finish(Q0, G, state.order, budget * G.shape[0])
+    return _finish(state.Q0, state.G, state.order, budget * state.N)
 
 
 def lazy_greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selection:
@@ -109,9 +149,13 @@ def lazy_greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selectio
 
     Only ``P = A^-1`` is updated per pick; a candidate's gain is recomputed (``O(m d^2)``) when
     it reaches the top of the heap. Ties break towards the lower index, as in :func:`greedy`.
+
+    Raises:
+        TypeError, ValueError: as :func:`greedy_whitened`.
     """
-    budget = _check_budget(budget, G.shape[0])
-    state = LogDetGainState(Q0, G, track_gains=True)
+    state = LogDetGainState(Q0, G, track_gains=True)  # validates Q0 and G
+    Q0, G = state.Q0, state.G
+    budget = _check_budget(budget, state.N)
     assert state.gains is not None  # internal invariant, not user input
     heap = [(-float(g), k, 0) for k, g in enumerate(state.gains)]
     heapq.heapify(heap)
@@ -132,7 +176,7 @@ def lazy_greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selectio
 
 def _subset_logdets(Qk: FloatArray, Q0: FloatArray, combos: np.ndarray) -> FloatArray:
     A = Q0 + Qk[combos].sum(axis=1)  # (C, d, d) FIM of each subset, eq. (2)
-    L = np.linalg.cholesky(A)
+    L = cholesky_spd(A, "FIM")
     return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
@@ -142,8 +186,11 @@ def brute_force_whitened(
     """Exhaustive optimum over all subsets of size ``budget`` (f is monotone, so ``|S| = B``).
 
     Raises:
-        ValueError: if ``C(N, budget) > max_subsets`` (the size guard).
+        TypeError: not real numeric, or ``budget`` / ``max_subsets`` not an int.
+        ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
+            [0, N], or ``C(N, budget) > max_subsets`` (the size guard).
     """
+    Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
     budget = _check_budget(budget, N)
     max_subsets = check_int(max_subsets, "max_subsets", 1)  # NaN would skip the guard
@@ -193,6 +240,14 @@ def _swap_deltas(G: FloatArray, P: FloatArray, sel: np.ndarray, uns: np.ndarray)
     return np.where(sign > 0, logdet, -np.inf)
 
 
+def _check_tol(tol: object) -> float:
+    if isinstance(tol, bool) or not isinstance(tol, int | float | np.integer | np.floating):
+        raise TypeError(f"tol must be a real number, got {type(tol).__name__}")
+    if not 0.0 <= float(tol) < math.inf:
+        raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
+    return float(tol)
+
+
 def _crlb(Q0: FloatArray, G: FloatArray, sel: np.ndarray) -> FloatArray:
     """``A^-1`` of the selection's FIM ``A`` (eq. 2), by two triangular solves."""
     A = information_matrix(Q0, G, sel)
@@ -214,13 +269,27 @@ def swap_whitened(
     Each round evaluates every (selected, unselected) swap in one batched determinant-lemma
     pass (``O(K N m^2 d)``) and applies the best if it gains more than ``tol`` nats. The
     objective never decreases, so the result is at least as good as greedy.
+
+    Raises:
+        TypeError: not real numeric, ``budget`` / ``max_rounds`` not an int, ``initial`` not
+            int indices.
+        ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
+            [0, N]; ``initial`` not ``budget`` distinct indices in [0, N); ``tol`` not a
+            finite number >= 0.
     """
+    Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
     budget = _check_budget(budget, N)
     max_rounds = check_int(max_rounds, "max_rounds", 0)
-    start = greedy_whitened(Q0, G, budget) if initial is None else None
-    sel = np.array(start.indices if start else list(initial or []), dtype=np.intp)
-    if len(set(sel.tolist())) != budget:
+    tol = _check_tol(tol)
+    if initial is None:
+        start = greedy_whitened(Q0, G, budget)
+        sel = np.array(start.indices, dtype=np.intp)
+    else:
+        start, sel = None, int_indices(initial, "initial")
+        if sel.size and (sel.min() < 0 or sel.max() >= N):
+            raise ValueError(f"initial must hold indices in [0, {N}), got {list(sel)}")
+    if len(set(sel.tolist())) != budget or sel.size != budget:
         raise ValueError(f"initial must hold {budget} distinct indices, got {list(sel)}")
     evals = start.evaluations if start else 0
     for _ in range(max_rounds):
@@ -238,13 +307,27 @@ def swap_whitened(
 
 
 def greedy(Q0: object, H: object, R: object, budget: int) -> Selection:
-    """Greedy selection (Algorithm 1) on raw arrays; see the module docstring for shapes."""
+    """Greedy selection (Algorithm 1) on raw arrays; see the module docstring for shapes.
+
+    Raises:
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
+            ``budget`` not an int.
+        ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
+            [0, N].
+    """
     Q0_a, G = as_candidates(Q0, H, R)
     return greedy_whitened(Q0_a, G, budget)
 
 
 def lazy_greedy(Q0: object, H: object, R: object, budget: int) -> Selection:
-    """Lazy greedy on raw arrays; returns the same set as :func:`greedy` with fewer evaluations."""
+    """Lazy greedy on raw arrays; returns the same set as :func:`greedy` with fewer evaluations.
+
+    Raises:
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
+            ``budget`` not an int.
+        ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
+            [0, N].
+    """
     Q0_a, G = as_candidates(Q0, H, R)
     return lazy_greedy_whitened(Q0_a, G, budget)
 
@@ -252,13 +335,27 @@ def lazy_greedy(Q0: object, H: object, R: object, budget: int) -> Selection:
 def brute_force(
     Q0: object, H: object, R: object, budget: int, *, max_subsets: int = MAX_BRUTE_FORCE_SUBSETS
 ) -> Selection:
-    """Exhaustive optimum on raw arrays; refuses more than ``max_subsets`` subsets."""
+    """Exhaustive optimum on raw arrays; refuses more than ``max_subsets`` subsets.
+
+    Raises:
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
+            ``budget`` not an int.
+        ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
+            [0, N].
+    """
     Q0_a, G = as_candidates(Q0, H, R)
     return brute_force_whitened(Q0_a, G, budget, max_subsets=max_subsets)
 
 
 def swap(Q0: object, H: object, R: object, budget: int, *, max_rounds: int = 200) -> Selection:
-    """Greedy plus swap local search on raw arrays."""
+    """Greedy plus swap local search on raw arrays.
+
+    Raises:
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
+            ``budget`` not an int.
+        ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
+            [0, N].
+    """
     Q0_a, G = as_candidates(Q0, H, R)
     return swap_whitened(Q0_a, G, budget, max_rounds=max_rounds)
 
@@ -266,7 +363,14 @@ def swap(Q0: object, H: object, R: object, budget: int, *, max_rounds: int = 200
 def random_selection(
     Q0: object, H: object, R: object, budget: int, *, rng: np.random.Generator
 ) -> Selection:
-    """Uniformly random subset of size ``budget`` drawn from ``rng`` (the baseline)."""
+    """Uniformly random subset of size ``budget`` drawn from ``rng`` (the baseline).
+
+    Raises:
+        TypeError: as :func:`greedy`, or ``rng`` not a ``numpy.random.Generator``.
+        ValueError: as :func:`greedy`.
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     Q0_a, G = as_candidates(Q0, H, R)
     budget = _check_budget(budget, G.shape[0])
     idx = rng.choice(G.shape[0], size=budget, replace=False)
@@ -303,12 +407,17 @@ def cooperative_greedy(
     Returns:
         Each agent's :class:`Selection` (its ``objective`` is the agent's own gain on top of its
         prior) and the centre's ``f`` of the union.
+
+    Raises:
+        TypeError: as :func:`greedy` (for ``Q0`` and every pool).
+        ValueError: as :func:`greedy`, an unknown ``mode``, or ``pools`` and ``budgets`` of
+            different lengths.
     """
     if mode not in ("independent", "cooperative"):
         raise ValueError(f"mode must be 'independent' or 'cooperative', got {mode!r}")
     if len(pools) != len(budgets):
         raise ValueError(f"pools ({len(pools)}) and budgets ({len(budgets)}) must match")
-    Q0_a = validate_spd(Q0, "Q0")
+    Q0_a = check_magnitude(validate_spd(Q0, "Q0"), "Q0", definite=True)
     Gs = [as_candidates(Q0_a, H, R)[1] for H, R in pools]
     prior = Q0_a
     picks: list[Selection] = []
@@ -333,7 +442,7 @@ def _check_partition(
     owner = np.full(N, -1, dtype=np.intp)
     B = np.empty(len(groups), dtype=np.intp)
     for g, (members, budget) in enumerate(zip(groups, budgets, strict=True)):
-        idx = np.asarray(members, dtype=np.intp).reshape(-1)
+        idx = int_indices(members, f"groups[{g}]")
         if idx.size and (idx.min() < 0 or idx.max() >= N):
             raise ValueError(f"group {g} holds indices outside [0, {N})")
         if np.any(owner[idx] >= 0) or np.unique(idx).size != idx.size:
@@ -356,8 +465,11 @@ def partition_greedy_whitened(
     is :func:`greedy_whitened`. Candidates in no group are never picked.
 
     Raises:
-        ValueError: groups that overlap or leave ``[0, N)``, a budget larger than its group.
+        TypeError: not real numeric, group members not int indices, budgets not ints.
+        ValueError: see :func:`~selenv.core.information.whitened_pool`; groups that overlap
+            or leave ``[0, N)``, a budget larger than its group.
     """
+    Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
     owner, left = _check_partition(N, groups, budgets)
     state = LogDetGainState(Q0, G, track_gains=True)
@@ -389,13 +501,17 @@ def partition_swap_whitened(
     objective never decreases: at least the partition greedy.
 
     Raises:
+        TypeError: as :func:`partition_greedy_whitened`, or ``initial`` not int indices.
         ValueError: as :func:`partition_greedy_whitened`, or an ``initial`` selection that is
             not ``budgets[g]`` distinct indices of each group ``g``.
     """
+    Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
     owner, B = _check_partition(N, groups, budgets)
+    max_rounds = check_int(max_rounds, "max_rounds", 0)
+    tol = _check_tol(tol)
     start = partition_greedy_whitened(Q0, G, groups, budgets) if initial is None else None
-    sel = np.array(start.indices if start else list(initial or []), dtype=np.intp)
+    sel = np.array(start.indices, dtype=np.intp) if start else int_indices(initial, "initial")
     inside = bool(np.all((sel >= 0) & (sel < N)))
     group_of = owner[sel] if inside else np.full(sel.size, -1)
     counts = np.bincount(group_of[group_of >= 0], minlength=len(B))

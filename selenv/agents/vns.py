@@ -22,8 +22,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from selenv.agents.fim_solvers import Selection, _check_budget, _finish
-from selenv.core.information import as_candidates
+from selenv.agents.fim_solvers import Selection, _check_budget, _finish, int_indices
+from selenv.core.information import as_candidates, whitened_pool
 from selenv.core.linalg import FloatArray, cholesky_spd
 
 __all__ = ["DEFAULT_M", "vns", "vns_whitened"]
@@ -67,11 +67,39 @@ def vns_whitened(
         The best subset found (indices sorted), ``f`` and the number of subset evaluations.
 
     Raises:
-        ValueError: ``budget`` out of range, an invalid ``initial`` or ``l_max < 1``
-            (``Q0``/``G`` are trusted here; :func:`vns` validates raw arrays).
+        TypeError: ``Q0`` / ``G`` not real numeric, ``budget`` not an int, ``initial`` not
+            int indices, ``l_max`` or an ``M_l`` that is not an int, ``batched`` not a bool,
+            ``rng`` not a ``Generator`` / seed.
+        ValueError: ``Q0`` / ``G`` as :func:`~selenv.core.information.whitened_pool`
+            (shapes, SPD, finite, valid range), ``budget`` out of range, an invalid
+            ``initial`` (fractions are refused, not truncated), ``l_max`` or ``M_l < 1``.
     """
+    Q0, G = whitened_pool(Q0, G)
     N, m, d = G.shape
     K = _check_budget(budget, N)
+    if not isinstance(batched, bool | np.bool_):
+        raise TypeError(f"batched must be a bool, got {batched!r}")
+    if not (
+        rng is None
+        or isinstance(rng, np.random.Generator | np.random.SeedSequence | np.random.BitGenerator)
+        or (isinstance(rng, int | np.integer) and not isinstance(rng, bool) and rng >= 0)
+    ):
+        raise TypeError(f"rng must be a numpy Generator, a seed int >= 0 or None, got {rng!r}")
+    if (
+        not isinstance(m_l, Sequence | np.ndarray)
+        or isinstance(m_l, str)
+        or not all(isinstance(M, int | np.integer) and not isinstance(M, bool) for M in m_l)
+    ):
+        raise TypeError(f"m_l must be a sequence of ints, got {m_l!r}")
+    if len(m_l) == 0 or min(m_l) < 1:
+        raise ValueError(f"m_l must hold at least one M_l and every M_l must be >= 1, got {m_l!r}")
+    init = None
+    if initial is not None:  # checked even when budget in (0, N) makes the search trivial
+        init = np.sort(int_indices(initial, "initial"))  # 2.7 -> 2 no more
+        if init.size != K or np.unique(init).size != K or (K and (init[0] < 0 or init[-1] >= N)):
+            raise ValueError(f"initial must be {K} distinct indices in [0, {N}), got {initial!r}")
+    if l_max is not None and (isinstance(l_max, bool) or not isinstance(l_max, int | np.integer)):
+        raise TypeError(f"l_max must be an int or None, got {l_max!r}")
     if K == 0 or K == N:
         return _finish(Q0, G, list(range(K)), 0)
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -81,21 +109,9 @@ def vns_whitened(
     rows = np.arange(N * m).reshape(N, m)
     eye = np.eye(m * K)
     single = np.linalg.slogdet(eye[:m, :m] + gram[rows[:, :, None], rows[:, None, :]])[1]
-    if initial is None:
-        sel = np.sort(np.argsort(-single, kind="stable")[:K])
-    else:
-        init = np.asarray(initial)
-        if init.dtype == bool or not np.issubdtype(init.dtype, np.integer):
-            raise ValueError(
-                f"initial must hold integer indices, got {initial!r}"
-            )  # 2.7 -> 2 no more
-        sel = np.sort(init.astype(np.intp).reshape(-1))
-        if sel.size != K or np.unique(sel).size != K or sel.min() < 0 or sel.max() >= N:
-            raise ValueError(f"initial must be {K} distinct indices in [0, {N}), got {initial!r}")
+    sel = np.sort(np.argsort(-single, kind="stable")[:K]) if init is None else init
     widest = min(K, N - K)  # no swap of more than this many exists
-    if l_max is not None and (
-        isinstance(l_max, bool) or not isinstance(l_max, int | np.integer) or l_max > widest
-    ):
+    if l_max is not None and l_max > widest:
         raise ValueError(f"l_max must be an int <= min(K, N - K) = {widest}, got {l_max!r}")
     l_max = min(widest, len(m_l)) if l_max is None else int(l_max)
     if l_max < 1 or not m_l or min(m_l) < 1:
@@ -146,6 +162,13 @@ def vns(
     budget: int,
     **kwargs: object,
 ) -> Selection:
-    """:func:`vns_whitened` on raw arrays (validated): ``Q0 (d, d)``, ``H (N, m, d)``, ``R``."""
+    """:func:`vns_whitened` on raw arrays (validated): ``Q0 (d, d)``, ``H (N, m, d)``, ``R``.
+
+    Raises:
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or as
+            :func:`vns_whitened`.
+        ValueError: see :func:`~selenv.core.information.as_candidates`, or as
+            :func:`vns_whitened`.
+    """
     Q0_a, G = as_candidates(Q0, H, R)
     return vns_whitened(Q0_a, G, budget, **kwargs)  # type: ignore[arg-type]

@@ -20,6 +20,12 @@ several states), where the information form does not exist.
 Shapes: matrices ``(..., n, n)`` with any leading batch axes, broadcast against each other
 (``F``, ``Q``, ``H``, ``R`` may be shared by a batch of ``J`` / ``Pc``). ``H`` is ``(..., m, n)``
 and ``R`` ``(..., m, m)``; ``m = 0`` (no measurement) gives the prediction alone.
+
+Validation: real types only (complex, bool, str, object raise ``TypeError``), trailing shapes
+(a mismatch names the argument that disagrees with the others), broadcastable leading axes,
+finiteness and the valid range ``|entry| <= MAX_ABS`` of
+:func:`~selenv.core.linalg.check_magnitude`; a result that overflows float64 raises
+``ValueError``.
 """
 
 from __future__ import annotations
@@ -30,9 +36,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from selenv.core.linalg import (
+    MAX_ABS,
     FloatArray,
+    ShapeError,
     as_float_array,
+    blame_shapes,
     check_finite,
+    check_magnitude,
     cholesky_spd,
     symmetrize,
 )
@@ -48,26 +58,49 @@ def _T(A: Any) -> FloatArray:
 def _check(
     A: ArrayLike, F: ArrayLike, Q: ArrayLike, H: ArrayLike, R: ArrayLike, a_name: str
 ) -> tuple[FloatArray, ...]:
-    """Validate finiteness and the trailing shapes ``(n, n)``, ``(m, n)``, ``(m, m)``."""
-    out = []
-    for value, name in ((A, a_name), (F, "F"), (Q, "Q"), (H, "H"), (R, "R")):
-        arr = check_finite(as_float_array(value, name), name)
-        if arr.ndim < 2:
-            raise ValueError(f"{name} must have at least 2 dimensions, got shape {arr.shape}")
-        out.append(arr)
-    A_, F_, Q_, H_, R_ = out
-    n = A_.shape[-1]
-    m = H_.shape[-2]
-    for arr, name, want in (
-        (A_, a_name, (n, n)),
-        (F_, "F", (n, n)),
-        (Q_, "Q", (n, n)),
-        (H_, "H", (m, n)),
-        (R_, "R", (m, m)),
-    ):
-        if arr.shape[-2:] != want:
-            raise ValueError(f"{name} must have trailing shape {want}, got {arr.shape}")
-    return A_, F_, Q_, H_, R_
+    """Types, trailing shapes ``(n, n)``, ``(m, n)``, ``(m, m)``, batch axes, finite, in range."""
+    raw = {a_name: A, "F": F, "Q": Q, "H": H, "R": R}
+    arrs = {name: as_float_array(value, name) for name, value in raw.items()}
+    try:
+        for name, arr in arrs.items():
+            if arr.ndim < 2:
+                raise ShapeError(
+                    f"{name} must have at least 2 dimensions, got shape {arr.shape}", name
+                )
+        n, m = arrs[a_name].shape[-1], arrs["H"].shape[-2]
+        want = {a_name: (n, n), "F": (n, n), "Q": (n, n), "H": (m, n), "R": (m, m)}
+        for name, arr in arrs.items():
+            if arr.shape[-2:] != want[name]:
+                raise ShapeError(
+                    f"{name} must have trailing shape {want[name]}, got {arr.shape}", name
+                )
+    except ShapeError as exc:
+        templates = {a_name: "... n n", "F": "... n n", "Q": "... n n", "H": "... m n"}
+        templates["R"] = "... m m"
+        raise (blame_shapes(raw, templates, error=exc) or exc) from None
+    seen: tuple[int, ...] = ()
+    for name, arr in arrs.items():
+        try:
+            seen = np.broadcast_shapes(seen, arr.shape[:-2])
+        except ValueError:
+            raise ShapeError(
+                f"{name} has leading (batch) axes {arr.shape[:-2]} that do not broadcast with "
+                f"those of the arguments before it, {seen}",
+                name,
+            ) from None
+    for name, arr in arrs.items():
+        check_magnitude(check_finite(arr, name), name)
+    return tuple(arrs.values())
+
+
+def _finite(out: FloatArray, func: str) -> FloatArray:
+    if not np.all(np.isfinite(out)):
+        raise ValueError(
+            f"{func}: the result is not representable in float64 (overflow); the inputs must "
+            f"satisfy |entry| <= {MAX_ABS:g} and the problem must not be so ill-conditioned "
+            "that products or inverses of them exceed that range (rescale the problem)"
+        )
+    return out
 
 
 def pcrlb_step_information(
@@ -92,7 +125,10 @@ def pcrlb_step_information(
         ``J+`` ``(..., n, n)``, symmetrized.
 
     Raises:
-        ValueError: NaN/inf, mismatched shapes, or ``Q``, ``R``, ``J + D11`` not SPD.
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: NaN/inf, mismatched shapes (naming the argument that disagrees with the
+            others), entries outside the valid range, ``Q``, ``R``, ``J + D11`` not SPD, or a
+            result that overflows float64.
     """
     J_, F_, Q_, H_, R_ = _check(J, F, Q, H, R, "J")
     n = J_.shape[-1]
@@ -107,7 +143,8 @@ def pcrlb_step_information(
         D22 = D22 + _T(G) @ G  # D22 = Q^-1 + H^T R^-1 H
     M = cholesky_spd(symmetrize(J_ + D11), "J + D11")  # J + D11 = M M^T
     B = np.linalg.solve(M, np.broadcast_to(D12, np.broadcast_shapes(M.shape, D12.shape)))
-    return symmetrize(D22 - _T(B) @ B)  # J+ = D22 - D21 (J + D11)^-1 D12, D21 = D12^T
+    J_next = symmetrize(D22 - _T(B) @ B)  # J+ = D22 - D21 (J + D11)^-1 D12, D21 = D12^T
+    return _finite(J_next, "pcrlb_step_information")
 
 
 def pcrlb_step_covariance(
@@ -133,16 +170,24 @@ def pcrlb_step_covariance(
         ``Pc+`` ``(..., n, n)``, symmetrized.
 
     Raises:
-        ValueError: NaN/inf, mismatched shapes, or ``S = H M H^T + R`` not SPD.
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: NaN/inf, mismatched shapes (naming the argument that disagrees with the
+            others), entries outside the valid range, ``S = H M H^T + R`` not SPD, or a result
+            that overflows float64.
     """
     Pc_, F_, Q_, H_, R_ = _check(Pc, F, Q, H, R, "Pc")
     M = symmetrize(F_ @ Pc_ @ _T(F_) + Q_)  # M = F Pc F^T + Q
     if H_.shape[-2] == 0:
-        return M
+        return _finite(M, "pcrlb_step_covariance")
+    if not np.all(np.isfinite(M)):
+        _finite(M, "pcrlb_step_covariance")
     HM = H_ @ M  # H M, (..., m, n)
     S = symmetrize(HM @ _T(H_) + R_)  # S = H M H^T + R
+    if not np.all(np.isfinite(S)):
+        _finite(S, "pcrlb_step_covariance")
     Ls = cholesky_spd(S, "S = H (F Pc F^T + Q) H^T + R")
     K = _T(np.linalg.solve(_T(Ls), np.linalg.solve(Ls, HM)))  # K = M H^T S^-1 (S K^T = H M)
     n = M.shape[-1]
     I_KH = np.eye(n) - K @ H_  # I - K H
-    return symmetrize(I_KH @ M @ _T(I_KH) + K @ R_ @ _T(K))  # Joseph form
+    Pc_next = symmetrize(I_KH @ M @ _T(I_KH) + K @ R_ @ _T(K))  # Joseph form
+    return _finite(Pc_next, "pcrlb_step_covariance")

@@ -19,6 +19,11 @@ Adding a row ``g`` is a rank-one update; with ``u = P g``, ``q = g^T u`` and ``c
     S <- S - c c^T / (1 + q),   P <- P - u u^T / (1 + q),   f <- f + log(1 + q)
 
 which costs ``O(N m d)`` per row instead of the ``O(N d^3)`` of recomputing every log det.
+
+Validation: :func:`validate_candidates` / :func:`as_candidates` check raw pools in full (real
+types, shapes naming the argument that disagrees, finiteness, SPD-ness and the valid range of
+:func:`~selenv.core.linalg.check_magnitude`); the functions on whitened pools check types and
+shapes (cheap) and that ``G`` is finite and within ``MAX_ABS``.
 """
 
 from __future__ import annotations
@@ -29,9 +34,13 @@ import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
 from selenv.core.linalg import (
+    MAX_ABS,
     FloatArray,
+    ShapeError,
     as_float_array,
+    blame_shapes,
     check_finite,
+    check_magnitude,
     check_shape,
     cholesky_small,
     cholesky_spd,
@@ -50,7 +59,45 @@ __all__ = [
     "naive_greedy_logdet",
     "validate_candidates",
     "whiten",
+    "whitened_pool",
 ]
+
+
+#: accepted shapes, in symbols (for :func:`blame_shapes`)
+_SHAPES: dict[str, list[str]] = {
+    "Q0": ["d d"],
+    "H": ["N d", "N m d"],
+    "R": ["", "N", "m m", "N m m"],
+    "G": ["N m d"],
+    "S": ["N m m"],
+}
+
+
+def _blame(exc: ShapeError, **args: object) -> ShapeError:
+    return blame_shapes(args, {k: _SHAPES[k] for k in args}, error=exc) or exc
+
+
+def whitened_pool(Q0: object, G: object) -> tuple[FloatArray, FloatArray]:
+    """``Q0`` (d, d) SPD and a whitened pool ``G`` (N, m, d), finite and within ``MAX_ABS``.
+
+    The cheap check of the ``*_whitened`` solvers (``Q0`` fully, ``G`` by type, shape and one
+    sum of squares).
+
+    Raises:
+        TypeError: not real numeric.
+        ValueError: wrong shapes (naming the argument that disagrees), ``Q0`` not SPD or out of
+            range, ``G`` not finite or out of range.
+    """
+    G_a = as_float_array(G, "G")
+    try:
+        Q0_a = validate_spd(Q0, "Q0")
+        check_shape(G_a, (None, None, Q0_a.shape[0]), "G")
+    except ShapeError as exc:
+        raise _blame(exc, Q0=Q0, G=G) from None
+    check_magnitude(Q0_a, "Q0", definite=True)
+    if not float(np.vdot(G_a, G_a)) <= MAX_ABS * MAX_ABS:  # NaN/inf fail; exact checks below
+        check_magnitude(check_finite(G_a, "G"), "G")
+    return Q0_a, G_a
 
 
 def whiten(H: FloatArray, R: FloatArray) -> FloatArray:
@@ -62,11 +109,29 @@ def whiten(H: FloatArray, R: FloatArray) -> FloatArray:
 
     Returns:
         ``G`` of shape ``(N, m, d)`` with ``G_k^T G_k = H_k^T R_k^-1 H_k`` (eq. 4, Gaussian case).
+
+    Raises:
+        TypeError: not real numeric.
+        ValueError: wrong shapes (naming the argument), an ``R_k`` that is not SPD (or holds
+            NaN/inf), or a result that overflows float64.
     """
-    N, m, _ = H.shape
-    R_b = np.broadcast_to(R, (N, m, m)) if R.ndim == 2 else R
-    L = np.linalg.cholesky(R_b)  # R_k = L_k L_k^T, batched
-    return np.linalg.solve(L, H)  # G_k = L_k^-1 H_k (a solve, never inv)
+    H_a, R_a = as_float_array(H, "H"), as_float_array(R, "R")
+    try:
+        check_shape(H_a, (None, None, None), "H")
+        N, m, _ = H_a.shape
+        check_shape(R_a, (m, m) if R_a.ndim == 2 else (N, m, m), "R")
+    except ShapeError as exc:
+        raise _blame(exc, H=H, R=R) from None
+    R_b = np.broadcast_to(R_a, (N, m, m)) if R_a.ndim == 2 else R_a
+    L = cholesky_spd(R_b, "R")  # R_k = L_k L_k^T, batched
+    G = np.linalg.solve(L, H_a).astype(np.float64, copy=False)  # G_k = L_k^-1 H_k, no inv
+    if not np.all(np.isfinite(G)):
+        check_finite(H_a, "H")
+        raise ValueError(
+            "whiten: G = L^-1 H overflows float64; keep |H| <= "
+            f"{MAX_ABS:g} and the diagonals of R >= 1e-100 (rescale the problem)"
+        )
+    return G
 
 
 def validate_candidates(
@@ -78,27 +143,44 @@ def validate_candidates(
     ``H (N, d)`` with ``R`` of shape ``(N,)`` (variances) or a scalar variance.
 
     Raises:
-        TypeError: non-numeric input.
-        ValueError: wrong shapes, NaN/inf, or an ``R_k`` that is not SPD (names the candidate).
+        TypeError: not real numeric (complex, bool, str, object).
+        ValueError: wrong shapes (naming the argument that disagrees), NaN/inf, an ``R_k``
+            that is not SPD (names the candidate), or values outside the valid range
+            (``|H| <= MAX_ABS``, variances / diagonals of ``R`` in ``[MIN_PD_DIAG, MAX_ABS]``).
     """
-    H_a = check_finite(as_float_array(H, "H"), "H")
-    R_a = check_finite(as_float_array(R, "R"), "R")
+    H_a = as_float_array(H, "H")
+    R_a = as_float_array(R, "R")
+    try:
+        return _candidates(H_a, R_a, d)
+    except ShapeError as exc:
+        raise _blame(exc, H=H, R=R) from None
+
+
+def _candidates(H_a: FloatArray, R_a: FloatArray, d: int | None) -> tuple[FloatArray, FloatArray]:
+    if H_a.ndim not in (2, 3):
+        raise ShapeError(f"H must have shape (N, d) or (N, m, d), got {H_a.shape}", "H")
+    if d is not None and H_a.shape[-1] != d:
+        want = "(N, d)" if H_a.ndim == 2 else "(N, m, d)"
+        raise ShapeError(f"H must have shape {want} with d = {d} to match Q0, got {H_a.shape}", "H")
+    check_magnitude(check_finite(H_a, "H"), "H")
+    check_finite(R_a, "R")
     if H_a.ndim == 2:
         N = H_a.shape[0]
         if R_a.ndim == 0:
             R_a = np.full(N, float(R_a))
-        check_shape(R_a, (N,), "R (variances of scalar candidates)")
+        if R_a.ndim != 1 or R_a.shape[0] != N:
+            raise ShapeError(
+                f"R (variances of scalar candidates) must have shape ({N},), got {R_a.shape}",
+                "R",
+            )
         if np.any(R_a <= 0):
             k = int(np.argmin(R_a))
             raise ValueError(f"R must hold positive variances, but R[{k}] = {R_a[k]:g}")
+        check_magnitude(R_a, "R", definite=True)
         return H_a[:, None, :], R_a[:, None, None]
-    if H_a.ndim != 3:
-        raise ValueError(f"H must have shape (N, d) or (N, m, d), got {H_a.shape}")
-    N, m, dd = H_a.shape
-    if d is not None and dd != d:
-        raise ValueError(f"H must have shape (N, m, {d}) to match Q0, got {H_a.shape}")
+    N, m, _ = H_a.shape
     if R_a.ndim == 2:
-        R_a = validate_spd(R_a, "R", m)
+        R_a = check_magnitude(validate_spd(R_a, "R", m), "R", definite=True)
         return H_a, np.broadcast_to(R_a, (N, m, m)).copy()
     check_shape(R_a, (N, m, m), "R")
     try:
@@ -107,7 +189,7 @@ def validate_candidates(
         for k in range(N):  # find the culprit for a precise message
             validate_spd(R_a[k], f"R[{k}]", m)
         raise
-    return H_a, R_a
+    return H_a, check_magnitude(R_a, "R", definite=True)
 
 
 def as_candidates(Q0: object, H: object, R: object) -> tuple[FloatArray, FloatArray]:
@@ -115,13 +197,19 @@ def as_candidates(Q0: object, H: object, R: object) -> tuple[FloatArray, FloatAr
 
     Returns:
         ``(Q0, G)`` with ``Q0`` float64 ``(d, d)`` and ``G`` ``(N, m, d)``.
+
+    Raises:
+        TypeError: not real numeric (complex, bool, str, object).
+        ValueError: as :func:`validate_candidates`; ``Q0`` not SPD or out of range; shapes
+            name the argument that disagrees with the others (``Q0``, ``H`` or ``R``).
     """
-    Q0_a = validate_spd(Q0, "Q0")
-    H_a, R_a = validate_candidates(H, R, Q0_a.shape[0])
-    if H_a.shape[2] != Q0_a.shape[0]:
-        raise ValueError(
-            f"H must have {Q0_a.shape[0]} columns to match Q0 {Q0_a.shape}, got {H_a.shape}"
-        )
+    H_a, R_a = as_float_array(H, "H"), as_float_array(R, "R")
+    try:
+        Q0_a = validate_spd(Q0, "Q0")
+        H_a, R_a = _candidates(H_a, R_a, Q0_a.shape[0])
+    except ShapeError as exc:
+        raise _blame(exc, Q0=Q0, H=H, R=R) from None
+    check_magnitude(Q0_a, "Q0", definite=True)
     return Q0_a, whiten(H_a, R_a)
 
 
@@ -132,16 +220,38 @@ def _indices(selected: Iterable[int] | FloatArray | None, N: int) -> np.ndarray:
     if idx.dtype == bool:
         check_shape(idx, (N,), "selected (boolean mask)")
         return np.flatnonzero(idx)
+    if idx.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    if not np.issubdtype(idx.dtype, np.integer):
+        raise TypeError(f"selected must hold integer indices or be a bool mask, got {idx.dtype}")
     idx = idx.astype(np.intp, copy=False).ravel()
-    if idx.size and (idx.min() < 0 or idx.max() >= N):
+    if idx.min() < 0 or idx.max() >= N:
         raise ValueError(f"selected indices must lie in [0, {N}), got {idx.min()}..{idx.max()}")
     return idx
+
+
+def _pool(Q0: object, G: object) -> tuple[FloatArray, FloatArray]:
+    """Types and shapes of ``Q0`` (d, d) and ``G`` (N, m, d) (no value checks)."""
+    Q0_a, G_a = as_float_array(Q0, "Q0"), as_float_array(G, "G")
+    try:
+        check_shape(Q0_a, (None, None), "Q0")
+        check_shape(Q0_a, (Q0_a.shape[0], Q0_a.shape[0]), "Q0")
+        check_shape(G_a, (None, None, Q0_a.shape[0]), "G")
+    except ShapeError as exc:
+        raise _blame(exc, Q0=Q0, G=G) from None
+    return Q0_a, G_a
 
 
 def information_matrix(
     Q0: FloatArray, G: FloatArray, selected: Iterable[int] | FloatArray | None = None
 ) -> FloatArray:
-    """FIM of a selection, eq. (2): ``Q0 + sum_{k in S} G_k^T G_k``, shape ``(d, d)``."""
+    """FIM of a selection, eq. (2): ``Q0 + sum_{k in S} G_k^T G_k``, shape ``(d, d)``.
+
+    Raises:
+        TypeError: not real numeric, or ``selected`` not integer indices / a bool mask.
+        ValueError: shapes that disagree (names the argument), indices out of range.
+    """
+    Q0, G = _pool(Q0, G)
     idx = _indices(selected, G.shape[0])
     Gs = G[idx].reshape(-1, G.shape[2])
     return symmetrize(Q0 + Gs.T @ Gs)
@@ -150,7 +260,12 @@ def information_matrix(
 def logdet_objective(
     Q0: FloatArray, G: FloatArray, selected: Iterable[int] | FloatArray | None
 ) -> float:
-    """Objective ``f(S)`` of eq. (9) by direct Cholesky log-dets (the independent reference)."""
+    """Objective ``f(S)`` of eq. (9) by direct Cholesky log-dets (the independent reference).
+
+    Raises:
+        TypeError, ValueError: as :func:`information_matrix`; a FIM or ``Q0`` that is not
+            (numerically) positive definite.
+    """
     return float(logdet_spd(information_matrix(Q0, G, selected), "FIM")) - float(
         logdet_spd(Q0, "Q0")
     )
@@ -160,14 +275,22 @@ def block_logdet_gains(S: FloatArray) -> FloatArray:
     """``log det(I_m + S_k)`` for a batch ``S`` of PSD ``(N, m, m)`` matrices, shape ``(N,)``.
 
     Closed forms for ``m = 1`` (``log1p``) and ``m = 2``; batched Cholesky otherwise.
+
+    Raises:
+        TypeError: ``S`` not a float64 array.
+        ValueError: ``S`` not ``(N, m, m)``, or (m > 2) ``I + S_k`` not positive definite.
     """
+    if type(S) is not np.ndarray or S.dtype != np.float64:
+        S = as_float_array(S, "S")
+    if S.ndim != 3 or S.shape[1] != S.shape[2]:
+        raise ShapeError(f"S must have shape (N, m, m), got {np.shape(S)}", "S")
     m = S.shape[-1]
     if m == 1:
         return np.log1p(S[:, 0, 0])
     if m == 2:
         a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
         return np.log1p(a + c + a * c - b * b)  # det(I + S) - 1 = a + c + ac - b^2
-    L = np.linalg.cholesky(S + np.eye(m))
+    L = cholesky_spd(S + np.eye(m), "I + S_k")
     return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
@@ -189,6 +312,11 @@ class LogDetGainState:
         G: ``(N, m, d)`` whitened candidates (see :func:`whiten`).
         track_gains: keep ``S`` and ``gains`` for all candidates (``O(N m d)`` per row added).
         track_whitened: keep ``Z`` (``O(N m d^2)`` per pick).
+
+    Raises:
+        TypeError: ``Q0`` / ``G`` not real numeric.
+        ValueError: wrong shapes (naming the argument that disagrees), ``Q0`` not SPD, values
+            not finite or outside the valid range (see :func:`whitened_pool`).
     """
 
     def __init__(
@@ -199,9 +327,7 @@ class LogDetGainState:
         track_gains: bool = True,
         track_whitened: bool = False,
     ) -> None:
-        self.Q0 = validate_spd(Q0, "Q0")
-        G = np.asarray(G, dtype=np.float64)
-        check_shape(G, (None, None, self.Q0.shape[0]), "G")
+        self.Q0, G = whitened_pool(Q0, G)
         self.G = G
         self.N, self.m, self.d = G.shape
         self._Gflat = G.reshape(self.N * self.m, self.d)
@@ -241,7 +367,13 @@ class LogDetGainState:
         return information_matrix(self.Q0, self.G, self.order)
 
     def gain_of(self, k: int) -> float:
-        """Exact gain ``log det(I + G_k P G_k^T)`` of one candidate, ``O(m d^2)``."""
+        """Exact gain ``log det(I + G_k P G_k^T)`` of one candidate, ``O(m d^2)``.
+
+        Raises:
+            TypeError: ``k`` not an int.
+            ValueError: ``k`` out of range.
+        """
+        k = self._index(k, "k")
         Gk = self.G[k]
         return float(block_logdet_gains((Gk @ self.P @ Gk.T)[None])[0])
 
@@ -255,10 +387,10 @@ class LogDetGainState:
         """Select candidate ``j`` (one rank-one update per non-zero row); return its gain.
 
         Raises:
-            ValueError: ``j`` out of range or already selected.
+            TypeError: ``j`` not an int.
+            ValueError: ``j`` out of range or already selected (the state is unchanged).
         """
-        if not 0 <= j < self.N:
-            raise ValueError(f"candidate index must lie in [0, {self.N}), got {j}")
+        j = self._index(j, "j")
         if self.selected[j]:
             raise ValueError(f"candidate {j} is already selected")
         before = self.objective
@@ -269,6 +401,13 @@ class LogDetGainState:
         self.selected[j] = True
         self.order.append(j)
         return self.objective - before
+
+    def _index(self, j: object, name: str) -> int:
+        if isinstance(j, bool) or not isinstance(j, int | np.integer):
+            raise TypeError(f"{name} must be an int candidate index, got {type(j).__name__}")
+        if not 0 <= j < self.N:
+            raise ValueError(f"candidate index must lie in [0, {self.N}), got {j}")
+        return int(j)
 
     def _add_rank_one(self, Gj: FloatArray) -> None:
         """One Sherman-Morrison update of ``P`` (and ``S``) per non-zero row of ``G_j``."""
@@ -319,8 +458,17 @@ def naive_greedy_logdet(Q0: FloatArray, G: FloatArray, budget: int) -> list[int]
     """Reference greedy (Algorithm 1) with one Cholesky log det per candidate per step.
 
     ``O(K N d^3)``: kept only as the independent check and the speed baseline.
+
+    Raises:
+        TypeError: not real numeric, or ``budget`` not an int.
+        ValueError: shapes that disagree (names the argument), ``budget`` outside [0, N].
     """
+    Q0, G = _pool(Q0, G)
     N = G.shape[0]
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer):
+        raise TypeError(f"budget must be an int, got {type(budget).__name__}")
+    if not 0 <= budget <= N:
+        raise ValueError(f"budget must lie in [0, {N}], got {budget}")
     A = Q0.copy()
     chosen: list[int] = []
     Qk = np.einsum("kmi,kmj->kij", G, G)  # Q_k = G_k^T G_k

@@ -12,6 +12,12 @@ loop-free with broadcasting matmuls.
 ``S`` is factored once by Cholesky, ``S = L L^T``; the gain and the likelihood use triangular
 solves with ``L`` and no matrix is ever inverted. The covariance update is the Joseph form, which
 stays symmetric positive (semi-)definite even when the gain is computed inaccurately.
+
+Validation (``validate=True``, the default) goes through :mod:`selenv.core.linalg`: real
+numeric types only (complex, bool, str, object raise ``TypeError``), shapes (a mismatch names
+the argument that disagrees with the others), finiteness, SPD-ness and the valid range
+``|entry| <= MAX_ABS`` (diagonals of ``P``, ``R`` >= ``MIN_PD_DIAG``); a result that still
+overflows float64 raises ``ValueError`` instead of being returned as inf/NaN.
 """
 
 from __future__ import annotations
@@ -25,9 +31,15 @@ from scipy.linalg import cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
 
 from selenv.core.linalg import (
+    MAX_ABS,
+    MIN_PD_DIAG,
     FloatArray,
+    ShapeError,
+    all_finite,
     as_float_array,
+    blame_shapes,
     check_finite,
+    check_magnitude,
     check_shape,
     cholesky_spd,
     symmetrize,
@@ -71,28 +83,55 @@ class KalmanUpdate:
 
 # --------------------------------------------------------------------------- validation helpers
 
+#: accepted shapes of every argument, in symbols (for :func:`_blame`)
+_SHAPES: dict[str, list[str]] = {
+    "x": ["n", "B n"],
+    "yv": ["n", "B n"],
+    "P": ["n n", "B n n"],
+    "Y": ["n n", "B n n"],
+    "F": ["n n", "B n n"],
+    "Q": ["n n", "B n n"],
+    "z": ["m", "B m"],
+    "h(x)": ["m"],
+    "H": ["m n", "B m n"],
+    "H_jac(x)": ["m n"],
+    "R": ["m m", "B m m"],
+}
+#: arguments that are batched iff the state is (the model matrices may be shared)
+_BATCH_ARGS = ("x", "yv", "P", "Y", "z")
+
+
+def _blame(exc: ShapeError, *, batched: bool = True, **args: object) -> ShapeError:
+    """The shape error naming the argument that disagrees with the others, else ``exc``.
+
+    ``batched=False``: only the unbatched shapes are accepted (``ekf_update``).
+    """
+    shapes = {k: _SHAPES[k] if batched else _SHAPES[k][:1] for k in args}
+    return blame_shapes(args, shapes, batch=_BATCH_ARGS, error=exc) or exc
+
 
 def _vector(value: ArrayLike, name: str, B: int | None, m: int | None = None) -> FloatArray:
-    """Finite vector of shape (m,), or (B, m) when ``B`` is given (``m=None``: any length)."""
+    """Finite, in-range vector of shape (m,), or (B, m) when ``B`` is given (``m=None``: any)."""
     v = as_float_array(value, name)
     check_shape(v, ((B,) if B is not None else ()) + (m,), name)
-    return check_finite(v, name)
+    return check_magnitude(check_finite(v, name), name)
 
 
 def _state_vector(value: ArrayLike, name: str) -> tuple[FloatArray, int | None]:
     """Finite state vector (n,) or (B, n), n >= 1; returns it and ``B`` (``None``: unbatched)."""
     v = as_float_array(value, name)
     if v.ndim not in (1, 2) or v.shape[-1] == 0:
-        raise ValueError(f"{name} must have shape (n,) or (B, n) with n >= 1, got {v.shape}")
-    return check_finite(v, name), (v.shape[0] if v.ndim == 2 else None)
+        raise ShapeError(f"{name} must have shape (n,) or (B, n) with n >= 1, got {v.shape}", name)
+    v = check_magnitude(check_finite(v, name), name)
+    return v, (v.shape[0] if v.ndim == 2 else None)
 
 
 def _matrix(value: ArrayLike, name: str, shape: tuple[int, int], B: int | None) -> FloatArray:
-    """Finite matrix of ``shape``, or a (B, *shape) batch of them when ``B`` is given."""
+    """Finite, in-range matrix of ``shape``, or a (B, *shape) batch when ``B`` is given."""
     A = as_float_array(value, name)
     batched = B is not None and A.ndim != 2
     check_shape(A, ((B,) if batched else ()) + shape, name)
-    return check_finite(A, name)
+    return check_magnitude(check_finite(A, name), name)
 
 
 def _spd(
@@ -110,13 +149,22 @@ def _spd(
     A = validate_spd(A, name, n, batch=batched, semidefinite=semidefinite)
     if batched:
         check_shape(A, (B, n, n), name)
-    return A
+    return check_magnitude(A, name, definite=not semidefinite)
 
 
 def _state(x: ArrayLike, P: ArrayLike) -> tuple[FloatArray, FloatArray, int | None]:
     """Validate ``x`` (n,) | (B, n) and a matching SPD ``P`` (n, n) | (B, n, n)."""
     x, B = _state_vector(x, "x")
     return x, _spd(P, "P", x.shape[-1], B, shared=False), B
+
+
+def _overflow(func: str) -> ValueError:
+    return ValueError(
+        f"{func}: the result is not representable in float64 (overflow); the inputs must "
+        f"satisfy |entry| <= {MAX_ABS:g} with diagonals of P, R >= {MIN_PD_DIAG:g}, and the "
+        "problem must not be so ill-conditioned that products or inverses of them exceed that "
+        "range (rescale the problem, e.g. change units)"
+    )
 
 
 # ------------------------------------------------------------------------- Cholesky solves
@@ -157,6 +205,8 @@ def _update(
         return _update_single(x, P, y, H, R)
     n, m = x.shape[-1], y.shape[-1]
     S = symmetrize(H @ P @ _T(H) + R)  # S = H P H^T + R
+    if not np.all(np.isfinite(S)):
+        raise _overflow("the Kalman update (S = H P H^T + R)")
     L = cholesky_spd(S, "S = H P H^T + R")  # S = L L^T
     K = _T(_cho_solve(L, H @ P))  # K = P H^T S^-1, from S K^T = H P (P, S symmetric)
     x_post = x + _mv(K, y)  # x' = x + K y
@@ -177,7 +227,9 @@ def _update_single(
     S = HP @ H.T + R
     S = 0.5 * (S + S.T)  # S = H P H^T + R
     L, info = dpotrf(S, lower=1, clean=1)  # S = L L^T
-    if info != 0:
+    if info != 0 or not np.isfinite(L[-1, -1]):
+        if not np.all(np.isfinite(S)):
+            raise _overflow("the Kalman update (S = H P H^T + R)")
         raise ValueError("S = H P H^T + R is not positive definite (Cholesky failed)")
     KT, _ = dpotrs(L, HP, lower=1)  # S K^T = H P  ->  K^T = S^-1 H P
     K = KT.T
@@ -206,15 +258,31 @@ def kf_predict(
         ``(x, P)``: predicted mean (n,) | (B, n) and symmetrized covariance (n, n) | (B, n, n).
 
     Raises:
-        ValueError: wrong shape, NaN/inf, or ``P``/``Q`` not SPD (the message names the argument).
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: wrong shape (naming the argument that disagrees with the others), NaN/inf,
+            ``P``/``Q`` not SPD/PSD, entries outside the valid range (|entry| <= ``MAX_ABS``,
+            diagonal of ``P`` >= ``MIN_PD_DIAG``) or a result that overflows float64.
     """
-    x, P, B = _state(x, P)
-    n = x.shape[-1]
-    F = _matrix(F, "F", (n, n), B)
-    Q = _spd(Q, "Q", n, B, semidefinite=True)
-    x_prior = _mv(F, x)  # x' = F x
-    P_prior = symmetrize(F @ P @ _T(F) + Q)  # P' = F P F^T + Q
+    xa, Pa, Fa, Qa = _checked_model(x, P, F, Q)
+    x_prior = _mv(Fa, xa)  # x' = F x
+    P_prior = symmetrize(Fa @ Pa @ _T(Fa) + Qa)  # P' = F P F^T + Q
+    if not all_finite(x_prior, P_prior):
+        raise _overflow("kf_predict")
     return x_prior, P_prior
+
+
+def _checked_model(
+    x: ArrayLike, P: ArrayLike, F: ArrayLike, Q: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Validated ``(x, P, F, Q)`` of :func:`kf_predict` / :class:`KalmanFilter`."""
+    try:
+        xa, Pa, B = _state(x, P)
+        n = xa.shape[-1]
+        Fa = _matrix(F, "F", (n, n), B)
+        Qa = _spd(Q, "Q", n, B, semidefinite=True)
+    except ShapeError as exc:
+        raise _blame(exc, x=x, P=P, F=F, Q=Q) from None
+    return xa, Pa, Fa, Qa
 
 
 def kf_update(
@@ -237,26 +305,41 @@ def kf_update(
         z: measurement, (m,) or (B, m) (batched iff ``x`` is).
         H: measurement matrix, (m, n) or (B, m, n).
         R: SPD measurement noise covariance, (m, m) or (B, m, m).
-        validate: check shapes, finiteness and SPD-ness (default). ``False`` is for hot paths
-            whose inputs are known good (float64 arrays of the right shapes): it skips the
-            checks, which dominate the cost of small updates; a non-SPD ``S`` still raises.
+        validate: check shapes, finiteness, SPD-ness and the valid range (default). ``False``
+            is for hot paths whose inputs are known good (float64 arrays of the right
+            shapes): it skips those checks, which dominate the cost of small updates; the
+            types are still checked (complex raises, it is never truncated) and a non-SPD
+            ``S`` still raises.
 
     Returns:
         Posterior ``x``, ``P`` with the intermediate ``y``, ``S``, ``K`` and ``log_likelihood``.
 
     Raises:
-        ValueError: wrong shape, NaN/inf, or ``P``/``R`` not SPD (the message names the argument).
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: wrong shape (naming the argument that disagrees with the others), NaN/inf,
+            ``P``/``R`` not SPD, entries outside the valid range (|entry| <= ``MAX_ABS``,
+            diagonals of ``P``, ``R`` >= ``MIN_PD_DIAG``) or a result that overflows float64.
     """
     if not validate:
-        xa, Pa, Ha, Ra = (np.asarray(a, dtype=np.float64) for a in (x, P, H, R))
-        return _update(xa, Pa, np.asarray(z, dtype=np.float64) - _mv(Ha, xa), Ha, Ra)
-    x, P, B = _state(x, P)
-    z = _vector(z, "z", B)
-    m, n = z.shape[-1], x.shape[-1]
-    H = _matrix(H, "H", (m, n), B)
-    R = _spd(R, "R", m, B)
-    y = z - _mv(H, x)  # y = z - H x
-    return _update(x, P, y, H, R)
+        xa, Pa = as_float_array(x, "x"), as_float_array(P, "P")
+        za, Ha, Ra = as_float_array(z, "z"), as_float_array(H, "H"), as_float_array(R, "R")
+        return _update(xa, Pa, za - _mv(Ha, xa), Ha, Ra)
+    try:
+        xa, Pa, B = _state(x, P)
+        za = _vector(z, "z", B)
+        m, n = za.shape[-1], xa.shape[-1]
+        Ha = _matrix(H, "H", (m, n), B)
+        Ra = _spd(R, "R", m, B)
+    except ShapeError as exc:
+        raise _blame(exc, x=x, P=P, z=z, H=H, R=R) from None
+    y = za - _mv(Ha, xa)  # y = z - H x
+    return _checked_result(_update(xa, Pa, y, Ha, Ra), "kf_update")
+
+
+def _checked_result(res: KalmanUpdate, func: str) -> KalmanUpdate:
+    if not all_finite(res.x, res.P, res.K, res.log_likelihood):
+        raise _overflow(func)
+    return res
 
 
 def ekf_update(
@@ -284,19 +367,36 @@ def ekf_update(
         As for :func:`kf_update`, with ``H = H_jac(x)`` and ``y = z - h(x)``.
 
     Raises:
-        ValueError: batched input, a wrong shape (including the outputs of ``h`` and ``H_jac``),
-            NaN/inf, or ``P``/``R`` not SPD.
+        TypeError: ``h`` / ``H_jac`` not callable, or an argument or an output of ``h`` /
+            ``H_jac`` not real numeric (complex, bool, str, object).
+        ValueError: batched input, a wrong shape (including the outputs of ``h`` and ``H_jac``;
+            the message names the argument that disagrees with the others), NaN/inf,
+            ``P``/``R`` not SPD, entries outside the valid range or a result that overflows.
     """
-    x, P, B = _state(x, P)
-    if B is not None:
-        raise ValueError(f"ekf_update is unbatched: x must have shape (n,), got {x.shape}")
-    z = _vector(z, "z", None)
-    m, n = z.shape[0], x.shape[0]
-    hx = _vector(h(x.copy()), "h(x)", None, m)  # h(x), (m,)
-    H = _matrix(H_jac(x.copy()), "H_jac(x)", (m, n), None)  # H = dh/dx at x, (m, n)
-    R = _spd(R, "R", m, None)
-    y = z - hx  # y = z - h(x)
-    return _update(x, P, y, H, R)
+    for f, fname in ((h, "h"), (H_jac, "H_jac")):
+        if not callable(f):
+            raise TypeError(f"{fname} must be callable, got {type(f).__name__}")
+    try:
+        xa, Pa, B = _state(x, P)
+        if B is not None:
+            raise ShapeError(
+                f"ekf_update is unbatched: x must have shape (n,), got {xa.shape}", "x"
+            )
+        za = _vector(z, "z", None)
+        as_float_array(R, "R")
+    except ShapeError as exc:
+        raise _blame(exc, batched=False, x=x, P=P, z=z, R=R) from None
+    m, n = za.shape[0], xa.shape[0]
+    hx_raw, H_raw = h(xa.copy()), H_jac(xa.copy())
+    try:
+        hx = _vector(hx_raw, "h(x)", None, m)  # h(x), (m,)
+        Ha = _matrix(H_raw, "H_jac(x)", (m, n), None)  # H = dh/dx at x, (m, n)
+        Ra = _spd(R, "R", m, None)
+    except ShapeError as exc:
+        args = {"x": xa, "P": Pa, "z": z, "h(x)": hx_raw, "H_jac(x)": H_raw, "R": R}
+        raise _blame(exc, batched=False, **args) from None
+    y = za - hx  # y = z - h(x)
+    return _checked_result(_update(xa, Pa, y, Ha, Ra), "ekf_update")
 
 
 def information_update(
@@ -320,21 +420,29 @@ def information_update(
         ``(Y, yv)``: updated information matrix and vector, same shapes as the inputs.
 
     Raises:
-        ValueError: wrong shape, NaN/inf, or ``R`` not SPD (the message names the argument).
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: wrong shape (naming the argument that disagrees with the others), NaN/inf,
+            ``R`` not SPD, entries outside the valid range or a result that overflows float64.
     """
-    yv, B = _state_vector(yv, "yv")
-    batch = (B,) if B is not None else ()
-    n = yv.shape[-1]
-    Y = check_finite(check_shape(as_float_array(Y, "Y"), (*batch, n, n), "Y"), "Y")
-    z = _vector(z, "z", B)
-    m = z.shape[-1]
-    H = _matrix(H, "H", (m, n), B)
-    R = _spd(R, "R", m, B)
-    L = np.broadcast_to(cholesky_spd(R, "R"), (*batch, m, m))  # R = L L^T
-    G = _tri_solve(L, np.broadcast_to(H, (*batch, m, n)))  # G = L^-1 H
-    w = _tri_solve(L, z[..., None])  # w = L^-1 z
-    Y_post = Y + symmetrize(_T(G) @ G)  # Y' = Y + H^T R^-1 H = Y + G^T G
-    yv_post = yv + (_T(G) @ w)[..., 0]  # y' = y + H^T R^-1 z = y + G^T w
+    try:
+        yva, B = _state_vector(yv, "yv")
+        batch = (B,) if B is not None else ()
+        n = yva.shape[-1]
+        Ya = check_shape(as_float_array(Y, "Y"), (*batch, n, n), "Y")
+        Ya = check_magnitude(check_finite(Ya, "Y"), "Y")
+        za = _vector(z, "z", B)
+        m = za.shape[-1]
+        Ha = _matrix(H, "H", (m, n), B)
+        Ra = _spd(R, "R", m, B)
+    except ShapeError as exc:
+        raise _blame(exc, Y=Y, yv=yv, z=z, H=H, R=R) from None
+    L = np.broadcast_to(cholesky_spd(Ra, "R"), (*batch, m, m))  # R = L L^T
+    G = _tri_solve(L, np.broadcast_to(Ha, (*batch, m, n)))  # G = L^-1 H
+    w = _tri_solve(L, za[..., None])  # w = L^-1 z
+    Y_post = Ya + symmetrize(_T(G) @ G)  # Y' = Y + H^T R^-1 H = Y + G^T G
+    yv_post = yva + (_T(G) @ w)[..., 0]  # y' = y + H^T R^-1 z = y + G^T w
+    if not all_finite(Y_post, yv_post):
+        raise _overflow("information_update")
     return Y_post, yv_post
 
 
@@ -355,18 +463,31 @@ class KalmanFilter:
     """
 
     def __init__(self, x: ArrayLike, P: ArrayLike, F: ArrayLike, Q: ArrayLike) -> None:
-        self.x, self.P, B = _state(x, P)
-        n = self.x.shape[-1]
-        self.F: FloatArray = _matrix(F, "F", (n, n), B)
-        self.Q: FloatArray = _spd(Q, "Q", n, B, semidefinite=True)
+        """Validate and store the initial state and the model.
+
+        Raises:
+            TypeError, ValueError: as :func:`kf_predict` (names the argument).
+        """
+        xa, Pa, Fa, Qa = _checked_model(x, P, F, Q)
+        self.x, self.P = xa.copy(), Pa.copy()  # the filter owns its state
+        self.F: FloatArray = Fa
+        self.Q: FloatArray = Qa
 
     def predict(self) -> tuple[FloatArray, FloatArray]:
-        """Advance one step, ``x <- F x``, ``P <- F P F^T + Q``; returns the new ``(x, P)``."""
+        """Advance one step, ``x <- F x``, ``P <- F P F^T + Q``; returns the new ``(x, P)``.
+
+        Raises:
+            ValueError: the prediction overflows float64 (the state is left unchanged).
+        """
         self.x, self.P = kf_predict(self.x, self.P, self.F, self.Q)
         return self.x, self.P
 
     def update(self, z: ArrayLike, H: ArrayLike, R: ArrayLike) -> KalmanUpdate:
-        """Assimilate measurement ``z`` (m,) | (B, m) with model ``H``, ``R`` (see kf_update)."""
+        """Assimilate measurement ``z`` (m,) | (B, m) with model ``H``, ``R`` (see kf_update).
+
+        Raises:
+            TypeError, ValueError: as :func:`kf_update`; the state is left unchanged.
+        """
         result = kf_update(self.x, self.P, z, H, R)
         self.x, self.P = result.x, result.P
         return result

@@ -17,16 +17,31 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from selenv.core.fusion.common import Pair, finite_matrix, root_increasing_batch
+from selenv.core.fusion.common import (
+    Pair,
+    finite_matrix,
+    overflow_error,
+    root_increasing_batch,
+)
 from selenv.core.fusion.dmv import _B_NOT_PD, _W_PROBE, _check_dims, _cubic
-from selenv.core.fusion.pecmv import _solve
-from selenv.core.linalg import SYM_RTOL, FloatArray, as_float_array, check_shape, validate_spd
+from selenv.core.fusion.pecmv import solve_guarded
+from selenv.core.linalg import (
+    SYM_RTOL,
+    FloatArray,
+    ShapeError,
+    as_float_array,
+    blame_shapes,
+    check_finite,
+    check_magnitude,
+    check_shape,
+    validate_spd,
+)
 
 __all__ = ["PECMVBatchResult", "dmv_omega_batch", "pecmv_batch"]
 
 
 def _omega_scalar_batch(a: FloatArray, b: FloatArray, n: int) -> FloatArray:
-    """Vectorised ``selenv.core.fusion.dmv._omega_scalar``: the same cubic, the same safeguarded Newton."""
+    """Vectorised ``selenv.core.fusion.dmv._omega_scalar``: same cubic, same safeguarded Newton."""
     c3, c2, c1, c0 = (
         np.broadcast_to(np.asarray(c, dtype=np.float64), a.shape) for c in _cubic(a, b, n)
     )
@@ -83,44 +98,63 @@ def _spd_batch(value: ArrayLike, name: str, B: int | None = None) -> tuple[Float
     """Validate a (B, n, n) stack of SPD matrices; return it symmetrized with its Cholesky factors.
 
     Fast path: per-matrix ``||A - A^T||_F <= SYM_RTOL ||A||_F / n`` (NaN-safe) and one batched
-    Cholesky; anything else goes to ``validate_spd`` for the canonical ``ValueError``.
+    Cholesky; anything else goes to ``validate_spd`` for the canonical ``ValueError``. Every
+    stack is also checked against the valid range (``check_magnitude``, definite).
     """
     A = as_float_array(value, name)
     if A.ndim != 3 or A.shape[1] != A.shape[2] or A.shape[0] == 0 or A.shape[1] == 0:
         A = validate_spd(A, name, batch=True)
         if A.shape[0] == 0 or A.shape[1] == 0:
-            raise ValueError(f"{name} must be a non-empty (B, n, n) stack, got shape {A.shape}")
+            raise ShapeError(
+                f"{name} must be a non-empty (B, n, n) stack, got shape {A.shape}", name
+            )
     if B is not None:
         check_shape(A, (B, None, None), name)
+    # finite and in range before any arithmetic (which would warn on inf / overflow)
+    check_magnitude(check_finite(A, name), name, definite=True)
     d = A - np.swapaxes(A, 1, 2)
     asym2, norm2 = np.einsum("bij,bij->b", d, d), np.einsum("bij,bij->b", A, A)
-    if not np.all(asym2 <= (SYM_RTOL / A.shape[1]) ** 2 * norm2):  # NaN-safe
+    if not np.all(asym2 <= (SYM_RTOL / A.shape[1]) ** 2 * norm2):
         A = validate_spd(A, name, batch=True)
     A = 0.5 * (A + np.swapaxes(A, 1, 2))
     try:
         L: FloatArray = np.linalg.cholesky(A).astype(np.float64, copy=False)
     except np.linalg.LinAlgError:
         validate_spd(A, name, batch=True)  # raises, naming the argument
-        raise
+        raise ValueError(f"{name} is not positive definite (Cholesky failed)") from None
     return A, L
+
+
+_BATCH_SHAPES = {
+    "P_i": "B n_i n_i",
+    "P_j": "B n_j n_j",
+    "H_i": "B m n_i",
+    "H_j": "B m n_j",
+    "R": ["m m", "B m m"],
+}
 
 
 def _validate_batch(
     P_i: ArrayLike, P_j: ArrayLike, H_i: ArrayLike, H_j: ArrayLike, R: ArrayLike
 ) -> tuple[FloatArray, ...]:
     """``(P_i, L_i, P_j, L_j, H_i, H_j, R)`` validated; ``R`` broadcast to (B, m, m)."""
-    Pi, Li = _spd_batch(P_i, "P_i")
-    Bn, n_i = Pi.shape[0], Pi.shape[1]
-    Pj, Lj = _spd_batch(P_j, "P_j", Bn)
-    Hi = finite_matrix(H_i, "H_i", (Bn, None, n_i))
-    m = Hi.shape[1]
-    if m == 0:
-        raise ValueError("H_i must have at least one row (m >= 1)")
-    Hj = finite_matrix(H_j, "H_j", (Bn, m, Pj.shape[1]))
-    Rm = as_float_array(R, "R")
-    Rm = validate_spd(Rm, "R", m, batch=Rm.ndim == 3)
-    if Rm.ndim == 3:
-        check_shape(Rm, (Bn, m, m), "R")
+    try:
+        Pi, Li = _spd_batch(P_i, "P_i")
+        Bn, n_i = Pi.shape[0], Pi.shape[1]
+        Pj, Lj = _spd_batch(P_j, "P_j", Bn)
+        Hi = finite_matrix(H_i, "H_i", (Bn, None, n_i))
+        m = Hi.shape[1]
+        if m == 0:
+            raise ShapeError("H_i must have at least one row (m >= 1)", "H_i")
+        Hj = finite_matrix(H_j, "H_j", (Bn, m, Pj.shape[1]))
+        Rm = as_float_array(R, "R")
+        Rm = validate_spd(Rm, "R", m, batch=Rm.ndim == 3)
+        if Rm.ndim == 3:
+            check_shape(Rm, (Bn, m, m), "R")
+    except ShapeError as exc:
+        args = {"P_i": P_i, "P_j": P_j, "H_i": H_i, "H_j": H_j, "R": R}
+        raise (blame_shapes(args, _BATCH_SHAPES, error=exc) or exc) from None
+    check_magnitude(Rm, "R", definite=True)
     return Pi, Li, Pj, Lj, Hi, Hj, np.broadcast_to(Rm, (Bn, m, m))
 
 
@@ -141,9 +175,29 @@ def dmv_omega_batch(
         for all rows at once; ``m > 1``: vectorised safeguarded Newton on the m x m cost.
 
     Raises:
+        TypeError: an argument is not real numeric (complex, bool, str, object).
         ValueError: as for :func:`dmv_update` (names the argument).
     """
-    Pi, _, Pj, _, Hi, Hj, Rm = _validate_batch(P_i, P_j, H_i, H_j, R)
+    args = _validate_batch(P_i, P_j, H_i, H_j, R)
+    try:
+        w = _dmv_omega_batch(*args)
+    except (OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+        raise overflow_error("dmv_omega_batch") from None
+    if not np.all(np.isfinite(w)):
+        raise overflow_error("dmv_omega_batch")
+    return w
+
+
+def _dmv_omega_batch(
+    Pi: FloatArray,
+    _Li: FloatArray,
+    Pj: FloatArray,
+    _Lj: FloatArray,
+    Hi: FloatArray,
+    Hj: FloatArray,
+    Rm: FloatArray,
+) -> FloatArray:
+    """:func:`dmv_omega_batch` on validated inputs."""
     Bn, n, m = Pi.shape[0], Pi.shape[1], Hi.shape[1]
     _check_dims(n, m)
     A = np.einsum("bki,bij,blj->bkl", Hi, Pi, Hi)  # H_i P_i H_i^T
@@ -193,16 +247,37 @@ def pecmv_batch(
         once; ``m > 1``: a loop over the exact fast path.
 
     Raises:
-        ValueError: bad shapes, NaN/inf or non-SPD inputs (names the argument).
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: bad shapes (naming the argument that disagrees), NaN/inf, non-SPD inputs,
+            values outside the valid range or a result that overflows float64.
     """
-    Pi, L_i, Pj, L_j, Hi, Hj, Rm = _validate_batch(P_i, P_j, H_i, H_j, R)
+    try:
+        res = _pecmv_batch(*_validate_batch(P_i, P_j, H_i, H_j, R))
+    except (OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+        raise overflow_error("pecmv_batch") from None
+    parts = (res.P, res.K, res.X, res.C)
+    if np.any(np.isnan(res.log_det)) or not all(np.all(np.isfinite(v)) for v in parts):
+        raise overflow_error("pecmv_batch")
+    return res
+
+
+def _pecmv_batch(
+    Pi: FloatArray,
+    L_i: FloatArray,
+    Pj: FloatArray,
+    L_j: FloatArray,
+    Hi: FloatArray,
+    Hj: FloatArray,
+    Rm: FloatArray,
+) -> PECMVBatchResult:
+    """:func:`pecmv_batch` on validated inputs."""
     Bn, m = Pi.shape[0], Hi.shape[1]
     if m > 1:
         L_R = np.linalg.cholesky(Rm)
         rows = []
         for k in range(Bn):
             pair = Pair(Pi[k], L_i[k], Pj[k], L_j[k], Hi[k], Hj[k], Rm[k], L_R[k])
-            rows.append(_solve(pair, "fast"))
+            rows.append(solve_guarded(pair, "fast", None, "pecmv_batch"))
         return PECMVBatchResult(
             **{f: np.stack([getattr(r, f) for r in rows]) for f in ("P", "K", "X", "C")},
             updated=np.array([r.updated for r in rows]),

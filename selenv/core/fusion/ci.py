@@ -58,7 +58,7 @@ from selenv.core.fusion.common import (
     tri_solve,
     vector,
 )
-from selenv.core.linalg import FloatArray
+from selenv.core.linalg import FloatArray, ShapeError, blame_shapes
 
 __all__ = ["CI_METHODS", "CIResult", "covariance_intersection"]
 
@@ -261,10 +261,14 @@ def covariance_intersection(
         raise TypeError(f"method must be a str, one of {CI_METHODS}, got {type(method).__name__}")
     if method not in CI_METHODS:
         raise ValueError(f"method must be one of {CI_METHODS}, got {method!r}")
-    Am, LA = spd(A, "A")
-    n = Am.shape[0]
-    Bm, LB = spd(B, "B", n)
-    av, bv = vector(a, "a", n), vector(b, "b", n)
+    try:
+        Am, LA = spd(A, "A")
+        n = Am.shape[0]
+        Bm, LB = spd(B, "B", n)
+        av, bv = vector(a, "a", n), vector(b, "b", n)
+    except ShapeError as exc:  # name the argument that disagrees with the other three
+        shapes = {"a": "n", "A": "n n", "b": "n", "B": "n n"}
+        raise (blame_shapes({"a": a, "A": A, "b": b, "B": B}, shapes, error=exc) or exc) from None
     ci = _CI(Am, LA, Bm, LB)
     if method == "inverse":
         ici = _ICI(ci)

@@ -18,21 +18,30 @@ from numpy.typing import ArrayLike
 from scipy.linalg.lapack import dpotrf, dtrtrs
 
 from selenv.core.linalg import (
+    MAX_ABS,
+    MIN_PD_DIAG,
     SYM_RTOL,
     FloatArray,
+    ShapeError,
     as_float_array,
+    blame_shapes,
     check_finite,
+    check_magnitude,
     check_shape,
     validate_spd,
 )
 
 __all__ = [
+    "FUSION_SHAPES",
     "Pair",
+    "blame",
+    "check_correction",
     "chol",
     "correction",
     "finite_matrix",
     "joint_covariance_is_admissible",
     "logdet_from_chol",
+    "overflow_error",
     "pair",
     "root_increasing",
     "root_increasing_batch",
@@ -43,50 +52,104 @@ __all__ = [
 ]
 
 
+#: shapes of the fusion arguments in symbols, for :func:`blame`
+FUSION_SHAPES = {
+    "P_i": "n_i n_i",
+    "P_j": "n_j n_j",
+    "H_i": "m n_i",
+    "H_j": "m n_j",
+    "R": "m m",
+    "x_i": "n_i",
+    "residual": "m",
+    "C": "n_i n_j",
+    "X": "n_i n_j",
+}
+
+#: ``norm2 = ||A||_F^2`` inside this interval makes the fast symmetry test exact enough (no
+#: overflow, no underflow of the squared asymmetry) and bounds every entry by ``MAX_ABS``
+_NORM2_LO, _NORM2_HI = 1e-250, MAX_ABS * MAX_ABS
+#: ``min diag L`` above this implies ``min diag A >= MIN_PD_DIAG`` (``A_kk >= L_kk^2``)
+_SQRT_MIN_PD_DIAG = math.sqrt(MIN_PD_DIAG)
+
+
+def overflow_error(func: str) -> ValueError:
+    """The error for a computation that overflowed float64 although its inputs were in range."""
+    return ValueError(
+        f"{func}: the result is not representable in float64 (overflow); the inputs must "
+        f"satisfy |entry| <= {MAX_ABS:g} with positive-definite diagonals >= {MIN_PD_DIAG:g}, "
+        "and the problem must not be so ill-conditioned that products or inverses of them "
+        "exceed that range (rescale the problem, e.g. change units)"
+    )
+
+
+def blame(exc: ShapeError, **args: Any) -> ShapeError:
+    """The shape error naming the argument that disagrees with the others, else ``exc``.
+
+    ``args`` are the raw fusion arguments by name (see :data:`FUSION_SHAPES`); ``None`` skips.
+    """
+    return blame_shapes(args, {k: FUSION_SHAPES[k] for k in args}, error=exc) or exc
+
+
 def spd(value: Any, name: str, n: int | None = None) -> tuple[FloatArray, FloatArray]:
     """Validate one SPD matrix and return it with its lower Cholesky factor ``(A, L)``.
 
     Fast path: ``||A - A^T||_F <= SYM_RTOL ||A||_F / d`` (which implies the max-norm test of
-    ``validate_spd`` and is NaN-safe: a NaN/inf makes it false) and LAPACK ``dpotrf``. Anything
-    that fails it goes to ``validate_spd``, which raises the canonical ``ValueError`` naming
-    ``name`` (or accepts a matrix inside its tolerance).
+    ``validate_spd`` and is NaN-safe: a NaN/inf makes it false) with ``||A||_F^2`` in
+    ``[1e-250, MAX_ABS^2]`` (so that every entry is within ``MAX_ABS``), LAPACK ``dpotrf`` and
+    ``min diag L >= sqrt(MIN_PD_DIAG)`` (so that ``min diag A >= MIN_PD_DIAG``). Anything that
+    fails it goes to ``validate_spd`` and ``check_magnitude``, which raise the canonical
+    ``ValueError`` naming ``name`` (or accept a matrix inside their tolerance).
+
+    Raises:
+        TypeError: not real numeric (complex, bool, str, object).
+        ValueError: wrong shape (a ``ShapeError``), NaN/inf, not symmetric, not positive
+            definite, or outside the valid range.
     """
     A = as_float_array(value, name)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
         A = validate_spd(A, name, n)
         if A.shape[0] == 0:
-            raise ValueError(f"{name} must be at least 1 x 1, got shape {A.shape}")
+            raise ShapeError(f"{name} must be at least 1 x 1, got shape {A.shape}", name)
     elif n is not None and A.shape[0] != n:
         check_shape(A, (n, n), name)
-    d = A - A.T
-    fa = A.ravel()
-    asym2, norm2 = float(d.ravel() @ d.ravel()), float(fa @ fa)
-    if not asym2 <= (SYM_RTOL / A.shape[0]) ** 2 * norm2:  # NaN-safe
-        A = validate_spd(A, name, n)
+    norm2 = float(np.vdot(A, A))  # NaN/inf propagate; vdot never warns (``@`` does)
+    asym2 = math.nan  # the slow path unless A is finite, in range and symmetric enough
+    if _NORM2_LO <= norm2 <= _NORM2_HI:  # finite: A - A^T cannot warn
+        d = A - A.T
+        asym2 = float(np.vdot(d, d))
+    if not asym2 <= (SYM_RTOL / A.shape[0]) ** 2 * norm2:  # NaN compares false
+        A = check_magnitude(validate_spd(A, name, n), name, definite=True)
     elif asym2 > 0.0:
         A = 0.5 * (A + A.T)
     L, info = dpotrf(A, lower=1, clean=1)
     if info != 0:
         validate_spd(A, name, n)  # raises "must be positive definite" with the eigenvalue
         raise ValueError(f"{name} must be positive definite (Cholesky failed, info={info})")
+    if min(L.diagonal().tolist()) < _SQRT_MIN_PD_DIAG:
+        check_magnitude(A, name, definite=True)
     return A, L
 
 
 def finite_matrix(value: ArrayLike, name: str, shape: tuple[int | None, ...]) -> FloatArray:
-    """Finite float64 array of ``shape`` (``None`` matches any length); ``ValueError`` names it."""
+    """Finite float64 array of ``shape`` (``None``: any length) with ``|entry| <= MAX_ABS``.
+
+    Raises:
+        TypeError: not real numeric.
+        ValueError: wrong shape (a ``ShapeError``), NaN/inf or an entry beyond ``MAX_ABS``
+            (names ``name``).
+    """
     A = as_float_array(value, name)
     if A.ndim != len(shape) or any(
         w is not None and w != g for w, g in zip(shape, A.shape, strict=True)
     ):
         check_shape(A, shape, name)  # raises with the expected shape
-    flat = A.ravel()
-    if not np.isfinite(float(flat @ flat)):  # NaN/inf propagate; overflow falls to the check
-        check_finite(A, name)
+    if not float(np.vdot(A, A)) <= _NORM2_HI:  # NaN/inf/overflow fall to the exact checks
+        check_magnitude(check_finite(A, name), name)
     return A
 
 
 def vector(value: ArrayLike, name: str, n: int) -> FloatArray:
-    """Finite vector of shape ``(n,)``."""
+    """Finite vector of shape ``(n,)`` (see :func:`finite_matrix`)."""
     return finite_matrix(value, name, (n,))
 
 
@@ -104,24 +167,35 @@ class Pair(NamedTuple):
 
 
 def validate_pair(
-    P_i: ArrayLike, P_j: ArrayLike, H_i: ArrayLike, H_j: ArrayLike, R: ArrayLike
+    P_i: ArrayLike, P_j: ArrayLike, H_i: ArrayLike, H_j: ArrayLike, R: ArrayLike, **extra: Any
 ) -> Pair:
     """Validate the inputs of a relative-measurement update.
 
     ``P_i`` (n_i, n_i), ``P_j`` (n_j, n_j) and ``R`` (m, m) SPD, ``H_i`` (m, n_i) and ``H_j``
-    (m, n_j) finite; ``m`` is taken from ``H_i``. ``ValueError`` names the first bad argument.
+    (m, n_j) finite, all within the valid range of :func:`~selenv.core.linalg.check_magnitude`.
+    ``extra``: the caller's other arguments by name (``x_i``, ``residual``, ``C``, ``X``), only
+    used to name the right argument when shapes disagree (they are validated by the caller).
+
+    Raises:
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: names the first bad argument; for shapes, the one that disagrees with the
+            others (a ``ShapeError``).
     """
-    Pi, Li = spd(P_i, "P_i")
-    Pj, Lj = spd(P_j, "P_j")
-    Hi = finite_matrix(H_i, "H_i", (None, Pi.shape[0]))
-    if Hi.shape[0] == 0:
-        raise ValueError("H_i must have at least one row (m >= 1), got shape (0, n_i)")
-    m = Hi.shape[0]
-    Hj = finite_matrix(H_j, "H_j", (m, Pj.shape[0]))
-    Rm = as_float_array(R, "R")
-    if m == 1 and Rm.shape == (1, 1) and 0.0 < float(Rm[0, 0]) < math.inf:  # scalar noise
-        return Pair(Pi, Li, Pj, Lj, Hi, Hj, Rm, np.sqrt(Rm))
-    Rm, LR = spd(Rm, "R", m)
+    try:
+        Pi, Li = spd(P_i, "P_i")
+        Pj, Lj = spd(P_j, "P_j")
+        Hi = finite_matrix(H_i, "H_i", (None, Pi.shape[0]))
+        if Hi.shape[0] == 0:
+            raise ShapeError("H_i must have at least one row (m >= 1), got shape (0, n_i)", "H_i")
+        m = Hi.shape[0]
+        Hj = finite_matrix(H_j, "H_j", (m, Pj.shape[0]))
+        Rm = as_float_array(R, "R")
+        r = float(Rm[0, 0]) if m == 1 and Rm.shape == (1, 1) else math.nan
+        if MIN_PD_DIAG <= r <= MAX_ABS:  # scalar noise (NaN fails)
+            return Pair(Pi, Li, Pj, Lj, Hi, Hj, Rm, np.sqrt(Rm))
+        Rm, LR = spd(Rm, "R", m)
+    except ShapeError as exc:
+        raise blame(exc, P_i=P_i, P_j=P_j, H_i=H_i, H_j=H_j, R=R, **extra) from None
     return Pair(Pi, Li, Pj, Lj, Hi, Hj, Rm, LR)
 
 
@@ -133,17 +207,20 @@ def pair(
     R: ArrayLike,
     *,
     validate: bool = True,
+    **extra: Any,
 ) -> Pair:
     """:func:`validate_pair`, or with ``validate=False`` only conversion and the factors.
 
     ``validate=False`` is for hot paths whose inputs are known good (float64, right shapes,
-    symmetric, finite), as in :func:`selenv.core.kalman.kf_update`: it skips the shape,
-    symmetry and finiteness checks, which dominate the cost of a scalar update; a matrix that
-    is not positive definite still raises (its Cholesky factor is needed anyway).
+    symmetric, finite, in range), as in :func:`selenv.core.kalman.kf_update`: it skips the
+    shape, symmetry, finiteness and range checks, which dominate the cost of a scalar update;
+    the types are still checked (a complex array raises ``TypeError``, it is never truncated)
+    and a matrix that is not positive definite still raises (its Cholesky factor is needed).
     """
     if validate:
-        return validate_pair(P_i, P_j, H_i, H_j, R)
-    Pi, Pj, Hi, Hj, Rm = (np.asarray(a, dtype=np.float64) for a in (P_i, P_j, H_i, H_j, R))
+        return validate_pair(P_i, P_j, H_i, H_j, R, **extra)
+    Pi, Pj = as_float_array(P_i, "P_i"), as_float_array(P_j, "P_j")
+    Hi, Hj, Rm = as_float_array(H_i, "H_i"), as_float_array(H_j, "H_j"), as_float_array(R, "R")
     if Rm.shape == (1, 1):
         if not float(Rm[0, 0]) > 0.0:
             raise ValueError("R is not positive definite")
@@ -177,6 +254,23 @@ def logdet_from_chol(L: FloatArray) -> float:
     return 2.0 * math.fsum(map(math.log, np.diagonal(L).tolist()))
 
 
+def check_correction(
+    x_i: ArrayLike | None, residual: ArrayLike | None, n: int, m: int
+) -> tuple[FloatArray | None, FloatArray | None]:
+    """Validate the optional ``x_i`` (n,) and ``residual`` (m,) before an update is solved.
+
+    Raises:
+        TypeError: not real numeric.
+        ValueError: ``x_i`` without ``residual``, a wrong shape, NaN/inf or out of range.
+    """
+    if residual is None:
+        if x_i is not None:
+            raise ValueError("residual (z - z_hat, shape (m,)) is required when x_i is given")
+        return None, None
+    r = vector(residual, "residual", m)
+    return (None if x_i is None else vector(x_i, "x_i", n)), r
+
+
 def correction(
     K: FloatArray, x_i: ArrayLike | None, residual: ArrayLike | None
 ) -> tuple[FloatArray | None, FloatArray | None]:
@@ -184,16 +278,22 @@ def correction(
 
     Returns ``(dx, x)``; ``dx`` is ``None`` without ``residual``; ``x`` is ``None`` without
     ``x_i``. Giving ``x_i`` without ``residual`` raises (there is nothing to correct it with).
+
+    Raises:
+        ValueError: as :func:`check_correction`, or a correction that overflows float64.
     """
     n, m = K.shape
-    if residual is None:
-        if x_i is not None:
-            raise ValueError("residual (z - z_hat, shape (m,)) is required when x_i is given")
+    x_v, r_v = check_correction(x_i, residual, n, m)
+    if r_v is None:
         return None, None
-    dx = K @ vector(residual, "residual", m)  # dx = K (z - z_hat)
-    if x_i is None:
-        return dx, None
-    return dx, vector(x_i, "x_i", n) + dx  # x+ = x- + K (z - z_hat)
+    dx = K @ r_v  # dx = K (z - z_hat)
+    x = None if x_v is None else x_v + dx  # x+ = x- + K (z - z_hat)
+    if not (np.all(np.isfinite(dx)) and (x is None or np.all(np.isfinite(x)))):
+        raise ValueError(
+            "the state correction K (z - z_hat) overflows float64; keep the inputs within "
+            f"|entry| <= {MAX_ABS:g} and the problem well conditioned"
+        )
+    return dx, x
 
 
 def joint_covariance_is_admissible(
@@ -209,10 +309,18 @@ def joint_covariance_is_admissible(
         P_j: (n_j, n_j) SPD.
         X: (n_i, n_j) cross-covariance.
         tol: accept ``||C||_2 <= 1 + tol``.
+
+    Raises:
+        TypeError: an argument is not real numeric.
+        ValueError: bad shapes (naming the argument that disagrees), NaN/inf, non-SPD
+            ``P_i``/``P_j`` or values outside the valid range.
     """
-    Pi, Li = spd(P_i, "P_i")
-    Pj, Lj = spd(P_j, "P_j")
-    Xm = finite_matrix(X, "X", (Pi.shape[0], Pj.shape[0]))
+    try:
+        Pi, Li = spd(P_i, "P_i")
+        Pj, Lj = spd(P_j, "P_j")
+        Xm = finite_matrix(X, "X", (Pi.shape[0], Pj.shape[0]))
+    except ShapeError as exc:
+        raise blame(exc, P_i=P_i, P_j=P_j, X=X) from None
     C = tri_solve(Lj, tri_solve(Li, Xm).T).T
     return bool(np.linalg.norm(C, 2) <= 1.0 + tol)
 

@@ -56,21 +56,23 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 
 from selenv.core.fusion.common import (
     Pair,
+    check_correction,
     chol,
-    correction,
     logdet_from_chol,
+    overflow_error,
     pair,
     root_increasing,
     tri_solve,
     validate_pair,
 )
-from selenv.core.linalg import FloatArray
+from selenv.core.linalg import FloatArray, ShapeError, all_finite, as_float_array
 
-__all__ = ["DMVResult", "dmv_cost", "dmv_update"]
+__all__ = ["DMVResult", "checked_omega", "dmv_cost", "dmv_from_pair", "dmv_update"]
 
 _B_NOT_PD = (
     "H_j P_j H_j^T must be positive definite for DMV (agent j must be uncertain along every "
-    "measured direction, so H_j needs rank m); use a Kalman update instead"
+    "measured direction, so H_j needs rank m, and H_j P_j H_j^T must not underflow to zero); "
+    "use a Kalman update instead"
 )
 
 #: ``w`` at which the slope is probed to decide ``w* = 0`` (reachable only when ``n = m``)
@@ -103,11 +105,31 @@ class DMVResult:
 # ----------------------------------------------------------------------------- m = 1: the cubic
 
 
+#: ``a`` or ``b`` above this: the cubic's coefficients are divided by ``max(a, b)^2`` (the
+#: products ``c d``, ``c a`` would overflow float64 near ``1e154``; the roots do not change)
+_CUBIC_SCALE_AT = 1e100
+
+
 def _cubic(a: Any, b: Any, n: int) -> tuple[Any, Any, Any, Any]:
-    """Coefficients ``(c3, c2, c1, c0)`` of the stationarity cubic; ``a``, ``b`` in units of r."""
-    c = b + 1.0  # b + r
-    d = b - a + 1.0  # b - a + r
-    return n, -((n - 1) * (c + d) + 2.0 * c), n * c * d - (n - 2) * a, (n - 1) * c * a
+    """Coefficients ``(c3, c2, c1, c0)`` of the stationarity cubic; ``a``, ``b`` in units of r.
+
+    Scaled by ``1 / s^2``, ``s = max(a, b)``, where ``s > _CUBIC_SCALE_AT`` (same roots; the
+    cubic term may then underflow to 0, which is its true relative size).
+    """
+    s = np.maximum(np.maximum(a, b), _CUBIC_SCALE_AT) / _CUBIC_SCALE_AT
+    if np.ndim(s) == 0 and s == 1.0:
+        c = b + 1.0  # b + r
+        d = b - a + 1.0  # b - a + r
+        return n, -((n - 1) * (c + d) + 2.0 * c), n * c * d - (n - 2) * a, (n - 1) * c * a
+    s = np.where(s > 1.0, np.maximum(a, b), 1.0)
+    a_s, c, d = a / s, (b + 1.0) / s, (b - a + 1.0) / s
+    inv = 1.0 / s
+    return (
+        n * inv * inv,
+        -((n - 1) * (c + d) + 2.0 * c) * inv,
+        n * c * d - (n - 2) * a_s * inv,
+        (n - 1) * c * a_s,
+    )
 
 
 def _omega_scalar(a: float, b: float, n: int) -> float:
@@ -188,18 +210,29 @@ def _derivs_2x2(w: float, A: Sym2, B: Sym2, R: Sym2, n: int) -> tuple[float, flo
     return f1, f2
 
 
+#: ``A``, ``B``, ``R`` are divided by their largest trace when it leaves this range (``f'``
+#: and ``tr(B^-1 A)`` do not change; the 2 x 2 determinants would overflow / underflow)
+_SCALE_RANGE = (1e-50, 1e50)
+
+
 def _omega_general(A: FloatArray, B: FloatArray, R: FloatArray, n: int) -> float:
     """``w*`` for one problem (m >= 2) by safeguarded Newton on ``f'``; ``B`` must be PD."""
     m = A.shape[0]
+    s = max(float(np.trace(A)), float(np.trace(B)), float(np.trace(R)))
+    if not _SCALE_RANGE[0] <= s <= _SCALE_RANGE[1]:  # scale invariant: log det(cX) cancels
+        A, B, R = A / s, B / s, R / s
     if m == 2:  # scalar arithmetic: ~10x less overhead than 2 x 2 LAPACK calls
         (a1, a2), (_, a3) = A.tolist()
         (b1, b2), (_, b3) = B.tolist()
         (r1, r2), (_, r3) = R.tolist()
         Ap, Bp, Rp = (a1, a2, a3), (b1, b2, b3), (r1, r2, r3)
-        det_B = Bp[0] * Bp[2] - Bp[1] * Bp[1]
-        if not (Bp[0] > 0.0 and det_B > 1e-14 * Bp[0] * Bp[2]):
+        # det B / (b1 b3) = 1 - b2^2 / (b1 b3), in ratios (b1 b3 may under- or overflow)
+        if not (b1 > 0.0 and b3 > 0.0 and (1.0 - (b2 / b1) * (b2 / b3)) > 1e-14):
             raise ValueError(_B_NOT_PD)
-        trace_ratio = (Bp[2] * Ap[0] - 2.0 * Bp[1] * Ap[1] + Bp[0] * Ap[2]) / det_B
+        # tr(B^-1 A) = (b3 a1 - 2 b2 a2 + b1 a3) / det B, divided through by b1 b3
+        trace_ratio = (a1 / b1 - 2.0 * (b2 / b1) * (a2 / b3) + a3 / b3) / (
+            1.0 - (b2 / b1) * (b2 / b3)
+        )
 
         def g(w: float) -> tuple[float, float]:
             return _derivs_2x2(w, Ap, Bp, Rp, n)
@@ -306,27 +339,68 @@ def dmv_update(
         residual: (m,) ``z - z_hat``; gives ``dx = K residual``.
         omega: use this ``w`` in [0, 1] instead of optimising eq. (6) (e.g. a learned LDMV
             estimate); ``updated`` is then ``omega < 1``.
-        validate: check shapes, symmetry, finiteness and definiteness (default). ``False``
-            is for hot paths with known-good float64 inputs (as in ``kf_update``): it skips
-            the checks, about half the cost of a scalar update; non-PD factors still raise.
+        validate: check shapes, symmetry, finiteness, definiteness and the valid range
+            (default). ``False`` is for hot paths with known-good float64 inputs (as in
+            ``kf_update``): it skips those checks, about half the cost of a scalar update;
+            types are still checked and non-PD factors still raise.
 
     Returns:
         :class:`DMVResult` with ``P = Pbar(w*)``, ``K = Kbar(w*)``, ``omega = w*``.
 
     Raises:
-        ValueError: bad shapes, NaN/inf, non-SPD ``P_i``/``P_j``/``R``, singular
-            ``H_j P_j H_j^T``, or ``omega`` outside [0, 1] (the message names the argument).
+        TypeError: an argument is not real numeric (complex, bool, str, object), also
+            ``omega``.
+        ValueError: bad shapes (naming the argument that disagrees with the others), NaN/inf,
+            non-SPD ``P_i``/``P_j``/``R``, entries outside the valid range
+            (:func:`~selenv.core.linalg.check_magnitude`) or a result that overflows float64,
+            singular ``H_j P_j H_j^T``, ``x_i`` without ``residual``, or ``omega`` outside
+            [0, 1] (the message names the argument).
     """
-    p = pair(P_i, P_j, H_i, H_j, R, validate=validate)
+    w_given = None if omega is None else checked_omega(omega)
+    p = pair(P_i, P_j, H_i, H_j, R, validate=validate, x_i=x_i, residual=residual)
+    x_v, r_v = check_correction(x_i, residual, p.P_i.shape[0], p.H_i.shape[0])
+    return dmv_from_pair(p, x_v, r_v, w_given, check=validate)
+
+
+def dmv_from_pair(
+    p: Pair,
+    x_v: FloatArray | None,
+    r_v: FloatArray | None,
+    w_given: float | None,
+    *,
+    check: bool = True,
+) -> DMVResult:
+    """:func:`dmv_update` on converted inputs (the shared core of DMV and LDMV).
+
+    ``p`` from ``pair``, ``x_v`` / ``r_v`` from ``check_correction``, ``w_given`` from
+    :func:`checked_omega` (``None``: optimise eq. 6). ``check``: refuse a non-finite result
+    (float64 overflow) with a ``ValueError``.
+    """
     n, m = p.P_i.shape[0], p.H_i.shape[0]
     _check_dims(n, m)
+    try:
+        P, K, w, ld = _solve(p, w_given)
+    except (OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+        raise overflow_error("dmv_update") from None
+    dx = x = None
+    if r_v is not None:
+        dx = K @ r_v  # dx = K (z - z_hat)
+        x = None if x_v is None else x_v + dx  # x+ = x- + K (z - z_hat)
+    if check and (math.isnan(ld) or not all_finite(P, K, *(v for v in (dx, x) if v is not None))):
+        raise overflow_error("dmv_update")
+    return DMVResult(P=P, K=K, omega=float(w), updated=w < 1.0, log_det=ld, dx=dx, x=x)
+
+
+def _solve(p: Pair, w_given: float | None) -> tuple[FloatArray, FloatArray, float, float]:
+    """``(P, K, w, log det P)`` of the DMV update on converted inputs."""
+    n, m = p.P_i.shape[0], p.H_i.shape[0]
     if m == 1:  # scalar fast path: everything in floats, a and b in units of r
         h_i, h_j, r = p.H_i[0], p.H_j[0], float(p.R[0, 0])
         Ph = p.P_i @ h_i  # P_i h_i^T, (n,)
         a, b = float(h_i @ Ph) / r, float(h_j @ (p.P_j @ h_j)) / r
         if not b > 0.0:
             raise ValueError(_B_NOT_PD)
-        w = _omega_scalar(a, b, n) if omega is None else _checked_omega(omega)
+        w = _omega_scalar(a, b, n) if w_given is None else w_given
         ld_Pi = logdet_from_chol(p.L_i)
         if w >= 1.0:
             P, K, ld = p.P_i.copy(), np.zeros((n, 1)), ld_Pi
@@ -341,24 +415,29 @@ def dmv_update(
             P -= (s * r) * K * K.T
             q = (1.0 - w) * a + w * b + w * (1.0 - w)
             ld = ld_Pi - (n - 1) * math.log(w) + math.log(b + 1.0 - w) - math.log(q)
+        return P, K, w, ld
+    PHt = p.P_i @ p.H_i.T
+    A, B = p.H_i @ PHt, p.H_j @ p.P_j @ p.H_j.T
+    A, B = 0.5 * (A + A.T), 0.5 * (B + B.T)
+    try:
+        w = _omega_general(A, B, p.R, n) if w_given is None else w_given
+    except ValueError as exc:
+        if "H_j P_j H_j^T" in str(exc):
+            raise ValueError(_B_NOT_PD) from None
+        raise
+    P, K = _update_at(p, A, B, w)
+    return P, K, w, _cost(p, A, B, w)
+
+
+def checked_omega(omega: Any) -> float:
+    """``omega`` as a float in [0, 1]; a real scalar (not bool, str or complex)."""
+    if isinstance(omega, float | int) and not isinstance(omega, bool):
+        w = float(omega)
     else:
-        PHt = p.P_i @ p.H_i.T
-        A, B = p.H_i @ PHt, p.H_j @ p.P_j @ p.H_j.T
-        A, B = 0.5 * (A + A.T), 0.5 * (B + B.T)
-        try:
-            w = _omega_general(A, B, p.R, n) if omega is None else _checked_omega(omega)
-        except ValueError as exc:
-            if "H_j P_j H_j^T" in str(exc):
-                raise ValueError(_B_NOT_PD) from None
-            raise
-        P, K = _update_at(p, A, B, w)
-        ld = _cost(p, A, B, w)
-    dx, x = correction(K, x_i, residual)
-    return DMVResult(P=P, K=K, omega=float(w), updated=w < 1.0, log_det=ld, dx=dx, x=x)
-
-
-def _checked_omega(omega: float) -> float:
-    w = float(omega)
+        arr = as_float_array(omega, "omega")
+        if arr.ndim != 0:
+            raise ShapeError(f"omega must be a scalar, got shape {arr.shape}", "omega")
+        w = float(arr)
     if not 0.0 <= w <= 1.0:
         raise ValueError(f"omega must be in [0, 1], got {omega!r}")
     return w
@@ -393,12 +472,21 @@ def dmv_cost(
     Returns:
         A float for a scalar ``omega``, else an array of ``omega``'s shape (``+inf`` where
         ``Pbar`` does not exist).
+
+    Raises:
+        TypeError: an argument is not real numeric (complex, bool, str, object).
+        ValueError: as :func:`dmv_update`, or ``omega`` outside [0, 1].
     """
+    w = as_float_array(omega, "omega")
+    if np.any(~((w >= 0.0) & (w <= 1.0))):
+        raise ValueError("omega must lie in [0, 1]")
     p = validate_pair(P_i, P_j, H_i, H_j, R)
     A = p.H_i @ p.P_i @ p.H_i.T
     B = p.H_j @ p.P_j @ p.H_j.T
-    w = np.asarray(omega, dtype=np.float64)
-    if np.any(~((w >= 0.0) & (w <= 1.0))):
-        raise ValueError("omega must lie in [0, 1]")
-    out = np.array([_cost(p, A, B, float(v)) for v in w.ravel()]).reshape(w.shape)
+    try:
+        out = np.array([_cost(p, A, B, float(v)) for v in w.ravel()]).reshape(w.shape)
+    except (OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+        raise overflow_error("dmv_cost") from None
+    if np.any(np.isnan(out)) or np.any(out == -np.inf):
+        raise overflow_error("dmv_cost")
     return float(out) if out.ndim == 0 else out

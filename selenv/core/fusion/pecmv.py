@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -55,22 +56,27 @@ from scipy.linalg.lapack import dpotrf
 
 from selenv.core.fusion.common import (
     Pair,
+    blame,
+    check_correction,
     chol,
-    correction,
     finite_matrix,
     logdet_from_chol,
+    overflow_error,
     pair,
     tri_solve,
     validate_pair,
 )
 from selenv.core.fusion.sdp import pecmv_sdp_cvxpy, solve_reduced
-from selenv.core.linalg import FloatArray
+from selenv.core.linalg import FloatArray, ShapeError, all_finite
 
 __all__ = [
     "PECMV_METHODS",
     "PECMVResult",
+    "checked_C",
+    "pecmv_from_pair",
     "pecmv_objective",
     "pecmv_update",
+    "solve_guarded",
 ]
 
 PECMV_METHODS = ("auto", "closed_form", "fast", "sdp")
@@ -104,6 +110,35 @@ class PECMVResult:
     path: str
     dx: FloatArray | None = None
     x: FloatArray | None = None
+
+
+_NOT_PD = (
+    "pecmv_update: the updated covariance P_i+ is not numerically positive definite (its "
+    "condition number exceeds 1 / eps ~ 1e16, e.g. H_i P_i H_i^T is ~1e16 times larger than "
+    "R, so P_i - U S^-1 U^T cancels); rescale or regularise the problem"
+)
+
+
+def solve_guarded(p: Pair, method: str, C_given: FloatArray | None, func: str) -> PECMVResult:
+    """:func:`_solve` with float64 overflow and a conic-solver crash turned into ``ValueError``.
+
+    Clarabel panics (a Rust ``PanicException``, which derives from ``BaseException`` and would
+    escape ``except Exception``) on a reduced problem too ill-conditioned for its eigenvalue
+    routine, e.g. whitened gains ``||G_i||`` and ``||G_j||`` 1e100 apart.
+    """
+    try:
+        return _solve(p, method, C_given)
+    except (OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+        raise overflow_error(func) from None
+    except BaseException as exc:
+        if type(exc).__name__ != "PanicException":
+            raise
+        msg = (str(exc).splitlines() or ["panic"])[0]
+        raise ValueError(
+            f"{func}: the reduced PECMV problem is too ill-conditioned for the conic solver "
+            f"(Clarabel panicked: {msg}); the whitened measurement gains of agents i and j "
+            "differ by too many orders of magnitude: rescale the problem"
+        ) from None
 
 
 def _assemble(p: Pair, X: FloatArray) -> tuple[FloatArray, FloatArray, float]:
@@ -256,29 +291,74 @@ def pecmv_update(
             ``"sdp"`` (the full problem in cvxpy with Clarabel: the reference, slow).
         C: (n_i, n_j) use ``X = L_i C L_j^T`` instead of optimising (e.g. a learned LPECMV
             estimate); needs ``||C||_2 <= 1``.
-        validate: check shapes, symmetry, finiteness and definiteness (default). ``False``
-            is for hot paths with known-good float64 inputs (as in ``kf_update``): it skips
-            the checks, about half the cost of a scalar update; non-PD factors still raise.
+        validate: check shapes, symmetry, finiteness, definiteness and the valid range
+            (default). ``False`` is for hot paths with known-good float64 inputs (as in
+            ``kf_update``): it skips those checks, about half the cost of a scalar update;
+            types are still checked and non-PD factors still raise.
 
     Returns:
         :class:`PECMVResult` with ``P``, ``K``, ``X*``, ``C*`` and the no-update flag.
 
     Raises:
-        ValueError: bad shapes, NaN/inf, non-SPD ``P_i``/``P_j``/``R``, an unknown ``method``,
-            ``closed_form`` with m > 1, or a ``C`` that is not a contraction (names the argument).
+        TypeError: an argument is not real numeric (complex, bool, str, object), or ``method``
+            is not a str.
+        ValueError: bad shapes (naming the argument that disagrees with the others), NaN/inf,
+            non-SPD ``P_i``/``P_j``/``R``, entries outside the valid range
+            (:func:`~selenv.core.linalg.check_magnitude`) or a result that overflows float64,
+            an unknown ``method``, ``closed_form`` with m > 1, ``x_i`` without ``residual``,
+            or a ``C`` that is not a contraction (names the argument).
         RuntimeError: if a conic solver fails.
     """
+    if not isinstance(method, str):
+        raise TypeError(f"method must be a str, got {type(method).__name__}")
     if method not in PECMV_METHODS:
         raise ValueError(f"method must be one of {PECMV_METHODS}, got {method!r}")
-    p = pair(P_i, P_j, H_i, H_j, R, validate=validate)
+    p = pair(P_i, P_j, H_i, H_j, R, validate=validate, x_i=x_i, residual=residual, C=C)
+    x_v, r_v = check_correction(x_i, residual, p.P_i.shape[0], p.H_i.shape[0])
     C_given = None
     if C is not None:
+        C_given = checked_C(C, p, P_i=P_i, P_j=P_j, H_i=H_i, H_j=H_j)
+    return pecmv_from_pair(p, method, C_given, x_v, r_v, check=validate)
+
+
+def checked_C(C: ArrayLike, p: Pair, **raw: Any) -> FloatArray:
+    """``C`` (n_i, n_j) finite, in range and a contraction ``||C||_2 <= 1`` (+ 1e-9 slack).
+
+    ``raw``: the raw ``P_i, P_j, H_i, H_j`` to name the right argument on a shape error.
+    """
+    try:
         C_given = finite_matrix(C, "C", (p.P_i.shape[0], p.P_j.shape[0]))
-        norm = float(np.linalg.norm(C_given, 2))
-        if norm > 1.0 + 1e-9:
-            raise ValueError(f"C must be a contraction (||C||_2 <= 1), got ||C||_2 = {norm:.6g}")
-    res = _solve(p, method, C_given)
-    dx, x = correction(res.K, x_i, residual)
+    except ShapeError as exc:
+        raise blame(exc, **raw, C=C) from None
+    norm = float(np.linalg.norm(C_given, 2))
+    if norm > 1.0 + 1e-9:
+        raise ValueError(f"C must be a contraction (||C||_2 <= 1), got ||C||_2 = {norm:.6g}")
+    return C_given
+
+
+def pecmv_from_pair(
+    p: Pair,
+    method: str,
+    C_given: FloatArray | None,
+    x_v: FloatArray | None,
+    r_v: FloatArray | None,
+    *,
+    check: bool = True,
+) -> PECMVResult:
+    """:func:`pecmv_update` on converted inputs (the shared core of PECMV and LPECMV).
+
+    As :func:`~selenv.core.fusion.dmv.dmv_from_pair`; ``C_given`` from :func:`checked_C`.
+    """
+    res = solve_guarded(p, method, C_given, "pecmv_update")
+    dx = x = None
+    if r_v is not None:
+        dx = res.K @ r_v  # dx = K (z - z_hat)
+        x = None if x_v is None else x_v + dx  # x+ = x- + K (z - z_hat)
+    parts = (res.P, res.K, res.X, dx, x)
+    if check and not all_finite(*(v for v in parts if v is not None)):
+        raise overflow_error("pecmv_update")
+    if check and not math.isfinite(res.log_det):
+        raise ValueError(_NOT_PD)
     if dx is None:
         return res
     return PECMVResult(
@@ -303,7 +383,20 @@ def pecmv_objective(
 
     Returns:
         ``log det(P_i - U(X) S(X)^-1 U(X)^T)``, which PECMV maximises.
+
+    Raises:
+        TypeError: an argument is not real numeric.
+        ValueError: as :func:`pecmv_update` (names the argument).
     """
-    p = validate_pair(P_i, P_j, H_i, H_j, R)
-    Xm = finite_matrix(X, "X", (p.P_i.shape[0], p.P_j.shape[0]))
-    return _assemble(p, Xm)[2]
+    p = validate_pair(P_i, P_j, H_i, H_j, R, X=X)
+    try:
+        Xm = finite_matrix(X, "X", (p.P_i.shape[0], p.P_j.shape[0]))
+    except ShapeError as exc:
+        raise blame(exc, P_i=P_i, P_j=P_j, H_i=H_i, H_j=H_j, X=X) from None
+    try:
+        ld = _assemble(p, Xm)[2]
+    except (OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+        raise overflow_error("pecmv_objective") from None
+    if math.isnan(ld):
+        raise overflow_error("pecmv_objective")
+    return ld  # -inf: P_i+ singular for this X (e.g. an inadmissible X)

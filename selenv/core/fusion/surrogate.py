@@ -22,8 +22,10 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-from selenv.core.fusion.dmv import DMVResult, dmv_update
-from selenv.core.fusion.pecmv import PECMVResult, pecmv_update
+from selenv.core.fusion.common import check_correction, pair
+from selenv.core.fusion.dmv import DMVResult, checked_omega, dmv_from_pair
+from selenv.core.fusion.pecmv import PECMVResult, checked_C, pecmv_from_pair
+from selenv.core.linalg import as_float_array
 
 __all__ = [
     "SHIPPED_KINDS",
@@ -67,10 +69,13 @@ def load_surrogate(
     it was trained with (``meta["R"]``).
 
     Raises:
+        TypeError: ``kind`` is not a str, or ``R`` is not real numeric.
         ValueError: unknown ``kind``, a surrogate of the other kind, the hook's module is not
             importable, or ``R`` differs from the training ``R`` (the message says how to
             retrain).
     """
+    if not isinstance(kind, str):
+        raise TypeError(f"kind must be a str, got {type(kind).__name__}")
     if kind not in SHIPPED_KINDS:
         raise ValueError(f"kind must be one of {sorted(SHIPPED_KINDS)}, got {kind!r}")
     if surrogate is None:
@@ -87,7 +92,7 @@ def load_surrogate(
             f"surrogate must be an {SHIPPED_KINDS[kind]!r} surrogate, got {surrogate.kind!r}"
         )
     if R is not None:
-        R = np.atleast_2d(np.asarray(R, dtype=np.float64))
+        R = np.atleast_2d(as_float_array(R, "R"))
         R_trained = np.asarray(surrogate.meta.get("R"), dtype=np.float64)
         if R_trained.shape != R.shape or not np.allclose(R_trained, R):
             raise ValueError(
@@ -115,12 +120,19 @@ def ldmv_update(
     defaults to the shipped LDMV checkpoint (:data:`SURROGATE_HOOK`).
 
     Raises:
+        TypeError: an argument is not real numeric (complex, bool, str, object).
         ValueError: bad input (names the argument), a surrogate trained for another ``R``,
-            ``n`` or ``m``.
+            ``n`` or ``m``, or a predicted ``omega`` outside [0, 1].
     """
-    sur = load_surrogate("ldmv", surrogate, R)
-    w = float(np.asarray(sur.predict_omega(P_i, P_j, H_i, H_j)).reshape(-1)[0])
-    return dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, omega=w, validate=validate)
+    p = pair(P_i, P_j, H_i, H_j, R, validate=validate, x_i=x_i, residual=residual)
+    x_v, r_v = check_correction(x_i, residual, p.P_i.shape[0], p.H_i.shape[0])
+    sur = load_surrogate("ldmv", surrogate, p.R)
+    w = np.asarray(sur.predict_omega(p.P_i, p.P_j, p.H_i, p.H_j))
+    if w.size != 1:
+        raise ValueError(
+            f"the surrogate's predict_omega must return one omega, got shape {w.shape}"
+        )
+    return dmv_from_pair(p, x_v, r_v, checked_omega(w.reshape(())), check=validate)
 
 
 def lpecmv_update(
@@ -143,11 +155,14 @@ def lpecmv_update(
     ``"lpecmv"`` (method 3, diagonal ``C``) or ``"lpecmv_full"`` (method 1, full ``C``).
 
     Raises:
+        TypeError: an argument is not real numeric (complex, bool, str, object).
         ValueError: bad input (names the argument), a surrogate trained for another ``R``,
-            ``n`` or ``m``.
+            ``n`` or ``m``, or a predicted ``C`` that is not a contraction.
     """
-    if variant not in ("lpecmv", "lpecmv_full"):
+    if not isinstance(variant, str) or variant not in ("lpecmv", "lpecmv_full"):
         raise ValueError(f"variant must be 'lpecmv' or 'lpecmv_full', got {variant!r}")
-    sur = load_surrogate(variant, surrogate, R)
-    C = np.asarray(sur.predict_C(P_i, P_j, H_i, H_j))
-    return pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, C=C, validate=validate)
+    p = pair(P_i, P_j, H_i, H_j, R, validate=validate, x_i=x_i, residual=residual)
+    x_v, r_v = check_correction(x_i, residual, p.P_i.shape[0], p.H_i.shape[0])
+    sur = load_surrogate(variant, surrogate, p.R)
+    C = checked_C(sur.predict_C(p.P_i, p.P_j, p.H_i, p.H_j), p)
+    return pecmv_from_pair(p, "auto", C, x_v, r_v, check=validate)
