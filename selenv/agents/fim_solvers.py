@@ -121,7 +121,9 @@ def int_indices(value: object, name: str) -> np.ndarray:
         raise TypeError(f"{name} must hold int indices, got dtype {arr.dtype}")
     if arr.dtype.kind == "f":
         raise ValueError(f"{name} must hold integer indices, got {value!r}")
-    return arr.astype(np.intp).reshape(-1)
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D sequence of indices, got shape {arr.shape}")
+    return arr.astype(np.intp)
 
 
 def _finish(Q0: FloatArray, G: FloatArray, indices: Sequence[int], evals: int) -> Selection:

@@ -430,6 +430,7 @@ def information_update(
         n = yva.shape[-1]
         Ya = check_shape(as_float_array(Y, "Y"), (*batch, n, n), "Y")
         Ya = check_magnitude(check_finite(Ya, "Y"), "Y")
+        Ya = validate_spd(Ya, "Y", n, batch=B is not None, semidefinite=True)  # Y = 0 is fine
         za = _vector(z, "z", B)
         m = za.shape[-1]
         Ha = _matrix(H, "H", (m, n), B)
