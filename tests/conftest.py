@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
@@ -47,3 +49,59 @@ def random_pool(
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+# -- hypothesis profiles of the fuzz suite (tests/test_fuzz_*.py) ---------------------------------
+#
+# ``fuzz-ci`` (default): derandomized (same examples on every run and machine), no example
+# database, few examples: the whole fuzz suite runs in well under two minutes.
+# ``fuzz-long``: the same tests with many more examples, plus the tests marked ``fuzz_long``
+# (skipped otherwise). Select it with ``SELENV_FUZZ=long`` or ``-m fuzz_long``:
+#
+#     .venv/bin/python -m pytest tests/test_fuzz_core.py tests/test_fuzz_envs.py   # fuzz-ci
+#     SELENV_FUZZ=long .venv/bin/python -m pytest -m fuzz tests                    # fuzz-long
+#     .venv/bin/python -m pytest -m fuzz_long tests                 # only the long-only tests
+#
+# The names are namespaced: Hypothesis loads its built-in ``ci`` profile by itself on CI, so a
+# profile called ``ci`` would change every other property test of the repository there.
+FUZZ_ENV = "SELENV_FUZZ"
+_FUZZ_COMMON = settings(
+    derandomize=True,
+    database=None,
+    deadline=None,
+    print_blob=True,
+    suppress_health_check=[
+        HealthCheck.too_slow,
+        HealthCheck.data_too_large,
+        HealthCheck.filter_too_much,
+        HealthCheck.large_base_example,
+    ],
+)
+settings.register_profile("fuzz-ci", _FUZZ_COMMON, max_examples=12)
+settings.register_profile("fuzz-long", _FUZZ_COMMON, max_examples=300)
+_LONG_BY_MARKER = False
+
+
+def fuzz_long_selected() -> bool:
+    """Whether the long fuzz profile is selected (``SELENV_FUZZ=long`` or ``-m fuzz_long``)."""
+    return _LONG_BY_MARKER or os.environ.get(FUZZ_ENV, "").strip().lower() == "long"
+
+
+def fuzz_settings(weight: float = 1.0) -> settings:
+    """Settings of one fuzz test: the selected profile, ``weight`` times its example count."""
+    profile = settings.get_profile("fuzz-long" if fuzz_long_selected() else "fuzz-ci")
+    return settings(profile, max_examples=max(1, round(profile.max_examples * weight)))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    global _LONG_BY_MARKER
+    _LONG_BY_MARKER = "fuzz_long" in (config.getoption("markexpr", "") or "")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if fuzz_long_selected():
+        return
+    skip = pytest.mark.skip(reason=f"long fuzz test: run with {FUZZ_ENV}=long or -m fuzz_long")
+    for item in items:
+        if "fuzz_long" in item.keywords:
+            item.add_marker(skip)

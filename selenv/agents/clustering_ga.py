@@ -20,7 +20,6 @@ retrying blindly and counts "move to a new cluster" once, not once per unused la
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -38,11 +37,29 @@ from selenv.scenarios.clustering_labels import (
     is_feasible,
     random_feasible_clustering,
 )
+from selenv.scenarios.validation import (
+    ArgumentTypeError,
+    as_generator,
+    check_bool,
+    check_generator,
+    check_real,
+    describe,
+)
 
 #: batched cost: ``evaluate(candidates (B, n) int) -> J (B,) float``
 Evaluate = Callable[[IntArray], ArrayLike]
 
+#: largest population ``N_S`` (the paper uses 20; every member is evaluated each generation)
+MAX_POPULATION = 10_000
+#: largest ``max_tries`` (random draws per operator call before falling back to the parent)
+MAX_TRIES = 10_000
+#: largest selection spread ``alpha`` (beyond ~1 the partner rank is already near uniform)
+MAX_ALPHA = 100.0
+
 __all__ = [
+    "MAX_ALPHA",
+    "MAX_POPULATION",
+    "MAX_TRIES",
     "GAConfig",
     "GeneticClustering",
     "align_labels",
@@ -60,14 +77,32 @@ __all__ = [
 
 
 def _check_alpha(alpha: object) -> float:
-    a = float(alpha) if isinstance(alpha, int | float | np.number) else math.nan
-    if isinstance(alpha, bool) or not (math.isfinite(a) and a > 0):
-        raise ValueError(f"alpha must be a finite number > 0, got {alpha!r}")
-    return a
+    return check_real(alpha, "alpha", 0.0, MAX_ALPHA, low_open=True)
+
+
+def _check_caps(max_size: object, max_tries: object) -> tuple[int, int]:
+    """The ``max_size`` and ``max_tries`` of an operator call, validated."""
+    return check_int(max_size, "max_size", 1), check_int(max_tries, "max_tries", 1, MAX_TRIES)
+
+
+def _label_counts(x: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+    """``(labels in use (sorted), index of each agent's label among them, cluster sizes)``.
+
+    ``np.bincount`` for compact labels (the GA's canonical ones), ``np.unique`` otherwise, so
+    that a label like ``10**12`` allocates nothing.
+    """
+    if int(x.max()) < 4 * x.size + 64:
+        all_counts = np.bincount(x)
+        used = all_counts > 0
+        uniq = np.flatnonzero(used)
+        return uniq, (np.cumsum(used) - 1)[x], all_counts[uniq]
+    uniq, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+    return uniq, inverse.reshape(-1), counts
 
 
 def _fits(labels: IntArray, max_size: int) -> bool:
-    return bool(np.bincount(labels).max() <= max_size)
+    """Every cluster of ``labels`` has at most ``max_size`` members (any label values)."""
+    return bool(_label_counts(labels)[2].max() <= max_size)
 
 
 def align_labels(a: ArrayLike, b: ArrayLike) -> IntArray:
@@ -95,9 +130,8 @@ def align_labels(a: ArrayLike, b: ArrayLike) -> IntArray:
 
 
 def _retry(draw: Callable[[], IntArray], x: IntArray, max_size: int, max_tries: int) -> IntArray:
-    """First feasible ``draw()`` out of ``max_tries``, else a copy of the parent ``x``."""
-    max_size = check_int(max_size, "max_size", 1)
-    for _ in range(check_int(max_tries, "max_tries", 1)):
+    """First feasible ``draw()`` out of ``max_tries`` (validated), else a copy of the parent."""
+    for _ in range(max_tries):
         child = draw()
         if _fits(child, max_size):
             return child
@@ -113,14 +147,21 @@ def o1c(
         a: ``(n,)`` first parent; a copy of it is the fallback.
         b: ``(n,)`` second parent, relabelled to ``b'`` by :func:`align_labels` first.
         rng: source of randomness.
-        max_size: cluster-size cap.
-        max_tries: random draws (here cut points) before falling back to a copy of ``a``.
+        max_size: cluster-size cap, an int >= 1.
+        max_tries: random draws (here cut points) before falling back to a copy of ``a``, an
+            int in ``[1, MAX_TRIES]``.
 
     Returns:
         ``(n,)`` feasible child in ``a``'s label space, or a copy of ``a``.
+
+    Raises:
+        TypeError, ValueError: naming the bad argument (labels, ``rng`` not a ``Generator``,
+            ``max_size`` / ``max_tries`` not an int in range).
     """
     x = as_labels(a, "a")
     y = align_labels(x, b)
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
 
     def draw() -> IntArray:
         j = int(rng.integers(1, x.size)) if x.size > 1 else 1  # cut point
@@ -138,6 +179,8 @@ def o2c(
     """
     x = as_labels(a, "a")
     y = align_labels(x, b)
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
     return _retry(lambda: np.where(rng.random(x.size) < 0.5, x, y), x, max_size, max_tries)
 
 
@@ -155,18 +198,23 @@ def o1m(
     """
     x = as_labels(a, "a")
     n_labels = check_int(n_labels, "n_labels", 1)
-    max_size = check_int(max_size, "max_size", 1)
-    check_int(max_tries, "max_tries", 1)
-    sizes = np.bincount(x, minlength=n_labels)
-    used = np.flatnonzero(sizes[:n_labels] > 0)
-    unused = np.flatnonzero(sizes[:n_labels] == 0)
-    targets = np.append(used, unused[:1])  # (L,)
-    over = sizes > max_size
+    check_generator(rng)
+    max_size, _ = _check_caps(max_size, max_tries)
+    # cluster sizes from the labels in use (no array of length n_labels or max(a) + 1)
+    uniq, inverse, counts = _label_counts(x)
+    size_x = counts[inverse]  # (n,) size of each agent's cluster
+    used = uniq[uniq < n_labels]
+    # the smallest label in [0, n_labels) not in use is at most len(uniq)
+    unused = np.setdiff1d(np.arange(min(n_labels, uniq.size + 1)), uniq)[:1]
+    targets = np.append(used, unused)  # (L,)
+    size_t = np.append(counts[uniq < n_labels], np.zeros(unused.size, np.int64))
+    over = counts > max_size
+    over_x = over[inverse]
     # the source cluster of agent i shrinks by one: fine unless another cluster is over the cap
-    src_ok = (over.sum() == 0) | ((over.sum() == 1) & over[x] & (sizes[x] - 1 <= max_size))
-    ok = (targets[None, :] != x[:, None]) & (sizes[targets] < max_size)[None, :] & src_ok[:, None]
+    src_ok = (over.sum() == 0) | ((over.sum() == 1) & over_x & (size_x - 1 <= max_size))
+    ok = (targets[None, :] != x[:, None]) & (size_t < max_size)[None, :] & src_ok[:, None]
     if unused.size:
-        ok[:, -1] &= sizes[x] > 1  # a singleton moved to a new cluster: same partition
+        ok[:, -1] &= size_x > 1  # a singleton moved to a new cluster: same partition
     agents, cols = np.nonzero(ok)  # (n, L) -> feasible moves
     child = x.copy()
     if agents.size:
@@ -182,6 +230,8 @@ def o2m(a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 
     child is feasible iff ``a`` is. Returns a copy of ``a`` if it has a single cluster.
     """
     x = as_labels(a, "a")
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
     i, j = np.nonzero(np.triu(x[:, None] != x[None, :]))
     if i.size == 0:
         return x.copy()
@@ -202,6 +252,8 @@ def o3m(a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 
     w.p. 1/2. Returns a copy of ``a`` if it has a single cluster or no try was feasible.
     """
     x = as_labels(a, "a")
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
     clusters = np.unique(x)
     if clusters.size < 2:
         return x.copy()
@@ -220,9 +272,11 @@ def draw_rank(rng: np.random.Generator, alpha: float, population_size: int) -> i
     """Selection of Alg. 2, steps 4-5: rank ``r`` of the partner, the ``(r+1)``-th best.
 
     Returns ``r = clip(round(|r̄|), 1, N_S - 1)`` with ``r̄ ~ N(0, (alpha (N_S - 1))^2)``: the
-    index of the partner in the population sorted by cost.
+    index of the partner in the population sorted by cost. ``rng`` must be a ``Generator``,
+    ``alpha`` in ``(0, MAX_ALPHA]``, ``population_size`` an int in ``[2, MAX_POPULATION]``.
     """
-    N_S = check_int(population_size, "population_size", 2)
+    check_generator(rng)
+    N_S = check_int(population_size, "population_size", 2, MAX_POPULATION)
     r_bar = rng.normal(0.0, _check_alpha(alpha) * (N_S - 1))  # r̄ ~ N(0, (α(N_S - 1))²)
     return min(max(round(abs(r_bar)), 1), N_S - 1)  # nearest integer in [1, N_S - 1]
 
@@ -232,15 +286,19 @@ class GAConfig:
     """Parameters of :class:`GeneticClustering` (defaults: the paper's alpha 0.1, N_S 20).
 
     Attributes:
-        population_size: ``N_S >= 2``.
-        alpha: selection spread ``> 0`` (:func:`draw_rank`).
+        population_size: ``N_S``, an int in ``[2, MAX_POPULATION]`` (10 000).
+        alpha: selection spread (:func:`draw_rank`), in ``(0, MAX_ALPHA]`` (100).
         operators: the ``O`` vector of Table II: 0/1 flags for (O1C, O2C, O1M, O2M, O3M), at
             least one set. With no crossover enabled the crossover half of a generation is
             filled by mutations; with no mutation enabled the mutation half by crossovers.
-        max_tries: random draws per operator call before falling back to the parent, >= 1.
-        n_labels: label range of O1M (``None``: ``n``).
+        max_tries: random draws per operator call before falling back to the parent, an int
+            in ``[1, MAX_TRIES]`` (10 000).
+        n_labels: label range of O1M, an int >= 1 (``None``: ``n``).
         redraw_partner: draw a new partner rank for every crossover (``False``: once per
-            generation, as Alg. 2 does).
+            generation, as Alg. 2 does); a bool.
+
+    Raises:
+        TypeError, ValueError: naming the field (wrong type, or outside its range).
     """
 
     population_size: int = 20
@@ -251,19 +309,21 @@ class GAConfig:
     redraw_partner: bool = False
 
     def __post_init__(self) -> None:
-        check_int(self.population_size, "population_size", 2)
+        check_int(self.population_size, "population_size", 2, MAX_POPULATION)
         _check_alpha(self.alpha)
-        ops = tuple(self.operators) if isinstance(self.operators, tuple | list) else ()
-        if len(ops) != 5 or any(isinstance(o, str) or o not in (0, 1) for o in ops):
+        ops = tuple(self.operators) if isinstance(self.operators, tuple | list) else None
+        if ops is None or len(ops) != 5 or any(isinstance(o, str) or o not in (0, 1) for o in ops):
             raise ValueError(
-                f"operators must be 5 flags in {{0, 1}} (O1C, O2C, O1M, O2M, O3M), got {ops!r}"
+                "operators must be 5 flags in {0, 1} (O1C, O2C, O1M, O2M, O3M), got "
+                f"{describe(self.operators)}"
             )
         if not any(ops):
             raise ValueError("operators must enable at least one operator, got all zeros")
         object.__setattr__(self, "operators", tuple(int(o) for o in ops))
-        check_int(self.max_tries, "max_tries", 1)
+        check_int(self.max_tries, "max_tries", 1, MAX_TRIES)
         if self.n_labels is not None:
             check_int(self.n_labels, "n_labels", 1)
+        check_bool(self.redraw_partner, "redraw_partner")
 
 
 class GeneticClustering:
@@ -277,12 +337,13 @@ class GeneticClustering:
     first). With a time-invariant cost the best cost never increases.
 
     Args:
-        evaluate: batched cost, ``(B, n)`` canonical labels -> ``(B,)`` float, lower is better.
+        evaluate: batched cost, ``(B, n)`` canonical labels -> ``(B,)`` float, lower is better
+            (a callable; NaN costs are refused).
         initial_labels: ``(n,)`` feasible clustering; the initial population is it plus
             ``N_S - 1`` mutations of it (random feasible clusterings if no O_M is enabled).
-        max_size: cluster-size cap (Problem 1).
+        max_size: cluster-size cap (Problem 1), an int >= 1.
         config: :class:`GAConfig`, default ``GAConfig()``.
-        rng: generator or seed.
+        rng: generator, int seed >= 0 or ``None``.
 
     Attributes:
         population: ``(N_S, n)`` canonical labels sorted by cost.
@@ -291,8 +352,10 @@ class GeneticClustering:
         n_evaluations: candidates passed to ``evaluate`` in total, duplicates included.
 
     Raises:
-        ValueError: if ``initial_labels`` is infeasible (naming the cluster and its size) or
-            ``evaluate`` returns a wrong shape or NaN.
+        TypeError, ValueError: naming the bad argument: ``evaluate`` not callable or
+            returning a wrong shape, non-numbers or NaN; ``initial_labels`` not a label vector
+            or infeasible (naming the cluster and its size); ``config`` not a
+            :class:`GAConfig`; ``rng`` neither a generator nor a seed.
     """
 
     def __init__(
@@ -303,10 +366,16 @@ class GeneticClustering:
         config: GAConfig | None = None,
         rng: np.random.Generator | int | None = None,
     ) -> None:
+        if not callable(evaluate):
+            raise ArgumentTypeError(
+                f"evaluate must be a callable (B, n) labels -> (B,) costs, got {describe(evaluate)}"
+            )
+        if config is not None and not isinstance(config, GAConfig):
+            raise ArgumentTypeError(f"config must be a GAConfig or None, got {describe(config)}")
         self.config = GAConfig() if config is None else config
         self.max_size = check_int(max_size, "max_size", 1)
         self._evaluate = evaluate
-        self._rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self._rng = as_generator(rng)
         x = as_labels(initial_labels, "initial_labels")
         self.n = x.size
         self.n_labels = self.n if self.config.n_labels is None else self.config.n_labels
@@ -383,7 +452,14 @@ class GeneticClustering:
         """Evaluate ``candidates`` ``(B, n)`` in one batch and store them sorted by cost."""
         candidates = np.stack([canonical_labels(c) for c in candidates])
         B = candidates.shape[0]
-        J = np.asarray(self._evaluate(candidates), dtype=np.float64)
+        raw = self._evaluate(candidates)
+        try:
+            J = np.asarray(raw)
+        except ValueError as exc:  # ragged
+            raise ValueError(f"evaluate must return (B,) real costs, got {describe(raw)}") from exc
+        if J.dtype.kind not in "iuf":
+            raise ValueError(f"evaluate must return (B,) real costs, got {describe(raw)}")
+        J = J.astype(np.float64)
         if J.shape != (B,):
             raise ValueError(f"evaluate must return shape ({B},), got {J.shape}")
         if np.any(np.isnan(J)):

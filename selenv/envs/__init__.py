@@ -14,11 +14,13 @@ ENV_IDS: tuple[str, ...] = (
     "selenv/ReceiverClustering-v0",
 )
 
+#: factory functions, not the classes: ``gymnasium.make`` would otherwise pre-check
+#: ``render_mode`` itself and crash on a non-str value (see :mod:`selenv.envs.factories`)
 _ENTRY_POINTS = {
-    "selenv/CLScheduling-v0": "selenv.envs.cl_scheduling:CLSchedulingEnv",
-    "selenv/FIMSelection-v0": "selenv.envs.fim_selection:FIMSelectionEnv",
-    "selenv/LandmarkSelection-v0": "selenv.envs.landmark_selection:LandmarkSelectionEnv",
-    "selenv/ReceiverClustering-v0": "selenv.envs.receiver_clustering:ReceiverClusteringEnv",
+    "selenv/CLScheduling-v0": "selenv.envs.factories:cl_scheduling",
+    "selenv/FIMSelection-v0": "selenv.envs.factories:fim_selection",
+    "selenv/LandmarkSelection-v0": "selenv.envs.factories:landmark_selection",
+    "selenv/ReceiverClustering-v0": "selenv.envs.factories:receiver_clustering",
 }
 
 for _id, _entry in _ENTRY_POINTS.items():

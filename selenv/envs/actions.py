@@ -34,13 +34,19 @@ from typing import Any
 
 import numpy as np
 
+from selenv.scenarios.validation import describe
+
 __all__ = [
     "INVALID_ACTION_MODES",
+    "MAX_PENALTY",
     "InvalidActionRule",
     "check_discrete",
 ]
 
 INVALID_ACTION_MODES = ("noop", "raise", "terminate")
+#: largest ``|invalid_action_penalty|``
+MAX_PENALTY = 1e6
+PENALTY_RANGE = f"[{-MAX_PENALTY:g}, {MAX_PENALTY:g}]"
 
 
 def check_discrete(action: Any, n: int, name: str = "action") -> int:
@@ -69,7 +75,8 @@ class InvalidActionRule:
     Attributes:
         mode: ``"noop"``, ``"raise"`` or ``"terminate"`` (module docstring).
         penalty: added to the reward of an invalid step (``noop``) or given as the reward of
-            the terminating step (``terminate``); finite float, default 0.
+            the terminating step (``terminate``); a float in ``[-1e6, 1e6]`` (rewards are
+            stored as float32 by most learners), default 0.
     """
 
     mode: str = "noop"
@@ -82,9 +89,13 @@ class InvalidActionRule:
             )
         p = self.penalty
         if isinstance(p, bool) or not isinstance(p, int | float | np.integer | np.floating):
-            raise TypeError(f"invalid_action_penalty must be a float, got {type(p).__name__}")
-        if not math.isfinite(float(p)):
-            raise ValueError(f"invalid_action_penalty must be finite, got {p!r}")
+            raise TypeError(
+                f"invalid_action_penalty must be a float in {PENALTY_RANGE}, got {describe(p)}"
+            )
+        if not (math.isfinite(float(p)) and abs(float(p)) <= MAX_PENALTY):
+            raise ValueError(
+                f"invalid_action_penalty must be finite, in {PENALTY_RANGE}, got {p!r}"
+            )
         object.__setattr__(self, "penalty", float(p))
 
     def check(self, what: str, reason: str | None) -> bool:

@@ -12,15 +12,22 @@ from gymnasium import spaces
 
 from selenv.core.linalg import logdet_spd
 from selenv.envs.actions import InvalidActionRule, check_discrete
-from selenv.envs.conventions import EpisodeLengthSpec, check_known_keywords, check_render_mode
+from selenv.envs.conventions import (
+    EpisodeLengthSpec,
+    check_known_keywords,
+    check_render_mode,
+    named_parameters,
+)
 from selenv.envs.rendering import Renderer, draw_cl_scheduling
 from selenv.scenarios.cooperative import (
     FUSION_METHODS,
+    MAX_AGENTS,
     CLConfig,
     CLProblem,
     CLSimulation,
     make_cl_problem,
 )
+from selenv.scenarios.validation import check_choice, check_integer
 
 __all__ = [
     "OBJECTIVES",
@@ -69,12 +76,12 @@ def relative_pairs(n_agents: int, topology: str) -> tuple[tuple[int, int], ...]:
     ``"all"``: every ordered pair; ``"chain"``: neighbours ``i, i + 1`` both ways (a column
     walking through a corridor, each agent in radio / line-of-sight range of its neighbours).
     """
+    check_choice(topology, "topology", TOPOLOGIES)
+    n_agents = check_integer(n_agents, "n_agents", 1, MAX_AGENTS)
     if topology == "all":
         return tuple(permutations(range(n_agents), 2))
-    if topology == "chain":
-        fwd = [(i, i + 1) for i in range(n_agents - 1)]
-        return tuple(fwd + [(j, i) for i, j in fwd])
-    raise ValueError(f"topology must be one of {TOPOLOGIES}, got {topology!r}")
+    fwd = [(i, i + 1) for i in range(n_agents - 1)]
+    return tuple(fwd + [(j, i) for i, j in fwd])
 
 
 class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
@@ -150,7 +157,14 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     preset's value (benchmark: 6 agents, budget 1, horizon 60, ``"trace"``, ``"all"``).
     ``topology``: ``"all"`` directed pairs or ``"chain"`` (neighbours only); or give
     ``relative_pairs`` directly. Other :class:`~selenv.scenarios.cooperative.CLConfig` fields
-    pass through; an unknown keyword raises ``TypeError``.
+    pass through (their ranges are in its docstring: e.g. ``dt`` in ``[1e-3, 1]`` s,
+    ``range_sigma`` in ``[1e-3, 100]`` m, ``horizon`` in ``[1, 100000]``). ``n_agents`` is an
+    int in ``[2, 32]``, ``budget`` an int in ``[1, P]``.
+
+    An unknown keyword raises ``TypeError`` ("got unexpected keyword argument(s) [...]; known:
+    [...]"); a known keyword with a value of the wrong type a ``TypeError`` naming it and the
+    expected type and range (e.g. "dt must be a real number in [0.001, 1] s, got 'x'"); a value
+    out of range a ``ValueError`` naming it and the range.
 
     ## Version History
     * v0: initial version (``invalid_action`` modes and rendering added without changing
@@ -176,12 +190,15 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         **config: Any,
     ) -> None:
         fields = {f.name for f in dataclasses.fields(CLConfig)}
-        check_known_keywords(config, fields - {"n_agents", "horizon"}, "CLScheduling-v0")
+        check_known_keywords(
+            config,
+            fields - {"n_agents", "horizon"},
+            "CLScheduling-v0",
+            named_parameters(type(self)),
+        )
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        if not isinstance(preset, str) or preset not in PRESETS:
-            raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
-        self.preset = preset
+        self.preset = check_choice(preset, "preset", sorted(PRESETS))
         given: dict[str, Any] = {"n_agents": n_agents, "budget": budget, "horizon": horizon}
         given |= {"objective": objective, "topology": topology}
         merged = {**PRESETS[preset], **{k: v for k, v in given.items() if v is not None}, **config}
@@ -191,24 +208,22 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
             merged.pop("horizon"),
         )
         objective, topology = merged.pop("objective"), merged.pop("topology")
-        if fusion not in FUSION_METHODS[1:]:
-            raise ValueError(f"fusion must be one of {FUSION_METHODS[1:]}, got {fusion!r}")
-        if objective not in OBJECTIVES:
-            raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
-        if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 1:
-            raise ValueError(f"budget must be an int >= 1, got {budget!r}")
-        if isinstance(n_agents, bool) or not isinstance(n_agents, int | np.integer) or n_agents < 2:
-            raise ValueError(
-                f"n_agents must be an int >= 2 (relative measurements), got {n_agents!r}"
-            )
+        check_choice(fusion, "fusion", FUSION_METHODS[1:])
+        check_choice(objective, "objective", OBJECTIVES)
+        budget = check_integer(budget, "budget", 1)
+        n_agents = check_integer(n_agents, "n_agents (relative measurements need 2)", 2, MAX_AGENTS)
         if "relative_pairs" in config and given["topology"] is not None:
             raise ValueError("give topology or relative_pairs, not both")
         if "relative_pairs" not in config:
-            merged["relative_pairs"] = relative_pairs(int(n_agents), topology)
+            merged["relative_pairs"] = relative_pairs(n_agents, topology)
         self.topology: str | None = None if "relative_pairs" in config else topology
         self.config = CLConfig(n_agents=n_agents, horizon=horizon, **merged)
         self.pairs: tuple[tuple[int, int], ...] = self.config.relative_pairs
         self.n_pairs = len(self.pairs)
+        if self.n_pairs == 0:
+            raise ValueError("relative_pairs must hold at least one (i, j) pair to schedule")
+        check_integer(budget, f"budget (pairs processed per step; {self.n_pairs} pairs)", 1,
+                      self.n_pairs)  # fmt: skip
         self.budget, self.fusion, self.objective = int(budget), fusion, objective
         self.horizon = int(horizon)
         self.max_episode_steps = self.budget * self.horizon

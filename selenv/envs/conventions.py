@@ -11,19 +11,38 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Any
 
 from gymnasium.envs.registration import EnvSpec
 
-__all__ = ["EpisodeLengthSpec", "check_known_keywords", "check_render_mode"]
+from selenv.scenarios.validation import ArgumentTypeError, describe
+
+__all__ = [
+    "EpisodeLengthSpec",
+    "check_known_keywords",
+    "check_render_mode",
+    "named_parameters",
+]
 
 
-def check_known_keywords(given: dict[str, Any], known: Any, env_name: str) -> None:
-    """Raise ``TypeError`` for keywords of ``given`` not in ``known``."""
+def named_parameters(cls: type) -> list[str]:
+    """The named keyword parameters of ``cls.__init__`` (not ``self`` nor ``**kwargs``)."""
+    params = inspect.signature(cls.__init__).parameters.values()
+    return [p.name for p in params if p.name != "self" and p.kind != p.VAR_KEYWORD]
+
+
+def check_known_keywords(given: dict[str, Any], known: Any, env_name: str, named: Any = ()) -> None:
+    """Raise ``TypeError`` for keywords of ``given`` (the ``**config`` of an env) not in ``known``.
+
+    The message lists every keyword the constructor accepts: ``known`` and its ``named``
+    parameters.
+    """
     unknown = sorted(set(given) - set(known))
     if unknown:
+        accepted = sorted(set(known) | set(named))
         raise TypeError(
-            f"{env_name} got unexpected keyword argument(s) {unknown}; known: {sorted(known)}"
+            f"{env_name} got unexpected keyword argument(s) {unknown}; known: {accepted}"
         )
 
 
@@ -31,9 +50,14 @@ def check_render_mode(render_mode: Any, metadata: dict[str, Any]) -> str | None:
     """Return ``render_mode`` if it is ``None`` or in ``metadata["render_modes"]``.
 
     Raises:
-        ValueError: any other value, naming the supported modes.
+        TypeError: neither ``None`` nor a str.
+        ValueError: any other str, naming the supported modes.
     """
     modes = metadata["render_modes"]
+    if render_mode is not None and not isinstance(render_mode, str):
+        raise ArgumentTypeError(
+            f"render_mode must be None or one of {modes}, got {describe(render_mode)}"
+        )
     if render_mode is not None and render_mode not in modes:
         raise ValueError(f"render_mode must be None or one of {modes}, got {render_mode!r}")
     return render_mode

@@ -13,18 +13,31 @@ from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer, draw_fim_selection
 from selenv.scenarios.fim_selection import (
+    SENSOR_NAMES,
     FIMProblem,
     config_from,
     make_problem,
 )
+from selenv.scenarios.validation import ArgumentTypeError, check_integer, describe
 
 __all__ = [
     "FIMSelectionEnv",
     "candidate_features",
+    "check_sensors",
     "fim_observation",
     "fim_observation_space",
     "parse_action",
 ]
+
+
+def check_sensors(sensors: Any) -> tuple[Any, ...] | None:
+    """``sensors`` keyword: ``None`` (the preset's) or a tuple / list, returned as a tuple."""
+    if sensors is not None and not isinstance(sensors, tuple | list):
+        raise ArgumentTypeError(
+            f"sensors must be None or a sequence of names from {SENSOR_NAMES}, "
+            f"got {describe(sensors)}"
+        )
+    return None if sensors is None else tuple(sensors)
 
 
 def parse_action(action: Any, n: int, mask: np.ndarray, name: str = "action") -> int:
@@ -142,7 +155,12 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     budget=10, sensors=None, n_agents=None, camera_sigma_px=None, toa_sigma_m=None,
     doppler_sigma_mps=None, randomize=True, invalid_action="noop", invalid_action_penalty=0.0,
     render_mode=None)``; ``None`` keeps the preset's value. Presets: ``example1`` (one
-    camera), ``example2`` (camera + Doppler), ``example3`` (two agents).
+    camera), ``example2`` (camera + Doppler), ``example3`` (two agents). Ranges (an error
+    naming the keyword and its range outside them): ``n_candidates`` an int in ``[1, 5000]``,
+    ``n_agents`` in ``[1, 8]``, ``budget`` in ``[1, N]``, ``camera_sigma_px`` in
+    ``[1e-3, 1e3]`` px, ``toa_sigma_m`` in ``[1e-3, 1e5]`` m, ``doppler_sigma_mps`` in
+    ``[1e-3, 1e5]`` m/s, ``invalid_action_penalty`` in ``[-1e6, 1e6]``
+    (:class:`~selenv.scenarios.fim_selection.FIMScenarioConfig` lists all fields).
 
     ## Version History
     * v0: initial version (``invalid_action`` modes and rendering added without changing
@@ -170,8 +188,9 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
+        check_integer(budget, "budget", 1)  # the type first; the pool size bounds it below
         for key, val in (
-            ("sensors", None if sensors is None else tuple(sensors)),
+            ("sensors", check_sensors(sensors)),
             ("n_agents", n_agents),
             ("camera_sigma_px", camera_sigma_px),
             ("toa_sigma_m", toa_sigma_m),
@@ -182,11 +201,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.config = config_from(preset, **overrides)
         probe = make_problem(self.config, np.random.default_rng(0))  # shapes only
         self.n, self.m, self.d = probe.G.shape
-        if isinstance(budget, bool) or not isinstance(budget, int | np.integer):
-            raise TypeError(f"budget must be an int, got {type(budget).__name__}")
-        if not 1 <= budget <= self.n:
-            raise ValueError(f"budget must lie in [1, {self.n}] (the pool size), got {budget}")
-        self.budget = int(budget)
+        self.budget = check_integer(budget, f"budget (at most the pool size {self.n})", 1, self.n)
         self.max_episode_steps = self.budget
         self.action_space = spaces.Discrete(self.n)
         self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment]

@@ -11,7 +11,12 @@ import numpy as np
 from selenv.core.information import LogDetGainState, whiten
 from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd
 from selenv.envs.actions import InvalidActionRule, check_discrete
-from selenv.envs.conventions import EpisodeLengthSpec, check_known_keywords, check_render_mode
+from selenv.envs.conventions import (
+    EpisodeLengthSpec,
+    check_known_keywords,
+    check_render_mode,
+    named_parameters,
+)
 from selenv.envs.fim_selection import fim_observation, fim_observation_space
 from selenv.envs.rendering import Renderer, draw_landmark_selection
 from selenv.scenarios.landmarks import (
@@ -20,6 +25,7 @@ from selenv.scenarios.landmarks import (
     LandmarkProblem,
     make_landmark_problem,
 )
+from selenv.scenarios.validation import ArgumentTypeError, check_choice, describe
 
 __all__ = ["OBJECTIVES", "LandmarkSelectionEnv", "landmark_cost", "landmark_features"]
 
@@ -101,8 +107,10 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     ``gymnasium.make("selenv/LandmarkSelection-v0", n_landmarks=30, k=2, horizon=300,
     objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
     render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout. Any other
-    :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too; an unknown
-    keyword raises ``TypeError``.
+    :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too (its docstring
+    gives every range: ``n_landmarks`` an int in ``[1, 200]``, ``horizon`` in ``[1, 100000]``,
+    ``dt`` in ``[1e-3, 1]`` s, ...); ``k`` is an int in ``[1, n_landmarks]``. An unknown
+    keyword raises ``TypeError``; a bad value a ``TypeError`` / ``ValueError`` naming it.
 
     ## Version History
     * v0: initial version (``invalid_action`` modes and rendering added without changing
@@ -126,21 +134,21 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     ) -> None:
         fields = {f.name for f in dataclasses.fields(LandmarkConfig)}
         check_known_keywords(
-            config, fields - {"n_landmarks", "horizon", "landmarks"}, "LandmarkSelection-v0"
+            config,
+            fields - {"n_landmarks", "horizon", "landmarks"},
+            "LandmarkSelection-v0",
+            named_parameters(type(self)),
         )
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        if objective not in OBJECTIVES:
-            raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
-        if isinstance(k, bool) or not isinstance(k, int | np.integer):
-            raise TypeError(f"k must be an int, got {type(k).__name__}")
-        if isinstance(n_landmarks, int | np.integer) and not 1 <= k <= n_landmarks:
-            raise ValueError(f"k must lie in [1, n_landmarks={n_landmarks}], got {k}")
-        if landmarks is not None:
-            landmarks = np.asarray(landmarks, dtype=float)
+        check_choice(objective, "objective", OBJECTIVES)
+        if isinstance(k, bool | np.bool_) or not isinstance(k, int | np.integer):
+            raise ArgumentTypeError(f"k must be an int in [1, n_landmarks], got {describe(k)}")
         self.config = LandmarkConfig(
             n_landmarks=n_landmarks, horizon=horizon, landmarks=landmarks, **config
         )
+        if not 1 <= k <= self.config.n_landmarks:
+            raise ValueError(f"k must lie in [1, n_landmarks={self.config.n_landmarks}], got {k}")
         self.n = int(n_landmarks)
         self.k = int(k)
         self.objective = objective

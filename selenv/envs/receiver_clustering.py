@@ -19,6 +19,12 @@ from selenv.scenarios.clustering import (
 )
 from selenv.scenarios.clustering_filters import ClusterFilterBank
 from selenv.scenarios.clustering_labels import random_feasible_clustering
+from selenv.scenarios.validation import (
+    ArgumentTypeError,
+    check_choice,
+    check_integer,
+    describe,
+)
 
 __all__ = [
     "ACTION_MODES",
@@ -37,6 +43,8 @@ __all__ = [
 ]
 
 ACTION_MODES = ("assignment", "edit")
+#: longest episode (the regime path of every step is drawn at reset)
+MAX_STEPS = 100_000
 
 
 INITIALS = ("random", "singletons")
@@ -48,8 +56,7 @@ def _regimes(
     preset: str, p_enter: float | None, p_leave: float | None, degraded_factor: float | None
 ) -> MultipathRegimes | None:
     """The noise model of ``preset`` with the given overrides (``ValueError`` naming them)."""
-    if preset not in PRESETS:
-        raise ValueError(f"preset must be one of {PRESETS}, got {preset!r}")
+    check_choice(preset, "preset", PRESETS)
     given = {"p_enter": p_enter, "p_leave": p_leave, "degraded_factor": degraded_factor}
     overrides = {name: v for name, v in given.items() if v is not None}
     if preset == "paper":
@@ -86,19 +93,22 @@ def clustering_config(
     ``preset="paper"``: fixed ``sigma`` (those three must then be ``None``).
 
     Raises:
-        ValueError: any bad keyword (via :class:`ClusteringConfig` or
-            :class:`~selenv.scenarios.clustering.MultipathRegimes`, naming it), ``horizon < 1``,
-            an unknown ``initial`` or ``preset``.
+        TypeError, ValueError: any bad keyword (via :class:`ClusteringConfig` or
+            :class:`~selenv.scenarios.clustering.MultipathRegimes`, naming it and its range),
+            ``horizon`` not an int in ``[1, MAX_STEPS]`` (100 000), an unknown ``initial`` or
+            ``preset``.
     """
-    if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
-        raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
-    if initial not in INITIALS:
-        raise ValueError(f"initial must be one of {INITIALS}, got {initial!r}")
+    check_integer(horizon, "horizon", 1, MAX_STEPS)
+    check_choice(initial, "initial", INITIALS)
     regimes = _regimes(preset, p_enter, p_leave, degraded_factor)
+    if not isinstance(weights, tuple | list | np.ndarray):
+        raise ArgumentTypeError(f"weights must be 3 numbers, got {describe(weights)}")
+    if not isinstance(prior_std, tuple | list | np.ndarray):
+        raise ArgumentTypeError(f"prior_std must be 3 numbers, got {describe(prior_std)}")
     return ClusteringConfig(
         n_agents=n_agents,
         n_max_states=n_max_states,
-        sigma=None if sigma is None else np.asarray(sigma, dtype=float),
+        sigma=sigma,
         noise_correlation=noise_correlation,
         dt=dt,
         tau=tau,
@@ -120,6 +130,27 @@ def initial_clustering(
     if initial == "singletons":
         return np.arange(problem.n)
     return random_feasible_clustering(problem.n, problem.max_cluster_size, rng)
+
+
+def check_int_labels(action: Any, n: int, name: str = "action") -> np.ndarray:
+    """An assignment action as an integer array (any int dtype); floats are never rounded.
+
+    Raises:
+        TypeError: not an array of integers (floats, even integral, bools, strings, ...); the
+            shape and range are checked by :meth:`ClusteringProblem.check_labels`.
+    """
+    try:
+        arr = np.asarray(action)
+    except ValueError as exc:  # ragged
+        raise ValueError(
+            f"{name} must be an int array of shape ({n},), got {describe(action)}"
+        ) from exc
+    if arr.dtype.kind not in "iu":
+        raise ArgumentTypeError(
+            f"{name} must hold integer labels (an int array of shape ({n},) with values in "
+            f"[0, {n})), got {describe(action)}"
+        )
+    return arr
 
 
 # -- the "edit" action encoding -----------------------------------------------------------------
@@ -372,6 +403,12 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
     prior_std=(1, 1, 1), action_mode="assignment", initial="random", invalid_action="noop",
     invalid_action_penalty=0.0, render_mode=None, preset="multipath", p_enter=None,
     p_leave=None, degraded_factor=None)``. ``n_max_states=None`` lifts the constraint.
+    Ranges (:class:`~selenv.scenarios.clustering.ClusteringConfig` has them all; outside, a
+    ``TypeError`` / ``ValueError`` naming the keyword and its range): ``n_agents`` an int in
+    ``[1, 200]``, ``n_max_states`` an int >= 6, ``sigma`` entries in ``[1e-4, 1e3]``,
+    ``noise_correlation`` in ``[0, 0.99]``, ``dt`` in ``[1e-3, 10]`` s, ``tau`` in
+    ``[1, 10000]``, ``weights`` in ``[0, 1e6]``, ``prior_std`` in ``[1e-3, 1e2]``, ``horizon``
+    in ``[1, 100000]``, ``degraded_factor`` in ``[1, 100]``, probabilities in ``[0, 1]``.
     ``sigma`` given explicitly sets the base levels (the regime path is still drawn);
     ``p_enter``, ``p_leave``, ``degraded_factor`` (``None``: the preset's value) override the
     multipath model and are a ``ValueError`` with ``preset="paper"``.
@@ -425,8 +462,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
             degraded_factor=degraded_factor,
         )
         self.preset = preset
-        if action_mode not in ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        check_choice(action_mode, "action_mode", ACTION_MODES)
         self.n = int(n_agents)
         self.horizon = int(horizon)
         self.max_episode_steps = self.horizon
@@ -520,7 +556,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         if self.action_mode == "assignment":
             problem = self.problem
             assert problem is not None  # reset() ran: the bank exists
-            arr = problem.check_labels(action, "action")
+            arr = problem.check_labels(check_int_labels(action, self.n), "action")
             reason = problem.violation(arr)
             return (
                 (None, f"infeasible: {reason}") if reason else (problem.check_clustering(arr), None)

@@ -70,11 +70,13 @@ from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.fim_selection import (
     candidate_features,
+    check_sensors,
     fim_observation,
     fim_observation_space,
 )
 from selenv.envs.rendering import Renderer, draw_fim_selection
 from selenv.scenarios.fim_selection import config_from, make_problem
+from selenv.scenarios.validation import ArgumentTypeError, check_choice, check_integer, describe
 
 __all__ = ["FIMSelectionParallelEnv", "env", "parallel_env", "raw_env"]
 
@@ -120,33 +122,30 @@ class FIMSelectionParallelEnv(ParallelEnv):
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        check_choice(mode, "mode", MODES)
         overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
         if n_agents is not None:
             overrides["n_agents"] = n_agents
         if sensors is not None:
-            overrides["sensors"] = tuple(sensors)
+            overrides["sensors"] = check_sensors(sensors)
+        if not isinstance(budgets, int | np.integer | tuple | list) or isinstance(budgets, bool):
+            raise ArgumentTypeError(
+                f"budgets must be an int or a sequence of ints (one per agent), "
+                f"got {describe(budgets)}"
+            )
         self.config = config_from(preset, **overrides)
         self.mode = mode
         probe = make_problem(self.config, np.random.default_rng(0))
         n_ag = self.config.n_agents
         self.possible_agents = [f"agent_{i}" for i in range(n_ag)]
         self._pools = {a: probe.pool(i) for i, a in enumerate(self.possible_agents)}
-        if isinstance(budgets, int | np.integer) and not isinstance(budgets, bool):
-            b = [budgets] * n_ag
-        elif isinstance(budgets, Sequence) and not isinstance(budgets, str):
-            b = list(budgets)
-        else:
-            raise TypeError(f"budgets must be an int or a sequence of ints, got {budgets!r}")
+        b = list(budgets) if isinstance(budgets, tuple | list) else [budgets] * n_ag
         if len(b) != n_ag:
             raise ValueError(f"budgets must be an int or {n_ag} ints (one per agent), got {b}")
         self.budgets: dict[str, int] = {}
-        for a, B in zip(self.possible_agents, b, strict=True):
+        for i, (a, B) in enumerate(zip(self.possible_agents, b, strict=True)):
             size = len(self._pools[a])
-            if isinstance(B, bool) or not isinstance(B, int | np.integer) or not 1 <= B <= size:
-                raise ValueError(f"budget of {a} must be an int in [1, {size}], got {B!r}")
-            self.budgets[a] = int(B)
+            self.budgets[a] = check_integer(B, f"budgets[{i}] (budget of {a})", 1, size)
         _, m, d = probe.G.shape
         self._action_spaces = {a: spaces.Discrete(len(p)) for a, p in self._pools.items()}
         self._observation_spaces: dict[str, spaces.Space[Any]] = {}

@@ -42,9 +42,21 @@ import numpy as np
 from selenv.core.linalg import FloatArray
 from selenv.scenarios.clustering_labels import as_labels, canonical_labels
 from selenv.scenarios.clustering_regimes import MultipathRegimes
+from selenv.scenarios.validation import (
+    ArgumentTypeError,
+    check_integer,
+    check_real,
+    check_reals,
+    describe,
+    interval,
+)
 
 __all__ = [
+    "MAX_AGENTS",
+    "MAX_CORRELATION",
+    "MAX_TAU",
     "MEASUREMENTS_PER_AGENT",
+    "RANGES",
     "SHARED_STATES",
     "UNIQUE_STATES",
     "ClusteringConfig",
@@ -75,21 +87,48 @@ def n_measurements(size: int) -> int:
     return MEASUREMENTS_PER_AGENT * size
 
 
+#: largest number of receivers
+MAX_AGENTS = 200
+#: largest window of Algorithm 1 (steps)
+MAX_TAU = 10_000
+#: largest inter-receiver noise correlation (``R`` is singular at ``r = 1``)
+MAX_CORRELATION = 0.99
+#: valid range of the real-valued :class:`ClusteringConfig` fields: ``(low, high, unit)``
+RANGES: dict[str, tuple[float, float, str]] = {
+    "sigma": (1e-4, 1e3, "m"),
+    "dt": (1e-3, 10.0, "s"),
+    "weights": (0.0, 1e6, ""),
+    "prior_std": (1e-3, 1e2, ""),
+}
+
+
 @dataclass(frozen=True, kw_only=True)
 class ClusteringConfig:
     """Parameters of the receiver-clustering scenario (defaults: Greiff et al. Sec. IV-A).
 
+    Every field is validated: a wrong type is a ``TypeError`` (also a ``ValueError``), a value
+    outside its range a ``ValueError``, naming the field and the range.
+
     Attributes:
-        n_agents: number of receivers ``n``.
-        n_max_states: ``N_max`` of Problem 1; ``None`` removes the constraint (Remark 2).
-        sigma: (n_agents, 2) measurement std devs ``(sigma_1i, sigma_2i)``; ``None`` draws them
+        n_agents: number of receivers ``n``, an int in ``[1, MAX_AGENTS]`` (200).
+        n_max_states: ``N_max`` of Problem 1, an int >= 6; ``None`` removes the constraint
+            (Remark 2).
+        sigma: (n_agents, 2) measurement std devs ``(sigma_1i, sigma_2i)``, each in
+            ``[1e-4, 1e3]`` (stored as a read-only float array); ``None`` draws them
             ``U(0, 1]`` from the generator given to :func:`make_clustering_problem`.
-        noise_correlation: inter-receiver noise correlation ``r`` in [0, 1) (eq. 4).
-        dt: step ``h`` of eq. (3).
-        tau: window of Algorithm 1 (steps of the forward pass).
-        weights: ``(alpha_G, alpha_C, alpha_L)`` of eq. (10), non-negative, not all zero.
+        noise_correlation: inter-receiver noise correlation ``r`` (eq. 4), in ``[0, 0.99]``
+            (``r < 1`` in theory; closer to 1 the noise covariance is numerically singular).
+        dt: step ``h`` of eq. (3), in ``[1e-3, 10]`` s.
+        tau: window of Algorithm 1 (steps of the forward pass), an int in ``[1, MAX_TAU]``.
+        weights: ``(alpha_G, alpha_C, alpha_L)`` of eq. (10), each in ``[0, 1e6]``, not all
+            zero.
         prior_std: 1-sigma of the initial belief ``(position, velocity, bias)`` per axis (the
-            paper does not give ``P_0|0``).
+            paper does not give ``P_0|0``), each in ``[1e-3, 1e2]``.
+
+    The ranges keep the Kalman filters of every cluster well conditioned in float64: prior
+    variances up to 1e8 times the smallest noise variance, with correlations up to 0.99 and
+    degraded noise up to 100 times the base level (wider ratios make ``H P H^T + R`` singular
+    to machine precision).
         regimes: time-varying noise (:class:`MultipathRegimes`), ``sigma`` being the base
             levels; ``None`` (the paper) keeps ``sigma`` fixed.
     """
@@ -105,39 +144,51 @@ class ClusteringConfig:
     regimes: MultipathRegimes | None = None
 
     def __post_init__(self) -> None:
-        n = self.n_agents
-        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
-            raise ValueError(f"n_agents must be an int >= 1, got {n!r}")
+        put = object.__setattr__
+        n = check_integer(self.n_agents, "n_agents", 1, MAX_AGENTS)
+        put(self, "n_agents", n)
         nmax = self.n_max_states
         if nmax is not None:
-            if isinstance(nmax, bool) or not isinstance(nmax, int | np.integer):
-                raise ValueError(f"n_max_states must be an int or None, got {nmax!r}")
+            if isinstance(nmax, bool | np.bool_) or not isinstance(nmax, int | np.integer):
+                raise ArgumentTypeError(
+                    f"n_max_states must be an int or None, got {describe(nmax)}"
+                )
             need = max(n_states(1), n_measurements(1))
             if nmax < need:
                 raise ValueError(
                     f"n_max_states={nmax} is below one receiver's state count "
                     f"N(C)={n_states(1)} (4 unique + 2 shared states): no clustering is feasible"
                 )
+            put(self, "n_max_states", int(nmax))
         r = self.noise_correlation
-        if not (isinstance(r, float | int | np.floating) and 0.0 <= float(r) < 1.0):
-            raise ValueError(f"noise_correlation (r) must lie in [0, 1), got {r!r}")
-        if not (np.isfinite(self.dt) and self.dt > 0):
-            raise ValueError(f"dt must be a finite number > 0, got {self.dt!r}")
-        if isinstance(self.tau, bool) or not isinstance(self.tau, int | np.integer) or self.tau < 1:
-            raise ValueError(f"tau must be an int >= 1, got {self.tau!r}")
-        w = np.asarray(self.weights, dtype=float)
-        if w.shape != (3,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+        ok = isinstance(r, float | int | np.floating | np.integer) and not isinstance(r, bool)
+        if not (ok and 0.0 <= float(r) <= MAX_CORRELATION):
+            raise ValueError(
+                f"noise_correlation (r) must lie in [0, 1) and be at most {MAX_CORRELATION:g} "
+                f"(beyond, the noise covariance is numerically singular), got {describe(r)}"
+            )
+        put(self, "noise_correlation", float(r))
+        low, high, unit = RANGES["dt"]
+        put(self, "dt", check_real(self.dt, "dt", low, high, unit=unit))
+        put(self, "tau", check_integer(self.tau, "tau", 1, MAX_TAU))
+        low, high, _ = RANGES["weights"]
+        w = check_reals(self.weights, "weights (alpha_G, alpha_C, alpha_L)", 3, low, high)
+        if not any(v > 0 for v in w):
             raise ValueError(
                 f"weights must be 3 finite non-negative numbers (alpha_G, alpha_C, alpha_L), "
                 f"not all zero; got {self.weights!r}"
             )
-        ps = np.asarray(self.prior_std, dtype=float)
-        if ps.shape != (3,) or not np.all(np.isfinite(ps)) or np.any(ps <= 0):
-            raise ValueError(f"prior_std must be 3 finite numbers > 0, got {self.prior_std!r}")
+        put(self, "weights", w)
+        low, high, unit = RANGES["prior_std"]
+        put(self, "prior_std", check_reals(self.prior_std, "prior_std", 3, low, high, unit=unit))
         if self.sigma is not None:
-            _check_sigma(self.sigma, int(n))
+            sigma = _check_sigma(self.sigma, n).copy()
+            sigma.setflags(write=False)
+            put(self, "sigma", sigma)
         if self.regimes is not None and not isinstance(self.regimes, MultipathRegimes):
-            raise ValueError(f"regimes must be a MultipathRegimes or None, got {self.regimes!r}")
+            raise ArgumentTypeError(
+                f"regimes must be a MultipathRegimes or None, got {describe(self.regimes)}"
+            )
 
     @property
     def max_cluster_size(self) -> int:
@@ -148,14 +199,31 @@ class ClusteringConfig:
 
 
 def _check_sigma(sigma: Any, n: int) -> FloatArray:
-    s = np.asarray(sigma, dtype=float)
+    """``sigma``: a real ``(n, 2)`` array of standard deviations in ``[1e-3, 1e3]``."""
+    low, high, unit = RANGES["sigma"]
+    try:
+        raw = np.asarray(sigma)
+    except ValueError as exc:  # ragged
+        raise ValueError(
+            f"sigma must be a real (n_agents, 2) array, got {describe(sigma)}"
+        ) from exc
+    if raw.dtype.kind not in "iuf":
+        raise ArgumentTypeError(f"sigma must be a real (n_agents, 2) array, got {describe(sigma)}")
+    s = raw.astype(np.float64)
     if s.shape != (n, 2):
         raise ValueError(f"sigma must have shape (n_agents, 2) = ({n}, 2), got {s.shape}")
-    if not np.all(np.isfinite(s)) or np.any(s <= 0):
-        bad = np.argwhere(~(np.isfinite(s) & (s > 0)))[0]
+    bad = ~(np.isfinite(s) & (s > 0))
+    if np.any(bad):
+        i, j = np.argwhere(bad)[0]
         raise ValueError(
-            f"sigma must be finite and > 0 (standard deviations), got sigma[{bad[0]}, {bad[1]}]"
-            f" = {s[bad[0], bad[1]]}"
+            f"sigma must be finite and > 0 (standard deviations), got sigma[{i}, {j}] = {s[i, j]}"
+        )
+    bad = (s < low) | (s > high)
+    if np.any(bad):
+        i, j = np.argwhere(bad)[0]
+        raise ValueError(
+            f"sigma must lie in {interval(low, high)} {unit} (standard deviations), got "
+            f"sigma[{i}, {j}] = {s[i, j]:g}"
         )
     return s
 

@@ -13,6 +13,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from selenv.scenarios.validation import ArgumentTypeError, check_generator, describe
+
 IntArray = NDArray[np.int64]
 
 __all__ = [
@@ -26,12 +28,20 @@ __all__ = [
 ]
 
 
-def check_int(value: object, name: str, low: int) -> int:
-    """``value`` as an int ``>= low``; ``ValueError`` naming ``name`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise ValueError(f"{name} must be an int, got {type(value).__name__}")
+def check_int(value: object, name: str, low: int, high: float = math.inf) -> int:
+    """``value`` as an int in ``[low, high]``; an error naming ``name`` otherwise.
+
+    Raises:
+        ArgumentTypeError: not an int (a ``TypeError`` and a ``ValueError``; floats such as
+            ``2.0`` and bools are refused, never truncated).
+        ValueError: outside ``[low, high]``.
+    """
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise ArgumentTypeError(f"{name} must be an int, got {describe(value)}")
     if value < low:
         raise ValueError(f"{name} must be >= {low}, got {value}")
+    if value > high:
+        raise ValueError(f"{name} must be <= {high:g}, got {value}")
     return int(value)
 
 
@@ -42,7 +52,10 @@ def as_labels(labels: ArrayLike, name: str) -> IntArray:
         ValueError: naming ``name``, unless a non-empty 1-D array of finite integers >= 0
             (integral floats are accepted).
     """
-    arr = np.asarray(labels)
+    try:
+        arr = np.asarray(labels)
+    except ValueError as exc:  # ragged nested sequences
+        raise ValueError(f"{name} must be a 1-D label array, got {describe(labels)}") from exc
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"{name} must be a non-empty 1-D label array, got shape {arr.shape}")
     if arr.dtype.kind == "f":
@@ -96,6 +109,7 @@ def random_feasible_clustering(
     """
     n = check_int(n, "n", 1)
     max_size = check_int(max_size, "max_size", 1)
+    check_generator(rng)
     k = math.ceil(n / max_size) if n_clusters is None else check_int(n_clusters, "n_clusters", 1)
     if k > n:
         raise ValueError(f"n_clusters must be <= n={n}, got {k}")

@@ -13,16 +13,25 @@ from typing import Any
 import numpy as np
 
 from selenv.core.linalg import FloatArray
+from selenv.scenarios.validation import ArgumentTypeError, check_real, describe
 
-__all__ = ["MultipathRegimes"]
+__all__ = ["MAX_DEGRADED_FACTOR", "MultipathRegimes"]
+
+
+#: largest ``degraded_factor`` (noise std multiplier while degraded)
+MAX_DEGRADED_FACTOR = 100.0
 
 
 def _probability(value: Any, name: str, low_open: bool) -> float:
-    ok = isinstance(value, float | int | np.floating | np.integer) and not isinstance(value, bool)
-    v = float(value) if ok else np.nan
+    ok = isinstance(value, float | int | np.floating | np.integer) and not isinstance(
+        value, bool | np.bool_
+    )
+    where = "(0, 1]" if low_open else "[0, 1]"
+    if not ok:
+        raise ArgumentTypeError(f"{name} must be a probability in {where}, got {describe(value)}")
+    v = float(value)
     if not (np.isfinite(v) and (0.0 < v if low_open else 0.0 <= v) and v <= 1.0):
-        interval = "(0, 1]" if low_open else "[0, 1]"
-        raise ValueError(f"{name} must be a probability in {interval}, got {value!r}")
+        raise ValueError(f"{name} must be a probability in {where}, got {value!r}")
     return v
 
 
@@ -41,7 +50,8 @@ class MultipathRegimes:
     Attributes:
         p_enter: per-step probability of entering the degraded state, in [0, 1].
         p_leave: per-step probability of leaving it, in (0, 1].
-        degraded_factor: noise std multiplier while degraded, finite and >= 1.
+        degraded_factor: noise std multiplier while degraded, in ``[1, MAX_DEGRADED_FACTOR]``
+            (100).
     """
 
     p_enter: float = 0.01
@@ -51,11 +61,7 @@ class MultipathRegimes:
     def __post_init__(self) -> None:
         _probability(self.p_enter, "p_enter", low_open=False)
         _probability(self.p_leave, "p_leave", low_open=True)
-        f = self.degraded_factor
-        if isinstance(f, bool) or not isinstance(f, float | int | np.floating | np.integer):
-            raise ValueError(f"degraded_factor must be a number >= 1, got {f!r}")
-        if not (np.isfinite(f) and f >= 1.0):
-            raise ValueError(f"degraded_factor must be a finite number >= 1, got {f!r}")
+        check_real(self.degraded_factor, "degraded_factor", 1.0, MAX_DEGRADED_FACTOR)
 
     @property
     def degraded_fraction(self) -> float:

@@ -44,9 +44,19 @@ from selenv.scenarios.cooperative_models import (
     relative_bearing,
     relative_range,
 )
+from selenv.scenarios.validation import (
+    ArgumentTypeError,
+    check_choice,
+    check_integer,
+    check_real,
+    check_reals,
+    describe,
+)
 
 __all__ = [
     "FUSION_METHODS",
+    "MAX_AGENTS",
+    "MAX_STEPS",
     "TRACKS",
     "CLConfig",
     "CLProblem",
@@ -62,27 +72,81 @@ TRACKS = ("rectangle", "circle", "lemniscate")
 _DEG = np.pi / 180.0
 
 
+#: largest team (``n_agents``): the env has ``n (n - 1)`` directed pairs
+MAX_AGENTS = 32
+#: longest episode / cadence in steps (the noise of every step is drawn at reset)
+MAX_STEPS = 100_000
+
+#: valid range of every real-valued :class:`CLConfig` field: ``(low, high, unit)``
+RANGES: dict[str, tuple[float, float, str]] = {
+    "dt": (1e-3, 1.0, "s"),  # IMU / odometry rates of 1 Hz to 1 kHz
+    "track_size": (0.5, 1000.0, "m"),
+    "speed": (0.01, 20.0, "m/s"),
+    "input_sigma": (1e-6, 100.0, "(m/s^2 or m/s, deg/s)"),
+    "beacons": (-1e5, 1e5, "m"),
+    "range_sigma": (1e-3, 100.0, "m"),
+    "bearing_sigma_deg": (1e-3, 90.0, "deg"),
+    "zupt_sigma": (1e-4, 10.0, "m/s"),
+}
+#: valid range of each entry of ``init_sigma`` (position, velocity, attitude)
+INIT_SIGMA_RANGES: tuple[tuple[float, float, str], ...] = (
+    (1e-3, 1e3, "m"),
+    (1e-4, 100.0, "m/s"),
+    (1e-3, 90.0, "deg"),
+)
+
+
+def _names(value: Any, name: str, choices: Sequence[str]) -> tuple[str, ...]:
+    """A non-empty tuple of names taken from ``choices``."""
+    if not isinstance(value, tuple | list) or not value:
+        raise ArgumentTypeError(
+            f"{name} must be a non-empty tuple of names from {tuple(choices)}, "
+            f"got {describe(value)}"
+        )
+    return tuple(check_choice(v, f"{name}[{i}]", choices) for i, v in enumerate(value))
+
+
+def _rows(value: Any, name: str, width: int, what: str) -> list[Any]:
+    """``value`` as a list of rows of ``width`` items (tuples, lists or 1-D arrays)."""
+    rows = list(value) if isinstance(value, tuple | list | np.ndarray) else None
+    if rows is None or any(
+        not isinstance(r, tuple | list | np.ndarray) or len(r) != width for r in rows
+    ):
+        raise ArgumentTypeError(f"{name} must be a sequence of {what}, got {describe(value)}")
+    return rows
+
+
 @dataclass(frozen=True, kw_only=True)
 class CLConfig:
     """Scenario parameters (defaults: two pedestrians, the paper's agent-1/agent-2 roles).
 
+    Every field is validated: a wrong type is a ``TypeError`` (also a ``ValueError``), a value
+    outside its range a ``ValueError``, naming the field and the range.
+
     Attributes:
-        n_agents: number of agents.
+        n_agents: number of agents, an int in ``[1, MAX_AGENTS]`` (32).
         model: ``"ins"`` (9 states) or ``"unicycle"`` (3 states).
-        horizon: number of steps; ``dt``: step (s).
+        horizon: number of steps, an int in ``[1, MAX_STEPS]`` (100 000).
+        dt: step (s), in ``[1e-3, 1]``.
         tracks: track per agent (cycled): ``rectangle``, ``circle``, ``lemniscate``.
-        track_size: half-width of the tracks (m); ``speed``: walking speed (m/s).
+        track_size: half-width of the tracks (m), in ``[0.5, 1000]``.
+        speed: walking speed (m/s), in ``[0.01, 20]``.
         input_sigma: per-agent input noise, ``((accel m/s^2, gyro deg/s), ...)`` for ins or
-            ``((speed m/s, turn rate deg/s), ...)`` for unicycle, cycled over agents.
-        beacons: beacon positions ``((x, y, z), ...)`` (m).
-        beacon_agents: agents that range to the beacons; ``beacon_every``: steps between.
-        relative_pairs: directed pairs ``(i, j)``: ``i`` measures ``j``; ``relative_every``.
-        range_sigma: range noise (m); ``bearing_sigma_deg``: bearing noise, ``None``: no bearing.
+            ``((speed m/s, turn rate deg/s), ...)`` for unicycle, cycled over agents; every
+            entry in ``[1e-6, 100]``.
+        beacons: beacon positions ``((x, y, z), ...)`` (m), coordinates in ``[-1e5, 1e5]``.
+        beacon_agents: agents (ints in ``[0, n_agents)``) that range to the beacons;
+            ``beacon_every``: steps between, an int in ``[1, MAX_STEPS]``.
+        relative_pairs: directed pairs ``(i, j)`` of ints, ``i != j`` in ``[0, n_agents)``:
+            ``i`` measures ``j``; ``relative_every``: steps between, in ``[1, MAX_STEPS]``.
+        range_sigma: range noise (m), in ``[1e-3, 100]``; ``bearing_sigma_deg``: bearing noise
+            (deg) in ``[1e-3, 90]``, ``None``: no bearing.
         init_sigma: initial error ``(position m, velocity m/s, attitude deg)`` (unicycle uses
-            position and attitude).
-        zupt_every: ins only: every this many steps each agent's filter gets a velocity
-            pseudo-measurement (true velocity + N(0, zupt_sigma^2)), standing in for the
-            zero-velocity updates of the paper's ZUPT-aided pedestrian INS; ``None``: none.
+            position and attitude), in ``[1e-3, 1e3]``, ``[1e-4, 100]``, ``[1e-3, 90]``.
+        zupt_every: ins only: every this many steps (an int in ``[1, MAX_STEPS]``) each agent's
+            filter gets a velocity pseudo-measurement (true velocity + N(0, zupt_sigma^2)),
+            standing in for the zero-velocity updates of the paper's ZUPT-aided pedestrian
+            INS; ``None``: none. ``zupt_sigma`` (m/s) in ``[1e-4, 10]``.
     """
 
     n_agents: int = 2
@@ -105,44 +169,54 @@ class CLConfig:
     zupt_sigma: float = 0.05
 
     def __post_init__(self) -> None:
-        for name, low in (("n_agents", 1), ("horizon", 1), ("beacon_every", 1)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < low:
-                raise ValueError(f"{name} must be an int >= {low}, got {v!r}")
-        for name in ("relative_every", "zupt_every"):  # cadences: whole steps (NaN, 2.5 refused)
-            v = getattr(self, name)
-            if v is None and name == "zupt_every":
-                continue
-            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {v!r}")
-        if not (np.isfinite(self.zupt_sigma) and self.zupt_sigma > 0):
-            raise ValueError(f"zupt_sigma must be > 0, got {self.zupt_sigma!r}")
-        if self.model not in MODELS:
-            raise ValueError(f"model must be one of {sorted(MODELS)}, got {self.model!r}")
-        for name in ("dt", "track_size", "speed", "range_sigma"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        if not self.tracks or any(t not in TRACKS for t in self.tracks):
-            raise ValueError(f"tracks must be taken from {TRACKS}, got {self.tracks!r}")
-        sig = np.asarray(self.input_sigma, dtype=float)
-        if sig.ndim != 2 or sig.shape[1] != 2 or not np.all(np.isfinite(sig) & (sig > 0)):
-            raise ValueError(f"input_sigma must be ((s1, s2), ...) with s > 0, got {sig!r}")
-        bea = np.asarray(self.beacons, dtype=float).reshape(-1, 3)
-        if not np.all(np.isfinite(bea)):
-            raise ValueError("beacons must be finite (x, y, z) triples")
-        n = int(self.n_agents)
-        for i in self.beacon_agents:
-            if isinstance(i, bool) or not isinstance(i, int | np.integer) or not 0 <= i < n:
-                raise ValueError(f"beacon_agents holds {i}, outside [0, {n})")
-        for pair in self.relative_pairs:
-            if len(pair) != 2 or not all(0 <= a < n for a in pair) or pair[0] == pair[1]:
-                raise ValueError(f"relative_pairs holds {pair!r}: need (i, j), i != j in [0, {n})")
-        if self.bearing_sigma_deg is not None and not self.bearing_sigma_deg > 0:
-            raise ValueError(f"bearing_sigma_deg must be > 0 or None, got {self.bearing_sigma_deg}")
-        ini = np.asarray(self.init_sigma, dtype=float)
-        if ini.shape != (3,) or not np.all(np.isfinite(ini) & (ini > 0)):
-            raise ValueError(f"init_sigma must be 3 numbers > 0, got {self.init_sigma!r}")
+        put = object.__setattr__
+        n = check_integer(self.n_agents, "n_agents", 1, MAX_AGENTS)
+        put(self, "n_agents", n)
+        put(self, "model", check_choice(self.model, "model", sorted(MODELS)))
+        for name in ("horizon", "beacon_every", "relative_every"):
+            put(self, name, check_integer(getattr(self, name), name, 1, MAX_STEPS))
+        # cadences are whole steps (NaN, 2.5 refused); None switches the ZUPTs off
+        if self.zupt_every is not None:
+            put(self, "zupt_every", check_integer(self.zupt_every, "zupt_every", 1, MAX_STEPS))
+        for name in ("dt", "track_size", "speed", "range_sigma", "zupt_sigma"):
+            low, high, unit = RANGES[name]
+            put(self, name, check_real(getattr(self, name), name, low, high, unit=unit))
+        if self.bearing_sigma_deg is not None:
+            low, high, unit = RANGES["bearing_sigma_deg"]
+            sigma = check_real(self.bearing_sigma_deg, "bearing_sigma_deg", low, high, unit=unit)
+            put(self, "bearing_sigma_deg", sigma)
+        put(self, "tracks", _names(self.tracks, "tracks", TRACKS))
+        low, high, unit = RANGES["input_sigma"]
+        rows = _rows(self.input_sigma, "input_sigma", 2, "(s1, s2) pairs")
+        if not rows:
+            raise ValueError("input_sigma must hold at least one (s1, s2) pair, got ()")
+        put(self, "input_sigma", tuple(
+            check_reals(r, f"input_sigma[{i}]", 2, low, high, unit=unit)
+            for i, r in enumerate(rows)
+        ))  # fmt: skip
+        low, high, unit = RANGES["beacons"]
+        put(self, "beacons", tuple(
+            check_reals(b, f"beacons[{i}]", 3, low, high, unit=unit)
+            for i, b in enumerate(_rows(self.beacons, "beacons", 3, "(x, y, z) triples"))
+        ))  # fmt: skip
+        if not isinstance(self.beacon_agents, tuple | list):
+            got = describe(self.beacon_agents)
+            raise ArgumentTypeError(f"beacon_agents must be a tuple of agent indices, got {got}")
+        put(self, "beacon_agents", tuple(
+            check_integer(i, "beacon_agents entry", 0, n - 1) for i in self.beacon_agents
+        ))  # fmt: skip
+        pairs = []
+        for k, pair in enumerate(_rows(self.relative_pairs, "relative_pairs", 2, "(i, j) pairs")):
+            i, j = (check_integer(a, f"relative_pairs[{k}]", 0, n - 1) for a in pair)
+            if i == j:
+                raise ValueError(f"relative_pairs holds {(i, j)!r}: need (i, j), i != j")
+            pairs.append((i, j))
+        put(self, "relative_pairs", tuple(pairs))
+        init = _rows([self.init_sigma], "init_sigma", 3, "3 numbers (position, velocity, attitude)")
+        put(self, "init_sigma", tuple(
+            check_real(v, f"init_sigma[{i}]", low, high, unit=unit)
+            for i, (v, (low, high, unit)) in enumerate(zip(init[0], INIT_SIGMA_RANGES, strict=True))
+        ))  # fmt: skip
 
     @property
     def agent_model(self) -> AgentModel:

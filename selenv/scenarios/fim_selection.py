@@ -43,9 +43,20 @@ from numpy.typing import ArrayLike
 from selenv.core.information import whiten
 from selenv.core.linalg import FloatArray, as_float_array, check_finite, check_shape
 from selenv.scenarios import kirchner_models as km
+from selenv.scenarios.validation import (
+    ArgumentTypeError,
+    check_bool,
+    check_choice,
+    check_integer,
+    check_real,
+    describe,
+)
 
 __all__ = [
+    "MAX_AGENTS",
+    "MAX_CANDIDATES",
     "PRESETS",
+    "RANGES",
     "SENSOR_NAMES",
     "FIMProblem",
     "FIMScenarioConfig",
@@ -57,28 +68,52 @@ __all__ = [
 SENSOR_NAMES: tuple[str, ...] = ("camera", "toa", "doppler")
 CAMERA, TOA, DOPPLER = 0, 1, 2
 
-_POSITIVE = (
-    "window_s", "camera_sigma_px", "focal_px", "toa_sigma_m", "doppler_sigma_mps",
-    "prior_position_m", "prior_velocity_mps", "prior_curvature_mps2", "prior_cT_m",
-    "prior_cT0_m", "prior_lambda_mps", "start_radius_m", "end_radius_m", "altitude_m",
-)  # fmt: skip
+#: largest number of sensing agents and of candidates per sensor per agent
+MAX_AGENTS = 8
+MAX_CANDIDATES = 5000
+
+#: valid range of every real-valued field of :class:`FIMScenarioConfig`: ``(low, high, unit)``
+RANGES: dict[str, tuple[float, float, str]] = {
+    "window_s": (0.1, 3600.0, "s"),
+    "camera_sigma_px": (1e-3, 1e3, "px"),
+    "focal_px": (1.0, 1e5, "px"),
+    "toa_sigma_m": (1e-3, 1e5, "m"),
+    "doppler_sigma_mps": (1e-3, 1e5, "m/s"),
+    "prior_position_m": (1e-3, 1e4, "m"),
+    "prior_velocity_mps": (1e-4, 100.0, "m/s"),
+    "prior_curvature_mps2": (1e-6, 10.0, "m/s^2"),
+    "prior_cT_m": (1e-3, 1e5, "m"),
+    "prior_cT0_m": (1e-3, 1e7, "m"),
+    "prior_lambda_mps": (1e-3, 1e6, "m/s"),
+    "start_radius_m": (1.0, 1e5, "m"),
+    "end_radius_m": (1.0, 1e5, "m"),
+    "altitude_m": (1.0, 1e5, "m"),
+    "sweep_deg": (-3600.0, 3600.0, "deg"),
+}
 
 
 @dataclass(frozen=True, kw_only=True)
 class FIMScenarioConfig:
-    """Scenario parameters; every field is validated (``ValueError`` naming the field).
+    """Scenario parameters; every field is validated (an error naming the field and its range).
+
+    A value of the wrong type is a ``TypeError`` (which is also a ``ValueError``), a value out
+    of range a ``ValueError``. The ranges (:data:`RANGES`) keep every Fisher information and
+    log det finite in float64 while spanning several decades around the defaults.
 
     Attributes:
         preset: name of the preset this config came from (informational).
-        n_agents: number of sensing agents.
+        n_agents: number of sensing agents, an int in ``[1, MAX_AGENTS]`` (8).
         sensors: subset of ``SENSOR_NAMES`` carried by every agent (stored in canonical order).
-        n_candidates: candidates per sensor per agent.
-        window_s: estimation window length (s).
-        camera_sigma_px, focal_px: image noise std and focal length (pixels).
-        toa_sigma_m: std of ``c T`` (m).
-        doppler_sigma_mps: std of ``lambda F`` (m/s); default 33 ppb of the carrier times ``c``.
-        prior_*: prior standard deviations (see the module docstring).
-        start_radius_m, end_radius_m, altitude_m, sweep_deg: agent path geometry.
+        n_candidates: candidates per sensor per agent, an int in ``[1, MAX_CANDIDATES]`` (5000).
+        window_s: estimation window length (s), in ``[0.1, 3600]``.
+        camera_sigma_px, focal_px: image noise std in ``[1e-3, 1e3]`` and focal length in
+            ``[1, 1e5]`` (pixels).
+        toa_sigma_m: std of ``c T`` (m), in ``[1e-3, 1e5]``.
+        doppler_sigma_mps: std of ``lambda F`` (m/s), in ``[1e-3, 1e5]``; default 33 ppb of the
+            carrier times ``c``.
+        prior_*: prior standard deviations (see the module docstring and :data:`RANGES`).
+        start_radius_m, end_radius_m, altitude_m: agent path geometry (m), in ``[1, 1e5]``;
+            ``sweep_deg`` in ``[-3600, 3600]``.
         stationary: target velocity and curvature are 0 and not estimated (Example 1, d = 2).
         randomize: draw a new geometry per problem.
     """
@@ -106,34 +141,25 @@ class FIMScenarioConfig:
     randomize: bool = False
 
     def __post_init__(self) -> None:
+        put = object.__setattr__
         if not isinstance(self.preset, str):
-            raise ValueError(f"preset must be a str, got {self.preset!r}")
-        for name in ("n_agents", "n_candidates"):
-            val = getattr(self, name)
-            if isinstance(val, bool) or not isinstance(val, int | np.integer) or val < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {val!r}")
-            object.__setattr__(self, name, int(val))
+            raise ArgumentTypeError(f"preset must be a str, got {describe(self.preset)}")
+        put(self, "n_agents", check_integer(self.n_agents, "n_agents", 1, MAX_AGENTS))
+        put(self, "n_candidates", check_integer(self.n_candidates, "n_candidates", 1,
+                                                MAX_CANDIDATES))  # fmt: skip
         sensors = self.sensors
-        bad = isinstance(sensors, str) or not isinstance(sensors, tuple | list) or not sensors
-        if bad or any(x not in SENSOR_NAMES for x in sensors) or len(set(sensors)) < len(sensors):
+        if isinstance(sensors, str) or not isinstance(sensors, tuple | list) or not sensors:
+            raise ArgumentTypeError(
+                f"sensors must be a non-empty tuple of distinct names from {SENSOR_NAMES}, "
+                f"got {describe(sensors)}"
+            )
+        if any(x not in SENSOR_NAMES for x in sensors) or len(set(sensors)) < len(sensors):
             raise ValueError(f"sensors must be distinct names from {SENSOR_NAMES}, got {sensors!r}")
-        object.__setattr__(self, "sensors", tuple(s for s in SENSOR_NAMES if s in self.sensors))
-        for name in (*_POSITIVE, "sweep_deg"):
-            val = getattr(self, name)
-            real = isinstance(val, int | float | np.floating | np.integer)
-            if (
-                isinstance(val, bool)
-                or not real
-                or not np.isfinite(val)
-                or (val <= 0 and name != "sweep_deg")
-            ):
-                kind = "a finite number" if name == "sweep_deg" else "a finite number > 0"
-                raise ValueError(f"{name} must be {kind}, got {val!r}")
-            object.__setattr__(self, name, float(val))
+        put(self, "sensors", tuple(s for s in SENSOR_NAMES if s in self.sensors))
+        for name, (low, high, unit) in RANGES.items():
+            put(self, name, check_real(getattr(self, name), name, low, high, unit=unit))
         for name in ("stationary", "randomize"):
-            if not isinstance(getattr(self, name), bool | np.bool_):
-                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
-            object.__setattr__(self, name, bool(getattr(self, name)))
+            put(self, name, check_bool(getattr(self, name), name))
 
 
 PRESETS: dict[str, FIMScenarioConfig] = {
@@ -149,8 +175,7 @@ def config_from(preset: str = "example2", **overrides: Any) -> FIMScenarioConfig
     Raises:
         ValueError: unknown preset or override key (lists the valid ones), or a bad value.
     """
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; valid presets: {sorted(PRESETS)}")
+    check_choice(preset, "preset", sorted(PRESETS))
     valid = [f.name for f in dataclasses.fields(FIMScenarioConfig) if f.name != "preset"]
     bad = sorted(set(overrides) - set(valid))
     if bad:

@@ -52,8 +52,19 @@ from selenv.scenarios.landmark_models import (
     propagation_jacobians,
     wrap_angle,
 )
+from selenv.scenarios.validation import (
+    ArgumentTypeError,
+    check_integer,
+    check_real,
+    check_reals,
+    describe,
+    interval,
+)
 
 __all__ = [
+    "MAX_LANDMARKS",
+    "MAX_STEPS",
+    "RANGES",
     "LandmarkConfig",
     "LandmarkEKF",
     "LandmarkProblem",
@@ -66,28 +77,67 @@ __all__ = [
 _DEG = np.pi / 180.0
 
 
-def _pos(value: Any, name: str, *, allow_zero: bool = False) -> float:
-    """A finite number > 0 (``>= 0`` with ``allow_zero``), or ``ValueError`` naming ``name``."""
-    ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-    if not ok or not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
-    return float(value)
+#: largest number of landmarks and of filter steps (every noise is drawn at reset)
+MAX_LANDMARKS = 200
+MAX_STEPS = 100_000
+#: largest bank angle of a turn (deg): a coordinated turn at ``speed`` needs ``atan(V w / g)``
+MAX_BANK_DEG = 60.0
+
+#: valid range of every real-valued :class:`LandmarkConfig` field: ``(low, high, unit)``
+RANGES: dict[str, tuple[float, float, str]] = {
+    "dt": (1e-3, 1.0, "s"),
+    "gyro_sigma_deg_per_h": (1e-4, 1e4, "deg/h"),
+    "accel_sigma": (1e-6, 1.0, "m/s^2"),
+    "altitude": (200.0, 20_000.0, "m"),
+    "speed": (1.0, 340.0, "m/s"),
+    "heading_deg": (-360.0, 360.0, "deg"),
+    "max_roll_rate_deg": (1.0, 180.0, "deg/s"),
+    "landmark_margin": (0.0, 1e5, "m"),
+    "aoa_sigma_deg": (1e-4, 30.0, "deg"),
+    "leg duration": (1e-2, 1e5, "s"),
+    "leg turn rate": (-30.0, 30.0, "deg/s"),
+    "landmark_height": (-500.0, 9000.0, "m"),
+    "landmarks": (-1e6, 1e6, "m"),
+}
+#: valid range of each entry of ``init_sigma`` (attitude, velocity, position)
+INIT_SIGMA_RANGES: tuple[tuple[float, float, str], ...] = (
+    (1e-4, 30.0, "deg"),
+    (1e-4, 100.0, "m/s"),
+    (1e-2, 1e4, "m"),
+)
 
 
-def _int(value: Any, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
-    return int(value)
+def _pair(value: Any, name: str, size: int, what: str) -> list[Any]:
+    """``value`` as a list of ``size`` items (a tuple, list or 1-D array)."""
+    ok = isinstance(value, tuple | list) or (isinstance(value, np.ndarray) and value.ndim == 1)
+    if not ok or len(value) != size:
+        raise ArgumentTypeError(f"{name} must be {what}, got {describe(value)}")
+    return list(value)
 
 
 def _check_layout(landmarks: Any, n: int) -> FloatArray:
-    lm = np.asarray(landmarks, dtype=np.float64)
+    """A user layout: a finite real ``(n, 3)`` array of ENU positions in ``[-1e6, 1e6]`` m."""
+    low, high, unit = RANGES["landmarks"]
+    try:
+        raw = np.asarray(landmarks)
+    except ValueError as exc:  # ragged nested sequences
+        raise ValueError(
+            f"landmarks must be a real (n_landmarks, 3) array, got {describe(landmarks)}"
+        ) from exc
+    if raw.dtype.kind not in "iuf":
+        raise ArgumentTypeError(
+            f"landmarks must be a real (n_landmarks, 3) array (m), got {describe(landmarks)}"
+        )
+    lm = raw.astype(np.float64)
     if lm.shape != (n, 3):
         raise ValueError(f"landmarks must have shape (n_landmarks, 3) = ({n}, 3), got {lm.shape}")
-    if not np.all(np.isfinite(lm)):
-        row = int(np.argwhere(~np.isfinite(lm))[0, 0])
-        raise ValueError(f"landmarks must be finite, but landmarks[{row}] = {lm[row].tolist()}")
+    bad = ~(np.isfinite(lm) & (np.abs(lm) <= high))
+    if np.any(bad):
+        row = int(np.argwhere(bad)[0, 0])
+        raise ValueError(
+            f"landmarks must be finite, in {interval(low, high)} {unit}, but landmarks[{row}] = "
+            f"{lm[row].tolist()}"
+        )
     return lm
 
 
@@ -95,23 +145,37 @@ def _check_layout(landmarks: Any, n: int) -> FloatArray:
 class LandmarkConfig:
     """Parameters of the landmark-selection scenario (defaults: the paper's Table I).
 
+    Every field is validated: a wrong type is a ``TypeError`` (also a ``ValueError``), a value
+    outside its range (:data:`RANGES`) a ``ValueError``, naming the field and the range.
+
     Attributes:
-        n_landmarks: number of landmarks ``N``.
-        horizon: number of filter steps ``T`` (at ``1 / dt`` Hz).
-        dt: IMU and filter step (s).
-        gyro_sigma_deg_per_h: gyro noise (deg/h, 1 sigma per sample).
-        accel_sigma: accelerometer noise (m/s^2, 1 sigma per sample).
-        aoa_sigma_deg: angle-of-arrival noise ``(azimuth, elevation)`` (deg).
-        init_sigma: initial error ``(attitude deg, velocity m/s, position m)``, per axis.
-        altitude: initial and held altitude (m).
-        speed: ground speed (m/s).
-        heading_deg: initial heading, clockwise from North (deg).
-        legs: ``((duration s, turn rate deg/s), ...)`` cycled over the horizon (> 0: right).
-        max_roll_rate_deg: roll-rate limit when entering or leaving a turn (deg/s).
-        landmark_margin: widening of the track's bounding box for the landmark layout (m).
-        landmark_height: ``(low, high)`` height range of the drawn landmarks (m).
-        min_off_nadir_deg: drawn landmarks stay at least this far from the body z axis.
-        landmarks: optional user layout ``(n_landmarks, 3)`` in ENU (m), used as given.
+        n_landmarks: number of landmarks ``N``, an int in ``[1, MAX_LANDMARKS]`` (200).
+        horizon: number of filter steps ``T`` (at ``1 / dt`` Hz), in ``[1, MAX_STEPS]`` (1e5).
+        dt: IMU and filter step (s), in ``[1e-3, 1]``.
+        gyro_sigma_deg_per_h: gyro noise (deg/h, 1 sigma per sample), in ``[1e-4, 1e4]``.
+        accel_sigma: accelerometer noise (m/s^2, 1 sigma per sample), in ``[1e-6, 1]``.
+        aoa_sigma_deg: angle-of-arrival noise ``(azimuth, elevation)`` (deg), each in
+            ``[1e-4, 30]``.
+        init_sigma: initial error ``(attitude deg, velocity m/s, position m)``, per axis, in
+            ``[1e-4, 30]``, ``[1e-4, 100]``, ``[1e-2, 1e4]``.
+        altitude: initial and held altitude (m), in ``[200, 20000]``.
+        speed: ground speed (m/s), in ``[1, 340]``.
+        heading_deg: initial heading, clockwise from North (deg), in ``[-360, 360]``.
+        legs: ``((duration s, turn rate deg/s), ...)`` cycled over the horizon (> 0: right),
+            at least one; durations in ``[1e-2, 1e5]``, turn rates in ``[-30, 30]`` and
+            at most a ``MAX_BANK_DEG`` (60 deg) bank at ``speed``.
+        max_roll_rate_deg: roll-rate limit when entering or leaving a turn (deg/s), in
+            ``[1, 180]``.
+        landmark_margin: widening of the track's bounding box for the landmark layout (m), in
+            ``[0, 1e5]``; without a user layout, at least :meth:`min_landmark_margin` (the
+            distance from the track beyond which a landmark is ``min_off_nadir_deg`` off the
+            body z axis at the largest bank of the legs), so that a layout always exists.
+        landmark_height: ``(low, high)`` height range of the drawn landmarks (m), both in
+            ``[-500, 9000]``, ``low <= high < altitude``.
+        min_off_nadir_deg: drawn landmarks stay at least this far from the body z axis, in
+            ``[0, 90)``.
+        landmarks: optional user layout ``(n_landmarks, 3)`` in ENU (m), finite, coordinates in
+            ``[-1e6, 1e6]``, used as given (stored as a read-only float array).
     """
 
     n_landmarks: int = 30
@@ -132,41 +196,84 @@ class LandmarkConfig:
     landmarks: Any = None
 
     def __post_init__(self) -> None:
-        n = _int(self.n_landmarks, "n_landmarks", 1)
-        _int(self.horizon, "horizon", 1)
-        for name in ("dt", "gyro_sigma_deg_per_h", "accel_sigma", "speed", "max_roll_rate_deg"):
-            _pos(getattr(self, name), name)
-        _pos(self.landmark_margin, "landmark_margin", allow_zero=True)
-        for name, size in (("aoa_sigma_deg", 2), ("init_sigma", 3)):
-            vals = tuple(getattr(self, name))
-            if len(vals) != size:
-                raise ValueError(f"{name} must hold {size} numbers, got {getattr(self, name)!r}")
-            for i, v in enumerate(vals):
-                _pos(v, f"{name}[{i}]")
-        if not (np.isfinite(self.altitude) and np.isfinite(self.heading_deg)):
+        put = object.__setattr__
+        n = check_integer(self.n_landmarks, "n_landmarks", 1, MAX_LANDMARKS)
+        put(self, "n_landmarks", n)
+        put(self, "horizon", check_integer(self.horizon, "horizon", 1, MAX_STEPS))
+        for name in ("dt", "gyro_sigma_deg_per_h", "accel_sigma", "altitude", "speed",
+                     "heading_deg", "max_roll_rate_deg", "landmark_margin"):  # fmt: skip
+            low, high, unit = RANGES[name]
+            put(self, name, check_real(getattr(self, name), name, low, high, unit=unit))
+        low, high, unit = RANGES["aoa_sigma_deg"]
+        put(self, "aoa_sigma_deg", check_reals(self.aoa_sigma_deg, "aoa_sigma_deg", 2, low, high,
+                                               unit=unit))  # fmt: skip
+        init = _pair(self.init_sigma, "init_sigma", 3, "3 numbers (attitude, velocity, position)")
+        put(self, "init_sigma", tuple(
+            check_real(v, f"init_sigma[{i}]", low, high, unit=unit)
+            for i, (v, (low, high, unit)) in enumerate(zip(init, INIT_SIGMA_RANGES, strict=True))
+        ))  # fmt: skip
+        low, high, unit = RANGES["landmark_height"]
+        lo, hi = check_reals(self.landmark_height, "landmark_height", 2, low, high, unit=unit)
+        if not lo <= hi < self.altitude:
             raise ValueError(
-                f"altitude and heading_deg must be finite, got {self.altitude!r}, "
-                f"{self.heading_deg!r}"
+                f"landmark_height must be (low, high) with low <= high < altitude = "
+                f"{self.altitude:g} m, got {(lo, hi)}"
             )
-        lo, hi = (float(h) for h in self.landmark_height)
-        if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
-            raise ValueError(f"landmark_height must be finite (low, high), got {(lo, hi)}")
-        if not (np.isfinite(self.min_off_nadir_deg) and 0 <= self.min_off_nadir_deg < 90):
-            raise ValueError(f"min_off_nadir_deg must lie in [0, 90), got {self.min_off_nadir_deg}")
-        if len(self.legs) == 0:
-            raise ValueError("legs must hold at least one (duration s, turn rate deg/s) pair")
-        for i, leg in enumerate(self.legs):
-            if len(leg) != 2:
-                raise ValueError(f"legs[{i}] must be (duration s, turn rate deg/s), got {leg!r}")
-            _pos(leg[0], f"legs[{i}] duration")
-            bank = np.degrees(np.arctan(abs(self.speed * leg[1] * _DEG) / GRAVITY))
-            if not np.isfinite(leg[1]) or bank > 60.0:
-                raise ValueError(
-                    f"legs[{i}] turn rate {leg[1]!r} deg/s needs a bank of {bank:.0f} deg at "
-                    f"{self.speed} m/s; at most 60 deg is supported"
-                )
+        put(self, "landmark_height", (lo, hi))
+        nadir = check_real(self.min_off_nadir_deg, "min_off_nadir_deg", 0.0, 90.0, high_open=True,
+                           unit="deg")  # fmt: skip
+        put(self, "min_off_nadir_deg", nadir)
+        put(self, "legs", self._legs())
         if self.landmarks is not None:
-            _check_layout(self.landmarks, n)
+            layout = _check_layout(self.landmarks, n)
+            layout.setflags(write=False)
+            put(self, "landmarks", layout)
+        elif self.landmark_margin < (need := self.min_landmark_margin()):
+            raise ValueError(
+                f"landmark_margin = {self.landmark_margin:g} m leaves no room for landmarks off "
+                f"nadir: at altitude {self.altitude:g} m, landmark_height low "
+                f"{self.landmark_height[0]:g} m, min_off_nadir_deg {self.min_off_nadir_deg:g} "
+                f"and banks up to {self.max_bank_deg():.0f} deg, landmarks must be able to lie "
+                f"{need:.0f} m from the track: use landmark_margin >= {need:.0f} (or lower "
+                "min_off_nadir_deg or altitude)"
+            )
+
+    def max_bank_deg(self) -> float:
+        """Largest bank angle of the legs at ``speed`` (deg): ``atan(V |w| / g)``."""
+        rate = max(abs(float(leg[1])) for leg in self.legs)
+        return float(np.degrees(np.arctan(self.speed * rate * _DEG / GRAVITY)))
+
+    def min_landmark_margin(self) -> float:
+        """Smallest ``landmark_margin`` (m) for which a drawn layout always exists.
+
+        ``(altitude - landmark_height[0]) tan(min(min_off_nadir_deg + max bank, 89 deg))``:
+        beyond this horizontal distance from the track a landmark is ``min_off_nadir_deg`` off
+        the body z axis whatever the bank.
+        """
+        angle = min(float(self.min_off_nadir_deg) + self.max_bank_deg(), 89.0)
+        return float((self.altitude - self.landmark_height[0]) * np.tan(angle * _DEG))
+
+    def _legs(self) -> tuple[tuple[float, float], ...]:
+        """The validated legs (durations, turn rates and the bank limit at ``speed``)."""
+        if not isinstance(self.legs, tuple | list) or len(self.legs) == 0:
+            raise ArgumentTypeError(
+                "legs must hold at least one (duration s, turn rate deg/s) pair, "
+                f"got {describe(self.legs)}"
+            )
+        (d_lo, d_hi, d_unit), (w_lo, w_hi, w_unit) = RANGES["leg duration"], RANGES["leg turn rate"]
+        out = []
+        for i, leg in enumerate(self.legs):
+            pair = _pair(leg, f"legs[{i}]", 2, "(duration s, turn rate deg/s)")
+            duration = check_real(pair[0], f"legs[{i}] duration", d_lo, d_hi, unit=d_unit)
+            rate = check_real(pair[1], f"legs[{i}] turn rate", w_lo, w_hi, unit=w_unit)
+            bank = float(np.degrees(np.arctan(abs(self.speed * rate * _DEG) / GRAVITY)))
+            if bank > MAX_BANK_DEG:
+                raise ValueError(
+                    f"legs[{i}] turn rate {rate:g} deg/s needs a bank of {bank:.0f} deg at "
+                    f"speed = {self.speed:g} m/s; at most {MAX_BANK_DEG:g} deg is supported"
+                )
+            out.append((duration, rate))
+        return tuple(out)
 
     @property
     def gyro_sigma(self) -> float:
