@@ -78,3 +78,35 @@ def test_lean_scorer_rejects_other_policies_and_empty_masks() -> None:
         scorer.action(obs, np.zeros(obs["action_mask"].shape, dtype=bool))
     with pytest.raises(TypeError, match="lean must be a bool"):
         SB3PolicyAgent(lean="yes")  # type: ignore[arg-type]
+
+
+def test_top_m_scorer_matches_the_network_on_the_whole_pool_and_picks_from_the_top_m() -> None:
+    from learned.rl.lean import TopMScorer
+
+    env = gym.make("selenv/FIMSelection-v0", n_candidates=30, budget=5)
+    policy = make_ppo(env, seed=1, device="cpu").policy
+    with th.no_grad():
+        for p in policy.pi_features_extractor.parameters():
+            p.mul_(5.0)
+    lean, space = LeanScorer(policy), env.observation_space
+    space.seed(1)
+    rng = np.random.default_rng(1)
+    n = space["action_mask"].shape[0]
+    for _ in range(50):
+        obs = space.sample()
+        mask = rng.random(n) < 0.7
+        mask[0] = True
+        obs["action_mask"] = mask.astype(obs["action_mask"].dtype)
+        full = TopMScorer(policy, n)
+        idx = np.flatnonzero(mask)
+        np.testing.assert_allclose(
+            full.scores(obs, idx), lean.scores(obs, mask)[idx], rtol=1e-4, atol=1e-4
+        )
+        top4 = TopMScorer(policy, 4).action(obs, mask)
+        best4 = idx[np.argsort(-np.maximum(obs["gain"][idx], 0), kind="stable")[:4]]
+        assert mask[top4] and obs["gain"][top4] >= np.sort(obs["gain"][idx])[-4]
+        assert top4 in set(best4) or obs["gain"][top4] == obs["gain"][best4[-1]]
+    with pytest.raises(ValueError, match="top_m"):
+        TopMScorer(policy, 0)
+    with pytest.raises(ValueError, match="top_m"):
+        SB3PolicyAgent(top_m=-1)

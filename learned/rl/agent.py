@@ -31,7 +31,7 @@ from learned.rl.candidate_policy import (
     CandidateScoringPPOPolicy,
     obs_layout,
 )
-from learned.rl.lean import LeanScorer
+from learned.rl.lean import LeanScorer, TopMScorer
 from learned.rl.safe_load import load_policy
 from learned.rl.views import CandidateView, view_for
 from selenv.agents.base import Agent
@@ -101,6 +101,9 @@ class SB3PolicyAgent(Agent):
             :class:`~learned.rl.lean.LeanScorer` (the scorer's forward under
             ``torch.inference_mode``, the same action as SB3's ``predict`` at a fraction of
             its cost); ``False`` calls ``predict``.
+        top_m: ``m > 0`` scores only the ``m`` allowed candidates of largest gain, in numpy
+            (:class:`~learned.rl.lean.TopMScorer`): an approximation of the policy for large
+            pools (``ppo:top_m=32``); 0 (default) evaluates the whole pool.
 
     Raises:
         ValueError: the checkpoint or its JSON is missing or unreadable, they disagree, or
@@ -116,6 +119,7 @@ class SB3PolicyAgent(Agent):
         deterministic: bool = True,
         verify_top_k: int = 0,
         lean: bool = True,
+        top_m: int = 0,
     ) -> None:
         if isinstance(verify_top_k, bool) or not isinstance(verify_top_k, int) or verify_top_k < 0:
             raise ValueError(f"verify_top_k must be an int >= 0, got {verify_top_k!r}")
@@ -123,6 +127,12 @@ class SB3PolicyAgent(Agent):
         if not isinstance(lean, bool):
             raise TypeError(f"lean must be a bool, got {type(lean).__name__}")
         self.lean = lean
+        if isinstance(top_m, bool) or not isinstance(top_m, int) or top_m < 0:
+            raise ValueError(f"top_m must be an int >= 0, got {top_m!r}")
+        if top_m and not deterministic:
+            raise ValueError("top_m needs deterministic=True (it takes the top scorer's argmax)")
+        self.top_m = top_m
+        self._top: dict[int, TopMScorer] = {}
         if checkpoint is None:
             if env_id not in DEFAULT_CHECKPOINTS:
                 raise ValueError(f"no shipped checkpoint for {env_id!r}; pass checkpoint=")
@@ -242,6 +252,11 @@ class SB3PolicyAgent(Agent):
             mask = mask & np.asarray(info["action_mask"], dtype=bool)  # a view may restrict
         if self.verify_top_k:
             return self.view.env_action(obs, self._verified(obs, cand, mask))
+        if self.top_m:
+            key = id(self._policy)
+            if key not in self._top:
+                self._top[key] = TopMScorer(self._policy, self.top_m)
+            return self.view.env_action(obs, self._top[key].action(cand, mask))
         if self.deterministic and self.lean:
             return self.view.env_action(obs, self._lean[id(self._policy)].action(cand, mask))
         if self.masked:
