@@ -30,7 +30,9 @@ import gymnasium as gym
 import numpy as np
 from pettingzoo import ParallelEnv
 
-__all__ = ["SharedPolicyEnv"]
+__all__ = ["MARL_FIM_ID", "SharedPPOPolicy", "SharedPolicyEnv", "make_shared_ppo"]
+
+MARL_FIM_ID = "selenv.multiagent.fim_selection_v0"
 
 
 class SharedPolicyEnv(gym.Env[dict[str, np.ndarray], np.int64]):
@@ -123,3 +125,69 @@ class SharedPolicyEnv(gym.Env[dict[str, np.ndarray], np.int64]):
                 obs_last = obs[last] if last is not None else self.observation_space.sample()
                 return self._view(obs_last), reward, terminated, truncated, info
         return self._view(self._obs[self.agent]), reward, terminated, truncated, self._info()
+
+
+class SharedPPOPolicy:
+    """The shared (parameter-sharing) policy as a PettingZoo agent of ``selenv bench``.
+
+    Registered as ``ppo`` for ``selenv.multiagent.fim_selection_v0``: every acting agent
+    (``infos[agent]["on_turn"]``) takes the checkpoint's deterministic action on **its own**
+    observation (``on_turn`` dropped, as :class:`SharedPolicyEnv` shows it during training),
+    through :class:`~learned.rl.lean.LeanScorer`; waiting agents pass with 0. So it is
+    decentralised exactly like the ``greedy`` floor (same information per agent), unlike the
+    centralised references.
+
+    Args:
+        checkpoint: SB3 zip + JSON (default ``checkpoints/fim_marl_ppo.zip``), loaded without
+            unpickling (:mod:`learned.rl.safe_load`).
+
+    Raises:
+        ValueError: the checkpoint was trained on another env, or its per-candidate width
+            differs from the env's.
+    """
+
+    name = "ppo"
+
+    def __init__(self, checkpoint: str | None = None) -> None:
+        from learned.rl.agent import CHECKPOINT_DIR, load_metadata
+        from learned.rl.lean import LeanScorer
+        from learned.rl.safe_load import load_policy
+
+        path = CHECKPOINT_DIR / "fim_marl_ppo.zip" if checkpoint is None else checkpoint
+        self.checkpoint = str(path)
+        self.metadata = load_metadata(path)
+        if self.metadata.get("env_id") != MARL_FIM_ID:
+            raise ValueError(
+                f"checkpoint {path} was trained on {self.metadata.get('env_id')!r}, "
+                f"not {MARL_FIM_ID!r}"
+            )
+        self.scorer = LeanScorer(load_policy(path, self.metadata))
+        self.width = int(self.metadata["obs_layout"]["whitened_dim"])
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Start an episode; checks the env's per-candidate width against the checkpoint."""
+        self.env = env
+        self.rng = np.random.default_rng(seed)
+        width = env.observation_space(env.possible_agents[0])["whitened"].shape[1]
+        if width != self.width:
+            raise ValueError(
+                f"checkpoint {self.checkpoint} expects whitened width {self.width}; "
+                f"this env has {width}"
+            )
+
+    def act(self, observations: dict[str, Any], infos: dict[str, Any]) -> dict[str, Any]:
+        """The policy's action for each acting agent, 0 for the waiting ones."""
+        out: dict[str, Any] = {}
+        for a in self.env.agents:
+            if not infos.get(a, {}).get("on_turn", True):
+                out[a] = 0
+                continue
+            obs = {k: v for k, v in observations[a].items() if k != "on_turn"}
+            mask = np.asarray(infos.get(a, {}).get("action_mask", obs["action_mask"]), bool)
+            out[a] = self.scorer.action(obs, mask)
+        return out
+
+
+def make_shared_ppo(**kwargs: Any) -> SharedPPOPolicy:
+    """Registry factory of the multi-agent ``ppo`` agent (``checkpoint=``)."""
+    return SharedPPOPolicy(**kwargs)

@@ -269,6 +269,16 @@ register_agent(
         "reference: centralized_greedy + swap search within each pool",
     )
 )
+# the shared learned policy lives above this layer: a lazy "module:attr" factory
+register_agent(
+    AgentSpec(
+        "ppo",
+        _FIM,
+        "learned.rl.marl:make_shared_ppo",
+        "shared (parameter-sharing) policy, each agent on its own observation "
+        "(checkpoints/fim_marl_ppo.zip)",
+    )
+)
 register_agent(AgentSpec("stay", _CL, StayPolicy, "every receiver keeps its cluster"))
 register_agent(
     AgentSpec(
