@@ -112,3 +112,36 @@ def test_train_cl_expert_tiny_budget_end_to_end(tmp_path: Path) -> None:
     bad = [*argv, "--force", "--checkpoint", str(DEFAULT_CHECKPOINTS["selenv/FIMSelection-v0"])]
     with pytest.raises(ValueError, match="trained on"):
         train_cl_expert.main(bad)
+
+
+def test_landmark_labels_and_training_entry_point(tmp_path: Path) -> None:
+    from learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+    from train import train_landmark_expert
+
+    data = collect_landmark_rollout_labels({}, 8, seed=0, horizon=2, progress=False)
+    finite = np.isfinite(data.deltas)
+    assert (finite.sum(axis=1) >= 2).all()  # at least two labelled landmarks, not all tied
+    assert all(np.ptp(row[f]) > 0 for row, f in zip(data.deltas, finite, strict=True))
+    assert not (finite & ~data.obs["action_mask"].astype(bool)).any()  # only open landmarks
+    out = tmp_path / "lm.zip"
+    meta = train_landmark_expert.main(
+        [
+            "--out",
+            str(out),
+            "--rounds",
+            "1",
+            "--states-per-round",
+            "6",
+            "--horizon",
+            "1",
+            "--workers",
+            "1",
+            "--epochs",
+            "1",
+            "--eval-episodes",
+            "0",
+            "--no-progress",
+        ]
+    )
+    assert meta["env_id"] == LANDMARK_ID and out.is_file()
+    assert meta["expert_iteration"]["command"].startswith("python -m train.train_landmark_expert")

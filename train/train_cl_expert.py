@@ -24,6 +24,7 @@ import json
 import shlex
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -69,22 +70,24 @@ def _save(model: Any, meta: dict[str, Any], path: Path) -> None:
     path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
 
 
-def evaluate_with_bench(checkpoint: Path, cfg: Config) -> dict[str, Any]:
-    """``selenv bench`` of ``ppo:checkpoint`` vs greedy and rollout; returns its JSON."""
+def evaluate_with_bench(
+    checkpoint: Path, cfg: Any, env_id: str = CL_ID, baseline: str = "greedy"
+) -> dict[str, Any]:
+    """``selenv bench`` of ``ppo:checkpoint`` vs ``baseline`` and rollout; returns its JSON."""
     from selenv.cli import main as selenv_main
 
     out = checkpoint.with_suffix(".bench.json")
     argv = [
         "bench",
-        CL_ID,
+        env_id,
         "--agents",
-        f"greedy,rollout,ppo:{checkpoint}",
+        f"{baseline},rollout,ppo:{checkpoint}",
         "--episodes",
         str(cfg.eval_episodes),
         "--seed",
         str(cfg.eval_seed),
         "--baseline",
-        "greedy",
+        baseline,
         "--json",
         str(out),
     ]
@@ -101,6 +104,20 @@ def evaluate_with_bench(checkpoint: Path, cfg: Config) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
     cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    return run_expert_iteration(
+        cfg, argv, CL_ID, collect_cl_rollout_labels, "train.train_cl_expert", "greedy"
+    )
+
+
+def run_expert_iteration(
+    cfg: Any,
+    argv: list[str] | None,
+    env_id: str,
+    collect: Callable[..., RankingData],
+    script: str,
+    baseline: str,
+) -> dict[str, Any]:
+    """The DAgger loop shared by the expert-iteration scripts (module docstring)."""
     out = Path(cfg.out)
     if out.suffix != ".zip":
         raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
@@ -112,13 +129,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if not isinstance(kwargs, dict):
         raise ValueError(f"--env-kwargs must be a JSON object, got {cfg.env_kwargs!r}")
     src = load_metadata(cfg.checkpoint)
-    if src.get("env_id") != CL_ID:
+    if src.get("env_id") != env_id:
         raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {src.get('env_id')!r}")
     torch.set_num_threads(1)
     start = time.perf_counter()
-    env = gym.make(CL_ID, **kwargs)
-    view = cfg.view
-    wrapped = CandidateViewWrapper(env, view_for(CL_ID, env, view))
+    env = gym.make(env_id, **kwargs)
+    view = getattr(cfg, "view", None) or src.get("view")
+    wrapped = CandidateViewWrapper(env, view_for(env_id, env, view))
     model = model_from_checkpoint(cfg.checkpoint, src, wrapped, device="cpu")
     n = int(wrapped.observation_space["action_mask"].shape[0])
     meta: dict[str, Any] = {
@@ -128,8 +145,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "obs_layout": {**src["obs_layout"], "n_candidates_trained": n},
         "expert_iteration": {
             **asdict(cfg),
-            "command": "python -m train.train_cl_expert "
-            + shlex.join(sys.argv[1:] if argv is None else argv),
+            "command": f"python -m {script} " + shlex.join(sys.argv[1:] if argv is None else argv),
             "rounds_log": [],
         },
         "metrics": None,
@@ -138,12 +154,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     behaviour: str | None = None
     for r in range(cfg.rounds):
         t0 = time.perf_counter()
+        extra = {"view": view} if env_id == CL_ID else {}
         parts.append(
-            collect_cl_rollout_labels(
+            collect(
                 kwargs,
                 cfg.states_per_round,
                 cfg.seed * 100 + r,
-                view=view,
+                **extra,
                 top_k=cfg.top_k,
                 horizon=cfg.horizon,
                 explore=cfg.explore,
@@ -171,7 +188,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     meta["expert_iteration"]["wall_seconds"] = round(time.perf_counter() - start, 1)
     _save(model, meta, out)
     if cfg.eval_episodes:
-        bench = evaluate_with_bench(out, cfg)
+        bench = evaluate_with_bench(out, cfg, env_id, baseline)
         meta["metrics"] = {
             "command": bench["command"],
             "results": bench["results"],

@@ -37,9 +37,17 @@ from learned.rl.ranking import RankingData
 from learned.rl.views import view_for
 from selenv.agents.rollout import CLRolloutAgent
 
-__all__ = ["CL_ID", "TRAIN_SEED_BASE", "collect_cl_rollout_labels", "train_seed"]
+__all__ = [
+    "CL_ID",
+    "LANDMARK_ID",
+    "TRAIN_SEED_BASE",
+    "collect_cl_rollout_labels",
+    "collect_landmark_rollout_labels",
+    "train_seed",
+]
 
 CL_ID = "selenv/CLScheduling-v0"
+LANDMARK_ID = "selenv/LandmarkSelection-v0"
 #: training episode seeds start at ``TRAIN_SEED_BASE * (seed + 1)``
 TRAIN_SEED_BASE = 10**6
 
@@ -187,3 +195,124 @@ def collect_cl_rollout_labels(
         return _collect(jobs[0])
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         return RankingData.concatenate(list(pool.map(_collect, jobs)))
+
+
+@dataclass
+class _LandmarkJob:
+    env_kwargs: dict[str, Any]
+    n_states: int
+    seed: int
+    worker: int
+    workers: int
+    top_k: int
+    horizon: int
+    explore: float
+    behaviour: str | None
+    progress: bool
+
+
+def _collect_landmarks(job: _LandmarkJob) -> RankingData:
+    from selenv.agents.rollout import LandmarkRolloutAgent
+
+    th.set_num_threads(1)
+    env = gym.make(LANDMARK_ID, **job.env_kwargs)
+    view = view_for(LANDMARK_ID, env)
+    labeller = LandmarkRolloutAgent(top_k=job.top_k, horizon=job.horizon)
+    agent = None
+    if job.behaviour is not None:
+        from learned.rl.agent import SB3PolicyAgent
+
+        agent = SB3PolicyAgent(job.behaviour, env_id=LANDMARK_ID)
+    rng = np.random.default_rng([job.seed, job.worker])
+    rows: list[dict[str, np.ndarray]] = []
+    deltas: list[np.ndarray] = []
+    episode = 0
+
+    def reset() -> tuple[Any, dict[str, Any]]:
+        nonlocal episode
+        s = train_seed(job.seed, job.worker, job.workers, episode)
+        episode += 1
+        out = env.reset(seed=s)
+        labeller.reset(env, seed=s)
+        if agent is not None:
+            agent.reset(env, seed=s)
+        return out
+
+    obs, info = reset()
+    n = int(np.shape(obs["action_mask"])[0])
+    bar = tqdm(total=job.n_states, desc="rollout labels", unit="state", disable=not job.progress)
+    while len(rows) < job.n_states:
+        best, scores = labeller.scores()
+        d = np.full(n, np.inf)
+        for subset, value in scores.items():  # a landmark's label: its best subset's score
+            for lm in subset:
+                d[lm] = min(d[lm], -value)
+        if np.isfinite(d).sum() > 1 and np.ptp(d[np.isfinite(d)]) > 0:
+            rows.append(view(obs))
+            deltas.append(d)
+            bar.update(1)
+        action = best[0] if agent is None else int(agent.act(obs, info))
+        if rng.random() < job.explore:
+            action = int(rng.choice(np.flatnonzero(obs["action_mask"])))
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            obs, info = reset()
+    bar.close()
+    env.close()
+    stacked = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
+    return RankingData(stacked, np.stack(deltas))
+
+
+def collect_landmark_rollout_labels(
+    env_kwargs: dict[str, Any],
+    n_states: int,
+    seed: int,
+    *,
+    top_k: int = 4,
+    horizon: int = 10,
+    explore: float = 0.05,
+    behaviour: str | None = None,
+    workers: int = 1,
+    progress: bool = True,
+) -> RankingData:
+    """Label ``LandmarkSelection-v0`` picks with the landmark ``rollout`` reference's scores.
+
+    At every pick the labeller scores its candidate subsets of the picks left in the filter
+    step (``top_k`` by one-step gain plus brute force's own); a landmark's ``dJ`` is minus the
+    best score of a candidate subset containing it, ``+inf`` if none does. The behaviour
+    plays the first landmark of rollout's best subset (or ``behaviour``'s pick: DAgger).
+    Picks where all labelled landmarks tie are skipped. Same seeds and options as
+    :func:`collect_cl_rollout_labels`.
+
+    Raises:
+        ValueError: as :func:`collect_cl_rollout_labels`.
+    """
+    from selenv.agents.rollout import LandmarkRolloutAgent
+
+    for name, value, low in (("n_states", n_states, 1), ("workers", workers, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+    if not 0.0 <= explore <= 1.0:
+        raise ValueError(f"explore must be in [0, 1], got {explore!r}")
+    LandmarkRolloutAgent(top_k=top_k, horizon=horizon)  # validates top_k / horizon
+    workers = min(workers, n_states)
+    shares = [n_states // workers + (w < n_states % workers) for w in range(workers)]
+    jobs = [
+        _LandmarkJob(
+            env_kwargs,
+            shares[w],
+            seed,
+            w,
+            workers,
+            top_k,
+            horizon,
+            explore,
+            behaviour,
+            progress and w == 0,
+        )
+        for w in range(workers)
+    ]
+    if workers == 1:
+        return _collect_landmarks(jobs[0])
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return RankingData.concatenate(list(pool.map(_collect_landmarks, jobs)))
