@@ -53,8 +53,8 @@ from selenv.core.fusion.batch import PECMVBatchResult, dmv_omega_batch, pecmv_ba
 from selenv.core.fusion.ci import CI_METHODS, CIResult, covariance_intersection
 from selenv.core.fusion.common import joint_covariance_is_admissible
 from selenv.core.fusion.dmv import DMVResult, dmv_cost, dmv_update
-from selenv.core.fusion.surrogate import SURROGATE_HOOK, ldmv_update, load_surrogate, lpecmv_update
 from selenv.core.fusion.pecmv import PECMV_METHODS, PECMVResult, pecmv_objective, pecmv_update
+from selenv.core.fusion.surrogate import SURROGATE_HOOK, ldmv_update, load_surrogate, lpecmv_update
 
 __all__ = [
     "CI_METHODS",
