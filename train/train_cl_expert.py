@@ -27,10 +27,12 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
+import numpy as np
 import torch
+from gymnasium import spaces
 
 from learned.config import parse_config
 from learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
@@ -137,7 +139,8 @@ def run_expert_iteration(
     view = getattr(cfg, "view", None) or src.get("view")
     wrapped = CandidateViewWrapper(env, view_for(env_id, env, view))
     model = model_from_checkpoint(cfg.checkpoint, src, wrapped, device="cpu")
-    n = int(wrapped.observation_space["action_mask"].shape[0])
+    space = cast(spaces.Dict, wrapped.observation_space)
+    n = int(np.prod(space["action_mask"].shape or (0,)))
     meta: dict[str, Any] = {
         **src,
         "view": view,

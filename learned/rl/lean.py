@@ -126,7 +126,8 @@ class TopMScorer:
         self.W1, self.b1 = w(scorer.input_layer)
         self.sets = [w(layer) for layer in scorer.set_layers]
         self.ctxs = [w(layer)[0] for layer in scorer.ctx_layers]
-        self.head_w, self.head_b = w(scorer.score_head)
+        self.head_w, head_b = w(scorer.score_head)
+        self.head_b = np.zeros(1, np.float32) if head_b is None else head_b
         self.skip = np.float32(scorer.gain_skip.detach().item())
         self.act = np.tanh if isinstance(scorer.act, th.nn.Tanh) else (lambda x: np.maximum(x, 0))
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-from typing import Any
+from typing import Any, cast
 
 from gymnasium.envs.registration import EnvSpec
 
@@ -28,7 +28,7 @@ __all__ = [
 
 def named_parameters(cls: type) -> list[str]:
     """The named keyword parameters of ``cls.__init__`` (not ``self`` nor ``**kwargs``)."""
-    params = inspect.signature(cls.__init__).parameters.values()
+    params = inspect.signature(cast(Any, cls).__init__).parameters.values()
     return [p.name for p in params if p.name != "self" and p.kind != p.VAR_KEYWORD]
 
 
