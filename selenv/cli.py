@@ -32,9 +32,11 @@ import gymnasium as gym
 from selenv import __version__
 from selenv.agents import AGENTS, agents_for, parse_spec
 from selenv.envs import ENV_IDS
+from selenv.parallel import ExecutorError, add_executor_arguments, executor_from_args
 
 if TYPE_CHECKING:
     from selenv.bench.runner import EnvBenchResult
+    from selenv.parallel import Executor
 
 __all__ = ["build_parser", "main"]
 
@@ -130,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="write one PNG per env into DIR: paired differences vs the baseline with 95 %% CIs",
     )
     bench.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_executor_arguments(bench)
     return parser
 
 
@@ -183,15 +186,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     The JSON and the plots are written after every env has run, so a usage error (exit code
     2) leaves no file behind.
     """
-    from selenv.bench import (
-        BenchError,
-        EnvKwargsError,
-        check_env_id,
-        format_table,
-        plot_result,
-        run_bench,
-        write_json,
-    )
+    from selenv.bench import BenchError, check_env_id
 
     env_ids = list(dict.fromkeys(args.env_ids)) or list(ENV_IDS)
     for env_id in env_ids:
@@ -216,6 +211,31 @@ def cmd_bench(args: argparse.Namespace) -> int:
         why = _check_baseline(args.baseline, env_ids, names)
         if why is not None:
             return _error(why)
+    try:
+        executor = executor_from_args(args)
+        with executor:
+            return _run_envs(args, env_ids, names, several, executor)
+    except ExecutorError as exc:
+        return _error(str(exc))
+
+
+def _run_envs(
+    args: argparse.Namespace,
+    env_ids: list[str],
+    names: list[str] | None,
+    several: bool,
+    executor: Executor,
+) -> int:
+    """Run the checked bench of :func:`cmd_bench` on ``executor``; print and write results."""
+    from selenv.bench import (
+        BenchError,
+        EnvKwargsError,
+        format_table,
+        plot_result,
+        run_bench,
+        write_json,
+    )
+
     results: list[EnvBenchResult] = []
     for env_id in env_ids:
         if several and names is not None:
@@ -232,6 +252,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 progress=not args.no_progress,
                 skip_inapplicable=several,
                 baseline=args.baseline,
+                executor=executor,
             )
         except EnvKwargsError as exc:
             return _error(f"--env-kwargs: {exc}")
@@ -245,7 +266,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         path = plot_result(result, args.plot)
         print(f"plot: {path}", file=sys.stderr)
     if args.json and results:
-        path = write_json(results, args.json, argv=getattr(args, "argv", None))
+        path = write_json(
+            results, args.json, argv=getattr(args, "argv", None), executor=executor.describe()
+        )
         print(f"json: {path}", file=sys.stderr)
     return 0
 

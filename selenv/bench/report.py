@@ -110,25 +110,36 @@ def format_table(result: EnvBenchResult) -> str:
 
 
 def results_to_json(
-    results: Sequence[EnvBenchResult], *, argv: Sequence[str] | None = None
+    results: Sequence[EnvBenchResult],
+    *,
+    argv: Sequence[str] | None = None,
+    executor: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The JSON document: ``{"provenance": {...}, "results": [one object per env]}``.
 
     The shape does not depend on the number of envs. ``provenance`` is
-    :func:`selenv.bench.provenance.provenance` (``argv`` defaults to ``sys.argv``); each
-    element of ``results`` is :meth:`EnvBenchResult.to_json`.
+    :func:`selenv.bench.provenance.provenance` (``argv`` defaults to ``sys.argv``), plus
+    ``"executor"`` (:meth:`selenv.parallel.Executor.describe`) when given; each element of
+    ``results`` is :meth:`EnvBenchResult.to_json`.
     """
-    return {"provenance": provenance(argv), "results": [r.to_json() for r in results]}
+    prov = provenance(argv)
+    if executor is not None:
+        prov["executor"] = executor
+    return {"provenance": prov, "results": [r.to_json() for r in results]}
 
 
 def write_json(
-    results: Sequence[EnvBenchResult], path: str | Path, *, argv: Sequence[str] | None = None
+    results: Sequence[EnvBenchResult],
+    path: str | Path,
+    *,
+    argv: Sequence[str] | None = None,
+    executor: dict[str, Any] | None = None,
 ) -> Path:
     """Write :func:`results_to_json` to ``path`` (parent folders are created)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", encoding="utf-8") as fh:
-        json.dump(results_to_json(results, argv=argv), fh, indent=2)
+        json.dump(results_to_json(results, argv=argv, executor=executor), fh, indent=2)
         fh.write("\n")
     return path
 

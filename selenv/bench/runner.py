@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -44,14 +45,18 @@ from selenv.bench.results import (
     EnvKwargsError,
 )
 from selenv.envs import ENV_IDS
+from selenv.parallel import Executor, LocalExecutor
 
 __all__ = [
     "AgentRefused",
     "AgentResult",
     "BenchError",
+    "BlockResult",
     "EnvBenchResult",
     "EnvKwargsError",
+    "EpisodeBlock",
     "check_env_id",
+    "play_block",
     "run_bench",
     "run_episode",
 ]
@@ -158,6 +163,100 @@ def _env_factory(
     return (lambda: _build_env(env_id, kwargs)), run_episode
 
 
+@dataclass(frozen=True)
+class EpisodeBlock:
+    """One task of the bench: ``agent`` plays the episodes seeded ``seeds`` on a fresh env.
+
+    Self-contained and picklable, so any executor can run it; its result depends only on its
+    fields (the env and the agent are reset with each episode's seed), never on the worker.
+    """
+
+    env_id: str
+    kind: str
+    env_kwargs: dict[str, Any]
+    agent: str
+    seeds: tuple[int, ...]
+    named: bool  # the agent was named explicitly: a ValueError while building it is a usage error
+
+
+@dataclass
+class BlockResult:
+    """What :func:`play_block` returns: the episodes played, or why the agent could not play."""
+
+    result: AgentResult
+    refused: str | None = None  # AgentRefused message (the agent is reported as skipped)
+    build_error: str | None = None  # ValueError building a named agent (a usage error)
+
+
+def play_block(
+    block: EpisodeBlock, env: Any = None, on_episode: Callable[[int], object] | None = None
+) -> BlockResult:
+    """Play ``block``: build the env (unless given) and the agent, then each seeded episode.
+
+    Args:
+        block: the task.
+        env: an already built env to use (closed afterwards); ``None`` builds one.
+        on_episode: called with 1 after each episode (progress in this process).
+    """
+    build, play = _env_factory(block.env_id, block.kind, block.env_kwargs)
+    env = build() if env is None else env
+    result = AgentResult(block.agent)
+    try:
+        try:
+            agent = make(block.agent, block.env_id)
+        except ValueError as exc:
+            if block.named:  # named explicitly: bad options or file
+                return BlockResult(result, build_error=str(exc))
+            return BlockResult(result, refused=str(exc) or "raised ValueError")
+        for seed in block.seeds:
+            ret, obj = play(env, agent, seed, result)
+            result.returns.append(ret)
+            result.final_objectives.append(obj)
+            if on_episode is not None:
+                on_episode(1)
+    except AgentRefused as exc:
+        return BlockResult(result, refused=str(exc) or "raised ValueError")
+    finally:
+        env.close()
+    return BlockResult(result)
+
+
+def _blocks_per_agent(episodes: int, n_agents: int, workers: int) -> int:
+    """Blocks each agent's episodes are cut into: about 4 tasks per worker, whole episodes."""
+    return max(1, min(episodes, -(-4 * workers // max(n_agents, 1))))
+
+
+def _split(seeds: list[int], parts: int) -> list[tuple[int, ...]]:
+    """``seeds`` in ``parts`` contiguous runs of near-equal length (in order)."""
+    q, r = divmod(len(seeds), parts)
+    out, start = [], 0
+    for i in range(parts):
+        stop = start + q + (i < r)
+        out.append(tuple(seeds[start:stop]))
+        start = stop
+    return out
+
+
+def _merge(name: str, parts: list[BlockResult]) -> AgentResult:
+    """One agent's result from its blocks, in seed order; the first refusal skips the agent."""
+    for part in parts:
+        if part.build_error is not None:
+            raise BenchError(f"cannot build agent {name!r}: {part.build_error}")
+    for part in parts:
+        if part.refused is not None:
+            return AgentResult(name, skipped=part.refused)
+    out = AgentResult(name)
+    for part in parts:
+        r = part.result
+        out.returns += r.returns
+        out.final_objectives += r.final_objectives
+        out.decision_seconds += r.decision_seconds
+        out.decisions += r.decisions
+        if r.cost_evaluations is not None:
+            out.cost_evaluations = (out.cost_evaluations or 0) + r.cost_evaluations
+    return out
+
+
 def run_bench(
     env_id: str,
     agent_names: list[str] | None = None,
@@ -168,6 +267,7 @@ def run_bench(
     progress: bool = True,
     skip_inapplicable: bool = False,
     baseline: str | None = None,
+    executor: Executor | None = None,
 ) -> EnvBenchResult:
     """Run each agent on ``episodes`` seeded episodes of ``env_id``.
 
@@ -183,6 +283,11 @@ def run_bench(
             instead of raising.
         baseline: the agent every other is compared with on the same seeds; ``None``: the one
             with the best mean return.
+        executor: where the episodes run (:mod:`selenv.parallel`); ``None`` or a
+            :class:`~selenv.parallel.LocalExecutor`: in this process, one env per agent. A
+            pool or Ray executor gets each agent's episodes as contiguous blocks of seeds
+            (:class:`EpisodeBlock`, a fresh env and agent per block); returns and objectives
+            are identical to the local run, only the decision times differ.
 
     Returns:
         The per-agent results, in the order of ``agent_names``.
@@ -206,35 +311,41 @@ def run_bench(
             f"baseline {baseline!r} is not among the agents run on {env_id}: "
             f"{list(agent_names or names)}"
         )
-    build, play = _env_factory(env_id, kind, kwargs)
+    build, _ = _env_factory(env_id, kind, kwargs)
     first_env = build() if names else None  # bad kwargs fail before the bar
-    bar = tqdm(total=len(names) * episodes, desc=env_id, unit="ep", disable=not progress)
-    try:
-        for name in names:
-            result = out.agents[name] = AgentResult(name)
-            bar.set_postfix_str(name)
-            env, first_env = first_env or build(), None
-            done = 0
-            try:
-                try:
-                    agent = make(name, env_id)
-                except ValueError as exc:
-                    if agent_names is not None:  # named explicitly: bad options or file
-                        raise BenchError(f"cannot build agent {name!r}: {exc}") from exc
-                    raise AgentRefused(str(exc)) from exc
-                for e in range(episodes):
-                    ret, obj = play(env, agent, seed + e, result)
-                    result.returns.append(ret)
-                    result.final_objectives.append(obj)
-                    done += 1
-                    bar.update(1)
-            except AgentRefused as exc:
-                out.agents[name] = AgentResult(name, skipped=str(exc) or "raised ValueError")
-                bar.update(episodes - done)
-            finally:
-                env.close()
-    finally:
-        bar.close()
+    seeds = [seed + e for e in range(episodes)]
+    named = agent_names is not None
+    if executor is None or isinstance(executor, LocalExecutor):
+        bar = tqdm(total=len(names) * episodes, desc=env_id, unit="ep", disable=not progress)
+        try:
+            for name in names:
+                bar.set_postfix_str(name)
+                block = EpisodeBlock(env_id, kind, kwargs, name, tuple(seeds), named)
+                part = play_block(block, first_env, bar.update)
+                first_env = None
+                out.agents[name] = _merge(name, [part])
+                bar.update(episodes - len(part.result.returns) if part.refused else 0)
+        finally:
+            bar.close()
+    else:
+        if first_env is not None:
+            first_env.close()
+        parts = _blocks_per_agent(episodes, len(names), executor.num_workers)
+        blocks = [
+            EpisodeBlock(env_id, kind, kwargs, name, chunk, named)
+            for name in names
+            for chunk in _split(seeds, parts)
+        ]
+        done = executor.map(
+            play_block,
+            blocks,
+            desc=env_id,
+            unit="ep",
+            weights=[len(b.seeds) for b in blocks],
+            progress=progress,
+        )
+        for i, name in enumerate(names):
+            out.agents[name] = _merge(name, done[i * parts : (i + 1) * parts])
     for name, why in inapplicable.items():
         out.agents[name] = AgentResult(name, skipped=why)
     out.agents = {n: out.agents[n] for n in (agent_names or names) if n in out.agents}

@@ -1,0 +1,299 @@
+"""selenv.parallel: executors, Ray start-up/shutdown, and bench results identical on all three.
+
+The equality tests run every env family (four Gymnasium envs, two PettingZoo modules, learned
+and stochastic agents included) on the local, process and Ray executors with the same seeds and
+require bit-identical returns, final objectives and skip reasons; the Ray instance they use is
+started once for the module and must leave no process behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from selenv.bench import run_bench
+from selenv.cli import main
+from selenv.parallel import (
+    ExecutorError,
+    LocalExecutor,
+    ProcessExecutor,
+    RayExecutor,
+    check_address,
+    make_executor,
+    ray_session,
+)
+
+ray = pytest.importorskip("ray")
+
+
+def _raylet_pids() -> set[int]:
+    """PIDs of raylet processes on this machine (Ray's per-node daemon)."""
+    pids = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmd = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"raylet" in cmd.split(b"\0", 1)[0]:
+            pids.add(int(entry.name))
+    return pids
+
+
+def _draw(seed: int) -> float:
+    return float(np.random.default_rng(seed).normal())
+
+
+def _fail_on_three(x: int) -> int:
+    if x == 3:
+        raise ValueError(f"task {x} refuses")
+    return x * x
+
+
+def _sleep_then(x: tuple[float, int]) -> int:
+    time.sleep(x[0])
+    return x[1]
+
+
+@pytest.fixture(scope="module")
+def ray_executor():
+    """One embedded Ray instance (2 CPUs) for the module; checks nothing is left after it."""
+    before = _raylet_pids()
+    ex = RayExecutor(num_workers=2)
+    ex.start()
+    started = _raylet_pids() - before
+    assert started, "an embedded Ray instance should run a raylet"
+    yield ex
+    ex.close()
+    assert not ray.is_initialized()
+    deadline = time.monotonic() + 30
+    while (_raylet_pids() & started) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not (_raylet_pids() & started), "the raylet we started is still running"
+
+
+@pytest.fixture(scope="module")
+def process_executor():
+    with ProcessExecutor(num_workers=2) as ex:
+        yield ex
+
+
+def _executors(process_executor, ray_executor):
+    return {"local": LocalExecutor(), "process": process_executor, "ray": ray_executor}
+
+
+def test_map_keeps_task_order_and_seeds(process_executor, ray_executor):
+    tasks = list(range(25))
+    want = [_draw(s) for s in tasks]
+    for name, ex in _executors(process_executor, ray_executor).items():
+        assert ex.map(_draw, tasks, progress=False) == want, name
+    # completion order differs from task order: the result order must not
+    slow_first = [(0.3, 0), (0.0, 1), (0.0, 2), (0.1, 3)]
+    for ex in (process_executor, ray_executor):
+        assert ex.map(_sleep_then, slow_first, progress=False) == [0, 1, 2, 3]
+
+
+def test_worker_exception_is_reraised_as_itself(process_executor, ray_executor):
+    for name, ex in _executors(process_executor, ray_executor).items():
+        with pytest.raises(ValueError, match="task 3 refuses") as info:
+            ex.map(_fail_on_three, [1, 2, 3, 4], progress=False)
+        assert type(info.value) is ValueError, name  # Ray's RayTaskError wrapper removed
+    # and the executors still work afterwards
+    assert ray_executor.map(_fail_on_three, [1, 2], progress=False) == [1, 4]
+
+
+def test_weights_must_match_tasks():
+    with pytest.raises(ValueError, match="weights has 1 entries for 2 tasks"):
+        LocalExecutor().map(_draw, [1, 2], weights=[1], progress=False)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"name": "dask"}, "--executor 'dask' is not one of: local, process, ray"),
+        ({"name": "local", "address": "1.2.3.4:6379"}, "--address only applies to --executor ray"),
+        ({"name": "process", "num_workers": 0}, "--num-workers must be an integer >= 1"),
+        ({"name": "ray", "num_workers": 1.5}, "--num-workers must be an integer >= 1"),
+    ],
+)
+def test_make_executor_rejects(kwargs, match):
+    name = kwargs.pop("name")
+    with pytest.raises(ExecutorError, match=match):
+        make_executor(name, **kwargs)
+
+
+@pytest.mark.parametrize("address", ["nohost", "host:0", "host:port", ":6379", "a:70000", ""])
+def test_malformed_address(address):
+    with pytest.raises(ExecutorError, match="--address"):
+        check_address(address)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_unreachable_address_fails_fast():
+    before = _raylet_pids()
+    addr = f"127.0.0.1:{_free_port()}"
+    t0 = time.monotonic()
+    with pytest.raises(ExecutorError, match=r"no Ray cluster reachable.*ray start --head"):
+        with RayExecutor(address=addr):
+            pass
+    assert time.monotonic() - t0 < 30  # Ray's own retry loop would take minutes
+    assert not ray.is_initialized() or _raylet_pids() - before == set()
+
+
+def test_ray_not_installed(monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_ray(name, *args, **kwargs):
+        if name == "ray" or name.startswith("ray."):
+            raise ImportError("No module named 'ray'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    monkeypatch.delitem(__import__("sys").modules, "ray")
+    with pytest.raises(ExecutorError, match=r"needs Ray.*pip install 'selenv\[ray\]'"):
+        make_executor("ray")
+
+
+def test_session_reuses_a_running_instance(ray_executor):
+    # ray_executor's instance is running: a nested session must neither restart nor stop it
+    with ray_session() as r:
+        assert r.is_initialized()
+    assert ray.is_initialized()
+
+
+# -- bench: identical results on every executor ---------------------------------------------
+
+CASES = [
+    ("selenv/FIMSelection-v0", {"n_candidates": 16, "budget": 4}, None),
+    ("selenv/LandmarkSelection-v0", {"n_landmarks": 7, "horizon": 4}, None),
+    ("selenv/ReceiverClustering-v0", {"horizon": 6}, "ga,greedy,fixed_random,ppo"),
+    ("selenv/CLScheduling-v0", {"horizon": 6}, "greedy,random,round_robin,rollout"),
+    ("selenv.multiagent.fim_selection_v0", {"n_candidates": 10, "budgets": 3}, None),
+    ("selenv.multiagent.receiver_clustering_v0", {"horizon": 6}, None),
+]
+
+
+def _summary(result):
+    return {
+        name: (a.returns, a.final_objectives, a.skipped, a.decisions, a.cost_evaluations)
+        for name, a in result.agents.items()
+    }
+
+
+@pytest.mark.parametrize(("env_id", "kwargs", "agents"), CASES, ids=[c[0] for c in CASES])
+def test_bench_identical_on_every_executor(env_id, kwargs, agents, process_executor, ray_executor):
+    names = None if agents is None else agents.split(",")
+    runs = {
+        label: _summary(
+            run_bench(
+                env_id, names, episodes=5, seed=11, env_kwargs=kwargs, progress=False, executor=ex
+            )
+        )
+        for label, ex in _executors(process_executor, ray_executor).items()
+    }
+    local = runs["local"]
+    assert any(v[0] for v in local.values()), "nothing was played"
+    assert all(len(v[0]) == 5 for v in local.values() if v[2] is None)
+    assert runs["process"] == local
+    assert runs["ray"] == local
+
+
+def test_bench_cli_json_records_executor(tmp_path, ray_executor):
+    out = tmp_path / "b.json"
+    argv = [
+        "bench",
+        "selenv/FIMSelection-v0",
+        "--agents",
+        "greedy,random",
+        "--episodes",
+        "3",
+        "--env-kwargs",
+        '{"n_candidates": 12, "budget": 3}',
+        "--no-progress",
+    ]
+    assert main([*argv, "--json", str(out), "--executor", "ray", "--num-workers", "2"]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["provenance"]["executor"] == {"executor": "ray", "num_workers": 2, "address": None}
+    assert ray.is_initialized()  # the module's instance was reused, not shut down
+    local = tmp_path / "l.json"
+    assert main([*argv, "--json", str(local)]) == 0
+    res = [json.loads(p.read_text())["results"][0]["agents"] for p in (out, local)]
+    strip = [
+        {
+            k: {f: v for f, v in a.items() if "second" not in f and "ms" not in f}
+            for k, a in r.items()
+        }
+        for r in res
+    ]
+    assert strip[0] == strip[1]
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--executor", "dask"], "--executor"),
+        (["--address", "127.0.0.1:1"], "--address only applies to --executor ray"),
+        (["--executor", "ray", "--address", "127.0.0.1:PORT"], "no Ray cluster reachable"),
+        (["--executor", "process", "--num-workers", "0"], "--num-workers"),
+    ],
+)
+def test_bench_cli_bad_executor_options(tmp_path, capsys, extra, needle):
+    extra = [e.replace("PORT", str(_free_port())) for e in extra]
+    out = tmp_path / "x.json"
+    argv = [
+        "bench",
+        "selenv/FIMSelection-v0",
+        "--agents",
+        "greedy",
+        "--episodes",
+        "1",
+        "--no-progress",
+        "--json",
+        str(out),
+        *extra,
+    ]
+    assert main(argv) == 2
+    assert needle in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_bench_cli_ray_missing(tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    argv = [
+        "bench",
+        "selenv/FIMSelection-v0",
+        "--agents",
+        "greedy",
+        "--episodes",
+        "1",
+        "--no-progress",
+        "--executor",
+        "ray",
+    ]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--executor ray needs Ray" in err and "pip install" in err
+
+
+def test_thread_caps_restored_after_pool(monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")
+    with ProcessExecutor(num_workers=1) as ex:
+        assert ex.map(_draw, [1], progress=False) == [_draw(1)]
+    assert os.environ["OMP_NUM_THREADS"] == "7"
