@@ -18,8 +18,9 @@ subset and perturbs it so the dataset covers far more than one trajectory's beli
 position block rotated by a random rotation ``Q`` (``P -> T P T^T``, ``T = blkdiag(Q, I)``);
 a fraction ``keep_raw`` of the rows is left unperturbed. ``R`` is the simulator's (fixed): the
 features of eq. (13) do not contain ``R``, so a surrogate is valid for the ``R`` it was trained
-on (kept in the header). Tasks run in a ``ProcessPoolExecutor`` (spawned workers with
-``OPENBLAS_NUM_THREADS=1``) behind a tqdm bar; the result does not depend on ``workers``.
+on (kept in the header). Tasks run on a :mod:`selenv.parallel` executor (this process, a pool
+of spawned single-threaded processes, or Ray tasks) behind a tqdm bar; each task's seed is
+spawned from the master seed, so the result depends on neither the executor nor ``workers``.
 
 File format (``.npz``, no pickles): ``P_i``, ``P_j`` (N, n, n), ``H_i``, ``H_j`` (N, m, n),
 ``R`` (m, m), ``omega`` (N,), ``C`` (N, n, n), ``C_diag`` (N, n), ``log_det_pecmv`` (N,), and
@@ -37,19 +38,17 @@ from __future__ import annotations
 
 import json
 import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 import selenv
 from selenv.core.fusion.batch import dmv_omega_batch, pecmv_batch
 from selenv.core.linalg import FloatArray
+from selenv.parallel import Executor, LocalExecutor, ProcessExecutor
 from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 
 __all__ = [
@@ -69,7 +68,6 @@ FORMAT = "selenv-surrogate-data-v1"
 #: arrays of a dataset file besides ``header``
 ARRAYS = ("P_i", "P_j", "H_i", "H_j", "R", "omega", "C", "C_diag", "log_det_pecmv")
 _TINY = 1e-300  # floor of a variance inside the log (features stay finite for any finite input)
-_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def n_features(n: int, m: int) -> int:
@@ -249,9 +247,9 @@ def _task(seed: np.random.SeedSequence, n_rows: int, gen: GenerationConfig) -> d
     return arr
 
 
-def _init_worker() -> None:
-    for var in _THREAD_VARS:
-        os.environ[var] = "1"
+def _run_task(task: tuple[np.random.SeedSequence, int, GenerationConfig]) -> dict[str, Any]:
+    """:func:`_task` of one ``(seed, rows, gen)`` tuple (the executors map one argument)."""
+    return _task(*task)
 
 
 def generate_dataset(
@@ -261,15 +259,22 @@ def generate_dataset(
     workers: int = 0,
     gen: GenerationConfig | None = None,
     progress: bool = True,
+    executor: Executor | None = None,
 ) -> SurrogateDataset:
-    """Draw ``n_samples`` labelled fusion problems (deterministic in ``seed``, not in ``workers``).
+    """Simulate, perturb and label ``n_samples`` rows (module docstring for the recipe).
+
+    Task ``i`` draws from ``SeedSequence(seed).spawn(n_tasks)[i]``, so the dataset depends on
+    ``seed`` and ``gen`` only, never on how the tasks are executed.
 
     Args:
-        n_samples: number of rows (>= 1).
-        seed: root of the per-task seeds.
-        workers: processes (0: ``os.cpu_count()``; 1: in this process, no pool).
+        n_samples: rows.
+        seed: master seed (task seeds are spawned from it).
+        workers: processes when no ``executor`` is given (0: ``os.cpu_count()``; 1: in this
+            process, no pool).
         gen: sampling knobs (default :class:`GenerationConfig`).
-        progress: show a tqdm bar over the tasks.
+        progress: show a tqdm bar over the samples.
+        executor: where the tasks run (:mod:`selenv.parallel`: local, a process pool, Ray);
+            overrides ``workers``.
 
     Raises:
         ValueError: ``n_samples < 1`` or ``workers < 0``.
@@ -282,30 +287,28 @@ def generate_dataset(
     n_tasks = -(-n_samples // gen.per_task)
     sizes = [gen.per_task] * (n_tasks - 1) + [n_samples - gen.per_task * (n_tasks - 1)]
     seeds = np.random.SeedSequence(seed).spawn(n_tasks)
-    workers = min(workers or os.cpu_count() or 1, n_tasks)
-    bar = tqdm(total=n_samples, unit="sample", desc="surrogate data", disable=not progress)
-    parts: list[dict[str, Any]] = []
-    if workers == 1:
-        for s, k in zip(seeds, sizes, strict=True):
-            parts.append(_task(s, k, gen))
-            bar.update(k)
+    tasks = list(zip(seeds, sizes, [gen] * n_tasks, strict=True))
+    if executor is None:
+        workers = min(workers or os.cpu_count() or 1, n_tasks)
+        executor = LocalExecutor() if workers == 1 else ProcessExecutor(workers)
+        with executor:
+            parts = executor.map(
+                _run_task,
+                tasks,
+                desc="surrogate data",
+                unit="sample",
+                weights=sizes,
+                progress=progress,
+            )
     else:
-        saved = {v: os.environ.get(v) for v in _THREAD_VARS}
-        _init_worker()  # spawned children read these before importing numpy
-        try:
-            ctx = get_context("spawn")
-            with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker) as ex:
-                results = ex.map(_task, seeds, sizes, [gen] * n_tasks)
-                for part, k in zip(results, sizes, strict=True):
-                    parts.append(part)
-                    bar.update(k)
-        finally:
-            for v, old in saved.items():
-                if old is None:
-                    os.environ.pop(v, None)
-                else:
-                    os.environ[v] = old
-    bar.close()
+        parts = executor.map(
+            _run_task,
+            tasks,
+            desc="surrogate data",
+            unit="sample",
+            weights=sizes,
+            progress=progress,
+        )
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in ARRAYS if k != "R"}
     R = parts[0]["R"]
     n, m = arrays["P_i"].shape[1], arrays["H_i"].shape[1]

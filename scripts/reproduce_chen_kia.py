@@ -10,6 +10,7 @@ every method), position RMSE per agent (Table III) and the horizontal-position N
 Usage::
 
     python scripts/reproduce_chen_kia.py [--runs 50] [--steps 600] [--workers 2] [--quick]
+                                         [--executor local|process|ray] [--address ADDR]
 
 Writes ``chen_kia_fig8.png`` and ``chen_kia_rmse.png`` into ``--out`` and prints Markdown
 tables; ``main(argv)`` returns the numbers. Results: ``docs/REPRODUCTION.md``.
@@ -24,15 +25,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: threads onl
 import argparse
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
 from scipy.stats import chi2
-from tqdm import tqdm
 
+from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 
 METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv", "lpecmv_full")
@@ -79,14 +79,10 @@ def run_one(task: tuple[int, int, str]) -> dict[str, Any]:
     return {"err": err, "nees": nees, "t_rel": t_rel, "n_rel": n_rel, "t_run": t_run}
 
 
-def run_all(runs: int, steps: int, workers: int) -> dict[str, dict[str, Any]]:
-    """Every method on seeds ``0 .. runs - 1`` (paired), on ``workers`` processes."""
+def run_all(runs: int, steps: int, pool: Executor) -> dict[str, dict[str, Any]]:
+    """Every method on seeds ``0 .. runs - 1`` (paired), on ``pool`` (local, processes, Ray)."""
     tasks = [(seed, steps, m) for m in METHODS for seed in range(runs)]
-    if workers <= 1:
-        out = [run_one(t) for t in tqdm(tasks, desc="CL runs", unit="run")]
-    else:
-        with ProcessPoolExecutor(workers) as pool:
-            out = list(tqdm(pool.map(run_one, tasks), total=len(tasks), desc="CL runs", unit="run"))
+    out = pool.map(run_one, tasks, desc="CL runs", unit="run")
     res: dict[str, dict[str, Any]] = {}
     for i, m in enumerate(METHODS):
         chunk = out[i * runs : (i + 1) * runs]
@@ -169,15 +165,20 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=50, help="Monte Carlo runs (paper Fig. 8: 50)")
     ap.add_argument("--steps", type=int, default=600, help="steps of 0.1 s")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    add_executor_arguments(ap, default="process", workers_alias=True)
     ap.add_argument("--out", type=Path, default=Path("docs/figures"))
     ap.add_argument("--quick", action="store_true", help="4 runs of 150 steps (for tests)")
     args = ap.parse_args(argv)
     if args.quick:
         args.runs, args.steps = 4, 150
+    try:
+        pool = executor_from_args(args)
+    except ExecutorError as exc:
+        raise SystemExit(f"reproduce_chen_kia: error: {exc}") from None
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    res = run_all(args.runs, args.steps, args.workers)
+    with pool:
+        res = run_all(args.runs, args.steps, pool)
     dt = CLConfig().dt
     paths = {"fig8": args.out / "chen_kia_fig8.png", "rmse": args.out / "chen_kia_rmse.png"}
     plot_nees(res, args.runs, dt, paths["fig8"])
@@ -191,6 +192,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "wall": wall,
         "band": nees_band(args.runs),
         "runs": args.runs,
+        "executor": pool.describe(),
     }
 
 

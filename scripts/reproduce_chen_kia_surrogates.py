@@ -43,6 +43,7 @@ from matplotlib.figure import Figure
 from learned.surrogate_data import SurrogateDataset, generate_dataset
 from learned.surrogates import C_SCALE, Surrogate
 from selenv import fusion
+from selenv.parallel import ExecutorError, add_executor_arguments, executor_from_args
 
 ROOT = Path(__file__).resolve().parents[1]
 CHECKPOINTS = {
@@ -187,7 +188,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--samples", type=int, default=5000, help="test rows (paper: 5000)")
     ap.add_argument("--seed", type=int, default=2022, help="test-set seed (training used 0)")
     ap.add_argument("--calls", type=int, default=2000, help="timed single calls per algorithm")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    add_executor_arguments(ap, default="process", workers_alias=True)
     ap.add_argument("--out", type=Path, default=Path("docs/figures"))
     ap.add_argument("--quick", action="store_true", help="300 rows, 200 calls (for tests)")
     args = ap.parse_args(argv)
@@ -202,7 +203,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         )
     ldmv = Surrogate.load(CHECKPOINTS["ldmv"])
     lpecmv = {m: Surrogate.load(CHECKPOINTS[m]) for m in (1, 2, 3)}
-    ds = generate_dataset(args.samples, seed=args.seed, workers=args.workers)
+    try:
+        pool = executor_from_args(args)
+    except ExecutorError as exc:
+        raise SystemExit(f"reproduce_chen_kia_surrogates: error: {exc}") from None
+    with pool:
+        ds = generate_dataset(args.samples, seed=args.seed, executor=pool)
 
     values = fig2(ds, lpecmv)
     omega_hat = ldmv.predict_omega(ds.P_i, ds.P_j, ds.H_i, ds.H_j)

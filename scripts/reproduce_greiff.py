@@ -17,29 +17,33 @@ Usage::
 
     python scripts/reproduce_greiff.py [--runs 100] [--table-runs 50] [--steps 500]
                                        [--workers 2] [--seed 2022] [--out docs/figures] [--quick]
+    # the paper's 1000 runs per setting, on a Ray cluster (`ray start --head` on the head node):
+    python scripts/reproduce_greiff.py --runs 1000 --table-runs 1000 \
+        --executor ray --address HOST:6379
 
-Runs are spread over ``--workers`` processes with a progress bar. ``main(argv)`` returns the
+Runs are spread over ``--workers`` local processes (``--executor process``, the default), this
+process (``--executor local``) or Ray tasks (``--executor ray [--address ADDR]``), with a progress
+bar; run ``i`` is seeded from ``--seed`` and ``i`` only, so the numbers do not depend on the
+executor. ``main(argv)`` returns the
 numbers as a dict and prints Markdown tables. Results: ``docs/REPRODUCTION.md``.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from matplotlib.figure import Figure
-from tqdm import tqdm
 
 import selenv  # noqa: F401  (registers the env and the agents)
 from selenv.agents import make as make_agent
 from selenv.agents.clustering_ga import align_labels
+from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
 from selenv.scenarios.clustering_labels import random_feasible_clustering
 
@@ -98,12 +102,9 @@ def run_episode(task: dict[str, Any]) -> dict[str, np.ndarray]:
     return out
 
 
-def run_all(tasks: list[dict[str, Any]], workers: int, desc: str) -> list[dict[str, np.ndarray]]:
-    """Run tasks on ``workers`` processes (in order) with a progress bar."""
-    if workers <= 1:
-        return [run_episode(t) for t in tqdm(tasks, desc=desc, unit="run")]
-    with ProcessPoolExecutor(workers) as pool:
-        return list(tqdm(pool.map(run_episode, tasks), total=len(tasks), desc=desc, unit="run"))
+def run_all(tasks: list[dict[str, Any]], pool: Executor, desc: str) -> list[dict[str, np.ndarray]]:
+    """Run tasks on ``pool`` (local, process pool or Ray; results in task order) with a bar."""
+    return pool.map(run_episode, tasks, desc=desc, unit="run")
 
 
 # -- experiments ---------------------------------------------------------------------------------
@@ -135,7 +136,7 @@ def fig3_experiment(args: argparse.Namespace, sigma: np.ndarray) -> dict[str, An
             "clustering": np.zeros(30, int),
         }
     )
-    res = run_all(tasks, args.workers, "Fig. 3")
+    res = run_all(tasks, args.pool, "Fig. 3")
     R = args.runs
     stack = lambda rs, key: np.stack([r[key] for r in rs])  # noqa: E731
     out: dict[str, Any] = {}
@@ -165,7 +166,7 @@ def table2_experiment(args: argparse.Namespace) -> dict[tuple[int, ...], dict[st
         for ops in OPERATOR_SETS
         for r in range(args.table_runs)
     ]
-    res = run_all(tasks, args.workers, "Table II")
+    res = run_all(tasks, args.pool, "Table II")
     out = {}
     for i, ops in enumerate(OPERATOR_SETS):
         J = np.stack([r["J"] for r in res[i * args.table_runs : (i + 1) * args.table_runs]])
@@ -314,7 +315,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--runs", type=int, default=100, help="Fig. 3 Monte Carlo runs (paper: 1000)")
     p.add_argument("--table-runs", type=int, default=50, help="Table II runs per O (paper: 1000)")
     p.add_argument("--steps", type=int, default=500, help="K (paper: 500)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    add_executor_arguments(p, default="process", workers_alias=True)
     p.add_argument("--seed", type=int, default=2022)
     p.add_argument("--out", type=Path, default=Path("docs/figures"))
     p.add_argument("--quick", action="store_true", help="4 runs, 3 per O, K = 120 (for tests)")
@@ -327,14 +328,22 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run the three experiments, write the figures, print the tables; return the numbers."""
     args = parse_args(argv)
+    try:
+        pool = executor_from_args(args)
+    except ExecutorError as exc:
+        raise SystemExit(f"reproduce_greiff: error: {exc}") from None
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     sigma = make_clustering_problem(ClusteringConfig(), np.random.default_rng(args.seed)).sigma
-    results: dict[str, Any] = {
-        "fig3": fig3_experiment(args, np.asarray(sigma)),
-        "table2": table2_experiment(args),
-        "fig4": fig4_experiment(args, np.asarray(sigma)),
-    }
+    with pool:
+        args.pool = pool
+        results: dict[str, Any] = {
+            "fig3": fig3_experiment(args, np.asarray(sigma)),
+            "table2": table2_experiment(args),
+            "fig4": fig4_experiment(args, np.asarray(sigma)),
+        }
+        del args.pool
+    results["executor"] = pool.describe()
     paths = {
         name: args.out / f"{name}.png" for name in ("greiff_fig3", "greiff_table2", "greiff_fig4")
     }

@@ -25,6 +25,10 @@ Usage::
 
     python scripts/reproduce_soubaras.py [--runs 100] [--horizon 300] [--workers 2]
                                          [--seed 2023] [--out docs/figures] [--quick]
+                                         [--executor local|process|ray] [--address ADDR]
+
+Runs go to ``--workers`` local processes by default, to Ray tasks with ``--executor ray``
+(``--address`` joins a cluster); run ``r`` uses seed ``--seed + r`` whatever the executor.
 
 Writes ``soubaras_fig3.png`` .. ``soubaras_fig6.png`` into ``--out`` and prints Markdown
 tables. ``main(argv)`` returns the numbers as a dict. Results: ``docs/REPRODUCTION.md``.
@@ -36,7 +40,7 @@ import os
 
 # Tiny BLAS calls (9 x 9, 60 x 60) with several OpenBLAS threads per process on a 2-core box
 # are 10-40x slower under contention: one thread per process, set before numpy is imported
-# (worker processes are forked from here and inherit it).
+# (worker processes are spawned from here and inherit it; Ray workers get one thread from Ray).
 os.environ["OPENBLAS_NUM_THREADS"] = "1"
 os.environ["OMP_NUM_THREADS"] = "1"
 os.environ["MKL_NUM_THREADS"] = "1"
@@ -45,14 +49,12 @@ import argparse
 import math
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from matplotlib.figure import Figure
-from tqdm import tqdm
 
 import selenv  # noqa: F401  (registers the env and the agents)
 from selenv.agents import make as make_agent
@@ -60,6 +62,7 @@ from selenv.agents.fim_solvers import brute_force_whitened, greedy_whitened
 from selenv.agents.vns import vns_whitened
 from selenv.core.information import logdet_objective
 from selenv.core.linalg import logdet_spd
+from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 from selenv.scenarios.landmarks import LandmarkEKF, LandmarkProblem, crlb_reference
 
 ENV_ID = "selenv/LandmarkSelection-v0"
@@ -209,13 +212,9 @@ def run_seed(task: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def run_all(tasks: list[dict[str, Any]], workers: int) -> list[dict[str, Any]]:
-    """Run the seeds on ``workers`` processes (in order) with a progress bar."""
-    if workers <= 1:
-        return [run_seed(t) for t in tqdm(tasks, desc="Monte Carlo", unit="run")]
-    with ProcessPoolExecutor(workers) as pool:
-        it = pool.map(run_seed, tasks)
-        return list(tqdm(it, total=len(tasks), desc="Monte Carlo", unit="run"))
+def run_all(tasks: list[dict[str, Any]], pool: Executor) -> list[dict[str, Any]]:
+    """Run the seeds on ``pool`` (local, process pool or Ray; in order) with a progress bar."""
+    return pool.map(run_seed, tasks, desc="Monte Carlo", unit="run")
 
 
 # -- aggregation ---------------------------------------------------------------------------------
@@ -611,7 +610,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--horizon", type=int, default=None, help="filter steps at 10 Hz (300 = 30 s)")
     p.add_argument("--n-landmarks", type=int, default=30)
     p.add_argument("--k", type=int, default=2, help="landmarks selected per step")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    add_executor_arguments(p, default="process", workers_alias=True)
     p.add_argument("--seed", type=int, default=DEFAULT_SEED, help="run r uses seed + r")
     p.add_argument("--out", type=Path, default=Path("docs/figures"))
     p.add_argument(
@@ -632,6 +631,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run the Monte Carlo study, write the figures, print the tables; return the numbers."""
     args = parse_args(argv)
+    try:
+        pool = executor_from_args(args)
+    except ExecutorError as exc:
+        raise SystemExit(f"reproduce_soubaras: error: {exc}") from None
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     env_kwargs = {"n_landmarks": args.n_landmarks, "k": args.k, "horizon": args.horizon}
@@ -639,7 +642,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         {"seed": args.seed + r, "env_kwargs": env_kwargs, "keep_geometry": r == 0}
         for r in range(args.runs)
     ]
-    runs = run_all(tasks, args.workers)
+    with pool:
+        runs = run_all(tasks, pool)
     dt = float(gym.make(ENV_ID, **env_kwargs).unwrapped.config.dt)  # type: ignore[attr-defined]
     agg = aggregate(runs, dt, args.n_landmarks)
     paths = {name: args.out / f"{name}.png" for name in FIGURE_NAMES}
@@ -651,10 +655,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     agg["table2"] = table2_rows(agg)
     agg["figures"] = {k: str(v) for k, v in paths.items()}
     agg["config"] = {**vars(args), "out": str(args.out), "wall_time_s": wall}
+    agg["executor"] = pool.describe()
     print(format_tables(agg))
     print(
         f"\nruns={args.runs} horizon={args.horizon} N={args.n_landmarks} K={args.k} "
-        f"workers={args.workers} seed={args.seed} wall time {wall:.1f} s; figures in {args.out}"
+        f"executor={args.executor} workers={pool.num_workers} seed={args.seed} "
+        f"wall time {wall:.1f} s; figures in {args.out}"
     )
     return agg
 

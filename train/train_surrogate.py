@@ -19,6 +19,7 @@ then test metrics and the checkpoint ``<out>.pt`` with its metadata ``<out>.json
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 import time
@@ -35,6 +36,7 @@ from learned.config import parse_config
 from learned.surrogate_data import SurrogateDataset, generate_dataset, load_dataset, save_dataset
 from learned.surrogates import C_SCALE, KINDS, METHODS, TABLE_II, Surrogate, barrier_loss
 from selenv.core.fusion import dmv_update, pecmv_update
+from selenv.parallel import make_executor
 
 #: Table II's optimisers except LDMV: its SGD (lr 0.05, batch 256) stays at the mean on our data
 #: (test R 0.16; 0.24 with momentum 0.9) while Adam at the same lr reaches R 0.92 (50k samples,
@@ -52,7 +54,9 @@ class Config:
     samples: int = 50_000
     data: str = ""  # load this .npz instead of generating
     save_data: str = ""  # write the generated dataset here
-    workers: int = 0  # generation processes (0: all cores)
+    workers: int = 0  # generation processes / Ray tasks in flight (0: all cores)
+    executor: str = ""  # local | process | ray ("": a local pool of --workers processes)
+    address: str = ""  # Ray cluster to join (with --executor ray; "": start a local instance)
     val_fraction: float = 0.1
     test_fraction: float = 0.1
     # model and training (0 / "": Table II)
@@ -161,9 +165,21 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if cfg.data:
         ds = load_dataset(cfg.data)
     else:
-        ds = generate_dataset(
-            cfg.samples, seed=cfg.seed, workers=cfg.workers, progress=cfg.progress
-        )
+        executor = None
+        if cfg.executor or cfg.address:
+            executor = make_executor(
+                cfg.executor or "process",
+                num_workers=cfg.workers or None,
+                address=cfg.address or None,
+            )
+        with executor or contextlib.nullcontext():
+            ds = generate_dataset(
+                cfg.samples,
+                seed=cfg.seed,
+                workers=cfg.workers,
+                progress=cfg.progress,
+                executor=executor,
+            )
         if cfg.save_data:
             save_dataset(ds, cfg.save_data)
     gen_seconds = time.perf_counter() - start

@@ -63,11 +63,16 @@ def executor_from_args(
 ) -> Executor:
     """The executor that ``args`` (from :func:`add_executor_arguments`) describe.
 
+    ``--executor process --num-workers 1`` runs in this process (same results, no spawn).
+
     Raises:
         ExecutorError: ``--address`` without ``--executor ray``, or Ray not installed.
     """
+    name = args.executor
+    if name == "process" and args.num_workers == 1:
+        name = "local"  # a pool of one process computes the same results, in this process
     return make_executor(
-        args.executor,
+        name,
         num_workers=args.num_workers,
         address=args.address,
         initializer=initializer,
