@@ -229,7 +229,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.max_episode_steps = self.budget * self.horizon
         A = int(n_agents)
         self.action_space = spaces.Discrete(self.n_pairs + 1)
-        self.observation_space = spaces.Dict(  # type: ignore[assignment]
+        self.observation_space = spaces.Dict(  # type: ignore[assignment, unused-ignore]
             {
                 "logdet": spaces.Box(-np.inf, np.inf, (A,), np.float32),
                 "pos_std": spaces.Box(0.0, np.inf, (A,), np.float32),
@@ -312,7 +312,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
             reward += before - self.objective_value()
         return self._obs(), reward, False, False, self._info(reason)
 
-    def render(self) -> np.ndarray | None:
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the team (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         sim, done = self.sim, sorted(self._done_pairs)
         title = f"CLScheduling-v0 ({self.fusion})"

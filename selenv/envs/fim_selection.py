@@ -204,7 +204,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.budget = check_integer(budget, f"budget (at most the pool size {self.n})", 1, self.n)
         self.max_episode_steps = self.budget
         self.action_space = spaces.Discrete(self.n)
-        self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment]
+        self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment, unused-ignore]
         self.problem: FIMProblem | None = None
         self._state: LogDetGainState | None = None
         self._steps = 0
@@ -258,7 +258,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self._done = self.budget_left == 0
         return self._obs(), reward, self._done, False, self._info(reason)
 
-    def render(self) -> np.ndarray | None:
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the scene (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         state, problem = self.state, self.problem
         title = "FIMSelection-v0"

@@ -157,7 +157,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         self.action_space = gym.spaces.Discrete(self.n)
         space = fim_observation_space(self.n, 2, 9)
         space.spaces["features"] = gym.spaces.Box(-1.0, 1.0, (self.n, 4), np.float32)
-        self.observation_space = space  # type: ignore[assignment]
+        self.observation_space = space  # type: ignore[assignment, unused-ignore]
         self.problem: LandmarkProblem | None = None
         self._ekf: LandmarkEKF | None = None
         self._state: LogDetGainState | None = None
@@ -243,7 +243,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         self._open_step()
         return self._obs(), reward, False, False, self._info(reason)
 
-    def render(self) -> np.ndarray | None:
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the flight (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         ekf, problem = self.ekf, self.problem
         title = "LandmarkSelection-v0"

@@ -471,11 +471,11 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         self.max_size = self.config.max_cluster_size
         if action_mode == "assignment":
             self.action_space: spaces.Space[Any] = spaces.MultiDiscrete([self.n] * self.n)
-            self.observation_space = clustering_observation_space(self.n)  # type: ignore[assignment]
+            self.observation_space = clustering_observation_space(self.n)  # type: ignore[assignment, unused-ignore]
         else:
             n_edit = edit_action_count(self.n)
             self.action_space = spaces.Discrete(n_edit)
-            self.observation_space = clustering_observation_space(self.n, n_edit)  # type: ignore[assignment]
+            self.observation_space = clustering_observation_space(self.n, n_edit)  # type: ignore[assignment, unused-ignore]
         self.problem: ClusteringProblem | None = None
         self._bank: ClusterFilterBank | None = None
         self._done = False
@@ -537,7 +537,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         reward = -J + (rule.penalty if reason else 0.0)
         return self._obs(), reward, self._done, False, self._info(changed, reason)
 
-    def render(self) -> np.ndarray | None:
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the clustering (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         return render_clustering(self._renderer, self.bank, self.max_size, "ReceiverClustering-v0")
 

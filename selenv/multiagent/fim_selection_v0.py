@@ -147,7 +147,9 @@ class FIMSelectionParallelEnv(ParallelEnv):
             size = len(self._pools[a])
             self.budgets[a] = check_integer(B, f"budgets[{i}] (budget of {a})", 1, size)
         _, m, d = probe.G.shape
-        self._action_spaces = {a: spaces.Discrete(len(p)) for a, p in self._pools.items()}
+        self._action_spaces: dict[str, spaces.Discrete] = {
+            a: spaces.Discrete(len(p)) for a, p in self._pools.items()
+        }
         self._observation_spaces: dict[str, spaces.Space[Any]] = {}
         for a, p in self._pools.items():
             space = fim_observation_space(len(p), m, d)

@@ -263,7 +263,9 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
         self.possible_agents = [f"receiver_{i}" for i in range(n)]
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         base = clustering_observation_space(n, mask_size=n).spaces
-        self._action_spaces = {a: spaces.Discrete(n) for a in self.possible_agents}
+        self._action_spaces: dict[str, spaces.Discrete] = {
+            a: spaces.Discrete(n) for a in self.possible_agents
+        }
         self._observation_spaces = {
             a: spaces.Dict({**base, "self": spaces.MultiBinary(n)}) for a in self.possible_agents
         }
