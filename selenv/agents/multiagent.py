@@ -288,3 +288,15 @@ register_agent(
         "single-agent greedy's best move/swap, by the receivers concerned",
     )
 )
+# an RLlib-trained shared module (learned.rl.rllib_agent, lazy: selenv never imports ray)
+for _module in (FIM_MODULE, CLUSTERING_MODULE):
+    register_agent(
+        AgentSpec(
+            "rllib",
+            (_module,),
+            "learned.rl.rllib_agent:make_rllib_policy",
+            "RLlib-trained shared module on each agent's own candidate view "
+            "(rllib:path=runs/rllib_<env>/policy.json; train/train_rllib_marl.py)",
+            kwargs={"env_id": _module},
+        )
+    )
