@@ -205,7 +205,9 @@ def test_clustering_greedy_leaves_out_swaps_the_resolution_rule_rejects() -> Non
 def test_clustering_module_bench_runs_every_agent() -> None:
     res = run_bench(CLUSTERING_MODULE, episodes=2, env_kwargs={"horizon": 15}, progress=False)
     # rllib plays the shipped checkpoints/rllib_receiver_clustering_v0.json
-    assert list(res.agents) == agents_for(CLUSTERING_MODULE) == ["random", "stay", "greedy", "rllib"]
+    assert (
+        list(res.agents) == agents_for(CLUSTERING_MODULE) == ["random", "stay", "greedy", "rllib"]
+    )
     for r in res.agents.values():
         assert r.skipped is None and len(r.returns) == 2
         assert all(f > 0 for f in r.final_objectives)  # J

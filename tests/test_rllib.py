@@ -431,3 +431,14 @@ def test_smoke_training_exports_a_playable_module(
         train_rllib_marl.main([*TINY, "--env", env, "--env-kwargs", json.dumps(kwargs),
                                "--out", str(out)])  # fmt: skip
     shutil.rmtree(out.parent)
+
+
+@pytest.mark.parametrize("env_id", [FIM_MODULE, CLUSTERING_MODULE])
+def test_shipped_modules_load_and_beat_random(env_id: str) -> None:
+    path = rllib_agent.default_path(env_id)
+    module, meta = load_exported(path)
+    assert meta["env_id"] == env_id and meta["weights"]["file"] == path.with_suffix(".pth").name
+    # the shipped module plays (and better than random) on default kwargs
+    res = run_bench(env_id, ["random", "rllib"], episodes=3, seed=777, progress=False)
+    assert res.agents["rllib"].skipped is None
+    assert res.agents["rllib"].mean_return > res.agents["random"].mean_return
