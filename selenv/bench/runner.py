@@ -221,9 +221,14 @@ def play_block(
     return BlockResult(result)
 
 
-def _blocks_per_agent(episodes: int, n_agents: int, workers: int) -> int:
-    """Blocks each agent's episodes are cut into: about 4 tasks per worker, whole episodes."""
-    return max(1, min(episodes, -(-4 * workers // max(n_agents, 1))))
+def _blocks_per_agent(episodes: int, workers: int) -> int:
+    """Blocks each agent's episodes are cut into: two per worker (at most one per episode).
+
+    Per agent, not per bench: agents differ by orders of magnitude in cost (a ``rollout``
+    reference against a random pick), so the expensive agent's episodes must spread over every
+    worker by themselves; each block pays one env and agent construction.
+    """
+    return max(1, min(episodes, 2 * workers))
 
 
 def _split(seeds: list[int], parts: int) -> list[tuple[int, ...]]:
@@ -330,7 +335,7 @@ def run_bench(
     else:
         if first_env is not None:
             first_env.close()
-        parts = _blocks_per_agent(episodes, len(names), executor.num_workers)
+        parts = _blocks_per_agent(episodes, executor.num_workers)
         blocks = [
             EpisodeBlock(env_id, kind, kwargs, name, chunk, named)
             for name in names
