@@ -2,7 +2,7 @@
 
 For every env with a shipped checkpoint, plays the same episodes three times and times only
 ``agent.act`` (the decision, not the env step): the ``ppo`` agent through SB3's ``predict``
-(``lean=False``), through :class:`learned.rl.lean.LeanScorer` (the default), and the env's
+(``lean=False``), through :class:`selenv.learned.rl.lean.LeanScorer` (the default), and the env's
 greedy heuristic. Single thread (``torch.set_num_threads(1)``, as in the bench).
 
     .venv/bin/python benchmarks/bench_policy_inference.py [--decisions 200]
@@ -22,8 +22,8 @@ import numpy as np
 import torch as th
 
 import selenv  # noqa: F401  (registers the envs)
-from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from selenv.agents import make
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 
 
 def time_agent(agent: Any, env_id: str, kwargs: dict[str, Any], decisions: int) -> float:

@@ -18,9 +18,9 @@ import time
 import numpy as np
 import torch
 
-from learned.surrogate_data import generate_dataset
-from learned.surrogates import shipped
 from selenv.core.fusion import dmv_omega_batch, dmv_update, pecmv_batch, pecmv_update
+from selenv.learned.surrogate_data import generate_dataset
+from selenv.learned.surrogates import shipped
 
 
 def _best(fn, repeat: int = 5) -> float:

@@ -1,7 +1,7 @@
 """Reproduce Chen & Kia (2022) Figs. 2, 6 and Table IV: the learned fusion surrogates.
 
 On a fresh test set (simulator beliefs from a seed the checkpoints never saw, labelled by the
-exact solvers, :func:`learned.surrogate_data.generate_dataset`):
+exact solvers, :func:`selenv.learned.surrogate_data.generate_dataset`):
 
 * **Fig. 2** -- the PECMV objective eq. (8a), ``log det P_i+`` with ``X = L_i C L_j^T``, for
   the optimum ``C*`` and for each LPECMV output method of Table I (1: tanh + barrier loss,
@@ -40,9 +40,9 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from learned.surrogate_data import SurrogateDataset, generate_dataset
-from learned.surrogates import C_SCALE, Surrogate
 from selenv import fusion
+from selenv.learned.surrogate_data import SurrogateDataset, generate_dataset
+from selenv.learned.surrogates import C_SCALE, Surrogate
 from selenv.parallel import ExecutorError, add_executor_arguments, executor_from_args
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,10 +9,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
-from learned.rl.expert import CL_ID, TRAIN_SEED_BASE, collect_cl_rollout_labels, train_seed
 from selenv.agents.rollout import CLRolloutAgent
-from train import train_cl_expert
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
+from selenv.learned.rl.expert import CL_ID, TRAIN_SEED_BASE, collect_cl_rollout_labels, train_seed
+from selenv.train import train_cl_expert
 
 SMALL = {"n_agents": 3, "horizon": 12}
 
@@ -97,7 +97,7 @@ def test_train_cl_expert_tiny_budget_end_to_end(tmp_path: Path) -> None:
     assert out.is_file() and (tmp_path / "clx_round0.zip").is_file()
     log = meta["expert_iteration"]["rounds_log"]
     assert [r["states"] for r in log] == [5, 10]  # DAgger aggregates the rounds
-    assert meta["expert_iteration"]["command"].startswith("python -m train.train_cl_expert")
+    assert meta["expert_iteration"]["command"].startswith("python -m selenv.train.train_cl_expert")
     env = gym.make(CL_ID, **SMALL)
     assert meta["obs_layout"]["n_candidates_trained"] == env.unwrapped.n_pairs + 1
     agent = SB3PolicyAgent(out, env_id=CL_ID)  # the saved file loads safely and plays
@@ -115,8 +115,8 @@ def test_train_cl_expert_tiny_budget_end_to_end(tmp_path: Path) -> None:
 
 
 def test_landmark_labels_and_training_entry_point(tmp_path: Path) -> None:
-    from learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
-    from train import train_landmark_expert
+    from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+    from selenv.train import train_landmark_expert
 
     data = collect_landmark_rollout_labels({}, 8, seed=0, horizon=2, progress=False)
     finite = np.isfinite(data.deltas)
@@ -144,4 +144,6 @@ def test_landmark_labels_and_training_entry_point(tmp_path: Path) -> None:
         ]
     )
     assert meta["env_id"] == LANDMARK_ID and out.is_file()
-    assert meta["expert_iteration"]["command"].startswith("python -m train.train_landmark_expert")
+    assert meta["expert_iteration"]["command"].startswith(
+        "python -m selenv.train.train_landmark_expert"
+    )

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch as th
 
-from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
-from learned.rl.candidate_policy import make_ppo
-from learned.rl.lean import LeanScorer
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
+from selenv.learned.rl.candidate_policy import make_ppo
+from selenv.learned.rl.lean import LeanScorer
 
 MAX_STEPS = 40
 
@@ -81,7 +81,7 @@ def test_lean_scorer_rejects_other_policies_and_empty_masks() -> None:
 
 
 def test_top_m_scorer_matches_the_network_on_the_whole_pool_and_picks_from_the_top_m() -> None:
-    from learned.rl.lean import TopMScorer
+    from selenv.learned.rl.lean import TopMScorer
 
     env = gym.make("selenv/FIMSelection-v0", n_candidates=30, budget=5)
     policy = make_ppo(env, seed=1, device="cpu").policy

@@ -13,11 +13,11 @@ import torch
 from gymnasium import spaces
 
 import selenv  # noqa: F401  (registers the env ids and baseline agents)
-from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, make_ppo_agent
-from learned.rl.candidate_policy import CandidateScoringPolicy, make_maskable_ppo
 from selenv.agents import agents_for, make
 from selenv.envs.fim_selection import fim_observation_space
-from train import train_fim_ppo
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, make_ppo_agent
+from selenv.learned.rl.candidate_policy import CandidateScoringPolicy, make_maskable_ppo
+from selenv.train import train_fim_ppo
 
 DEFAULT_CHECKPOINT = DEFAULT_CHECKPOINTS["selenv/FIMSelection-v0"]
 ENV_ID = "selenv/FIMSelection-v0"
@@ -202,7 +202,8 @@ def test_shipped_checkpoint_runs_on_another_pool_size() -> None:
 
 
 def test_registered_as_ppo() -> None:
-    # selenv registers the lazy factory; building it imports learned.rl.agent and loads the file
+    # selenv registers the lazy factory; building it imports selenv.learned.rl.agent and loads
+    # the file
     assert "ppo" in agents_for(ENV_ID)
     agent = make("ppo", ENV_ID)
     assert isinstance(agent, SB3PolicyAgent) and agent.name == "ppo"

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from learned.rl.agent import DEFAULT_CHECKPOINTS
-from learned.rl.marl import SharedPPOPolicy
-from learned.rl.safe_load import load_policy
 from selenv.agents import make
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
+from selenv.learned.rl.marl import SharedPPOPolicy
+from selenv.learned.rl.safe_load import load_policy
 from selenv.multiagent import fim_selection_v0
 
 MODULE = "selenv.multiagent.fim_selection_v0"

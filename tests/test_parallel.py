@@ -303,7 +303,7 @@ def test_thread_caps_restored_after_pool(monkeypatch):
 
 
 def test_surrogate_dataset_identical_on_every_executor(process_executor, ray_executor):
-    from learned.surrogate_data import GenerationConfig, generate_dataset
+    from selenv.learned.surrogate_data import GenerationConfig, generate_dataset
 
     gen = GenerationConfig(per_task=40)
     sets = {

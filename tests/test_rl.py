@@ -1,4 +1,5 @@
-"""RL glue (learned.rl): candidate views, PettingZoo -> SB3 parameter sharing, training scripts,
+"""RL glue (selenv.learned.rl): candidate views, PettingZoo -> SB3 parameter sharing, training
+scripts,
 the policy-as-agent adapter on every env it serves."""
 
 from __future__ import annotations
@@ -12,20 +13,20 @@ import pytest
 from gymnasium import spaces
 from pettingzoo.test import parallel_api_test  # noqa: F401  (the wrapped env passes it)
 
-from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
-from learned.rl.candidate_policy import (
+from selenv.agents import make
+from selenv.agents.fim import CooperativeGreedyPolicy
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
+from selenv.learned.rl.candidate_policy import (
     MASKED_LOGIT,
     CandidateScoringPPOPolicy,
     make_maskable_ppo,
     make_ppo,
     obs_layout,
 )
-from learned.rl.marl import SharedPolicyEnv
-from learned.rl.views import CandidateViewWrapper, CLView, view_for
-from selenv.agents import make
-from selenv.agents.fim import CooperativeGreedyPolicy
+from selenv.learned.rl.marl import SharedPolicyEnv
+from selenv.learned.rl.views import CandidateViewWrapper, CLView, view_for
 from selenv.multiagent import fim_selection_v0
-from train import (
+from selenv.train import (
     train_cl_ppo,
     train_clustering_ppo,
     train_fim_marl,
@@ -249,7 +250,7 @@ def test_marl_training_script(tmp_path: Path) -> None:
         "independent_greedy",
     }
     assert all(np.isfinite(v) for v in finals.values())
-    assert meta["marl"]["path"] == "learned.rl.marl.SharedPolicyEnv"
+    assert meta["marl"]["path"] == "selenv.learned.rl.marl.SharedPolicyEnv"
     # --eval-only re-evaluates the saved checkpoint on its own env kwargs: same numbers
     again = train_fim_marl.main(["--eval-only", "--eval-episodes=2", f"--out={out}"])
     assert again["metrics"] == meta["metrics"]

@@ -1,4 +1,4 @@
-"""Ranking pre-training (learned.rl.ranking) and the verified top-k policy agent."""
+"""Ranking pre-training (selenv.learned.rl.ranking) and the verified top-k policy agent."""
 
 from __future__ import annotations
 
@@ -8,19 +8,19 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
-from learned.rl.candidate_policy import make_maskable_ppo
-from learned.rl.ranking import (
+from selenv.agents import make
+from selenv.envs.receiver_clustering import apply_edit, edit_mask
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
+from selenv.learned.rl.candidate_policy import make_maskable_ppo
+from selenv.learned.rl.ranking import (
     RankingData,
     clustering_edit_deltas,
     collect_clustering_ranking,
     fit_ranking,
     listnet_targets,
 )
-from learned.rl.views import CandidateViewWrapper, view_for
-from selenv.agents import make
-from selenv.envs.receiver_clustering import apply_edit, edit_mask
-from train import train_clustering_dagger, train_clustering_ppo
+from selenv.learned.rl.views import CandidateViewWrapper, view_for
+from selenv.train import train_clustering_dagger, train_clustering_ppo
 
 CLU_ID = "selenv/ReceiverClustering-v0"
 FIM_ID = "selenv/FIMSelection-v0"

@@ -23,24 +23,24 @@ th = pytest.importorskip("torch")
 from ray.rllib.core.columns import Columns  # noqa: E402
 from ray.rllib.utils.pre_checks.env import check_multiagent_environments  # noqa: E402
 
-from learned.rl import rllib_agent  # noqa: E402
-from learned.rl.rllib_agent import (  # noqa: E402
+from selenv.agents import make  # noqa: E402
+from selenv.bench import BenchError, run_bench  # noqa: E402
+from selenv.learned.rl import rllib_agent  # noqa: E402
+from selenv.learned.rl.rllib_agent import (  # noqa: E402
     RLlibPolicy,
     export_module,
     export_paths,
     load_exported,
 )
-from learned.rl.rllib_env import (  # noqa: E402
+from selenv.learned.rl.rllib_env import (  # noqa: E402
     CLUSTERING_MODULE,
     FIM_MODULE,
     SelenvMultiAgentEnv,
     acting_agents,
 )
-from learned.rl.rllib_module import MASKED_LOGIT, build_module  # noqa: E402
-from selenv.agents import make  # noqa: E402
-from selenv.bench import BenchError, run_bench  # noqa: E402
+from selenv.learned.rl.rllib_module import MASKED_LOGIT, build_module  # noqa: E402
 from selenv.multiagent import fim_selection_v0, receiver_clustering_v0  # noqa: E402
-from train import train_rllib_marl  # noqa: E402
+from selenv.train import train_rllib_marl  # noqa: E402
 
 SMALL_CL = {"n_agents": 4, "n_max_states": 10, "horizon": 6}
 TINY = ["--iterations", "1", "--train-batch-size", "32", "--minibatch-size", "16",
@@ -155,7 +155,7 @@ def test_masked_actions_get_zero_probability() -> None:
 
 
 def test_module_ignores_rllib_model_config_keys_but_checks_its_own() -> None:
-    from learned.rl.rllib_module import CandidateScoringRLModule, check_model_config
+    from selenv.learned.rl.rllib_module import CandidateScoringRLModule, check_model_config
 
     space = build_module(5, 2).observation_space
     import gymnasium as gym
@@ -241,7 +241,7 @@ def test_adapter_is_seeded_by_reset() -> None:
 
 
 def test_cluster_label_view_is_label_equivariant() -> None:
-    from learned.rl.rllib_env import ClusterLabelView
+    from selenv.learned.rl.rllib_env import ClusterLabelView
 
     penv = receiver_clustering_v0.parallel_env(n_agents=6, n_max_states=14)
     obs, _ = penv.reset(seed=1)
@@ -354,7 +354,7 @@ def test_bench_agent_without_export_says_how_to_train(tmp_path: Path, monkeypatc
         make("rllib", FIM_MODULE)
     res = run_bench(FIM_MODULE, None, episodes=1, progress=False,
                     env_kwargs={"n_candidates": 5, "budgets": 1})  # fmt: skip
-    assert "train.train_rllib_marl" in res.agents["rllib"].skipped
+    assert "selenv.train.train_rllib_marl" in res.agents["rllib"].skipped
     with pytest.raises(BenchError, match="rllib"):  # named explicitly: a usage error
         run_bench(FIM_MODULE, ["rllib:path=nowhere.json"], episodes=1, progress=False)
 

@@ -1,4 +1,4 @@
-"""Loading a policy checkpoint never executes code from the file (learned.rl.safe_load)."""
+"""Loading a policy checkpoint never executes code from the file (selenv.learned.rl.safe_load)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 import torch as th
 
-from learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, load_metadata
-from learned.rl.safe_load import load_policy, read_weights
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, load_metadata
+from selenv.learned.rl.safe_load import load_policy, read_weights
 
 FIM_ID = "selenv/FIMSelection-v0"
 SHIPPED = DEFAULT_CHECKPOINTS[FIM_ID]
@@ -109,7 +109,7 @@ def test_corrupt_files_and_mismatched_metadata_are_clear_errors(tmp_path: Path) 
 def test_model_from_checkpoint_continues_from_the_weights() -> None:
     import gymnasium as gym
 
-    from learned.rl.safe_load import model_from_checkpoint
+    from selenv.learned.rl.safe_load import model_from_checkpoint
 
     meta = load_metadata(SHIPPED)
     env = gym.make(FIM_ID, n_candidates=20, budget=3)
@@ -120,7 +120,7 @@ def test_model_from_checkpoint_continues_from_the_weights() -> None:
 
 
 def test_oversized_truncated_and_malformed_metadata(tmp_path: Path) -> None:
-    from learned.rl import safe_load
+    from selenv.learned.rl import safe_load
 
     big = _copy_with(tmp_path, "big", {"policy.pth": b"\0" * (safe_load.MAX_WEIGHTS_BYTES + 1)})
     assert big.stat().st_size < 2**20  # compresses to almost nothing: a zip-bomb-like entry
@@ -135,3 +135,23 @@ def test_oversized_truncated_and_malformed_metadata(tmp_path: Path) -> None:
         load_policy(SHIPPED, {**meta, "training": "x"})
     with pytest.raises(ValueError, match="architecture"):
         load_policy(SHIPPED, {**meta, "architecture": {**meta["architecture"], "hidden": "wide"}})
+
+
+def test_v01_class_names_still_load(tmp_path: Path) -> None:
+    """Checkpoints written before the move under ``selenv`` name ``learned.rl...`` classes."""
+    from selenv.agents import make
+    from selenv.learned.resources import checkpoint_path
+
+    src = checkpoint_path("fim_selection_ppo.zip")
+    dst = tmp_path / "old.zip"
+    shutil.copy(src, dst)
+    meta = json.loads(src.with_suffix(".json").read_text())
+    for key in ("policy", "features_extractor"):
+        meta["architecture"][key] = meta["architecture"][key].removeprefix("selenv.")
+        assert meta["architecture"][key].startswith("learned.rl.")
+    dst.with_suffix(".json").write_text(json.dumps(meta))
+    make("ppo:" + str(dst), "selenv/FIMSelection-v0")  # loads
+    meta["architecture"]["policy"] = "elsewhere.Policy"
+    dst.with_suffix(".json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"elsewhere\.Policy"):
+        make("ppo:" + str(dst), "selenv/FIMSelection-v0")

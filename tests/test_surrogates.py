@@ -14,7 +14,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from learned.surrogate_data import (
+from selenv import fusion
+from selenv.core.fusion import dmv_update, pecmv_update
+from selenv.learned.surrogate_data import (
     GenerationConfig,
     SurrogateDataset,
     features,
@@ -23,10 +25,8 @@ from learned.surrogate_data import (
     n_features,
     save_dataset,
 )
-from learned.surrogates import C_SCALE, Surrogate
-from selenv import fusion
-from selenv.core.fusion import dmv_update, pecmv_update
-from train import train_surrogate
+from selenv.learned.surrogates import C_SCALE, Surrogate
+from selenv.train import train_surrogate
 
 N, M = 9, 1
 

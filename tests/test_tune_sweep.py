@@ -1,4 +1,4 @@
-"""``python -m train.tune_sweep``: a real 2-trial sweep, usage errors, no Ray left behind."""
+"""``python -m selenv.train.tune_sweep``: a real 2-trial sweep, usage errors, no Ray left behind."""
 
 from __future__ import annotations
 
@@ -14,10 +14,10 @@ import pytest
 pytest.importorskip("ray.tune")
 
 import selenv.parallel
-from learned.rl.agent import SB3PolicyAgent
-from learned.rl.training import evaluate
 from selenv.agents import make
-from train import tune_sweep
+from selenv.learned.rl.agent import SB3PolicyAgent
+from selenv.learned.rl.training import evaluate
+from selenv.train import tune_sweep
 
 FIM_ID = "selenv/FIMSelection-v0"
 ENV_KWARGS = {"n_candidates": 8, "budget": 3}

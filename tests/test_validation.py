@@ -569,7 +569,7 @@ def _relabel_method(method: int) -> Callable[[dict[str, Any]], None]:
     """Everything in the JSON that names the method, rewritten consistently."""
 
     def edit(meta: dict[str, Any]) -> None:
-        from learned.surrogates import _output_doc
+        from selenv.learned.surrogates import _output_doc
 
         meta["method"] = method
         meta["architecture"]["output"] = _output_doc(meta["kind"], method)
@@ -608,7 +608,7 @@ SURROGATE_MISMATCHES = {
 
 @pytest.mark.parametrize("case", list(SURROGATE_MISMATCHES))
 def test_surrogate_metadata_must_match_the_weights(case: str, tmp_path: Path) -> None:
-    from learned.surrogates import Surrogate
+    from selenv.learned.surrogates import Surrogate
 
     name, edit, field = SURROGATE_MISMATCHES[case]
     pt = _checkpoint_copy(tmp_path, name, edit)
@@ -619,7 +619,7 @@ def test_surrogate_metadata_must_match_the_weights(case: str, tmp_path: Path) ->
 
 @pytest.mark.parametrize("name", ["ldmv", "lpecmv", "lpecmv_method1", "lpecmv_method2"])
 def test_shipped_surrogates_still_load(name: str) -> None:
-    from learned.surrogates import Surrogate
+    from selenv.learned.surrogates import Surrogate
 
     sur = Surrogate.load(ROOT / "checkpoints" / f"{name}.pt")
     meta = json.loads((ROOT / "checkpoints" / f"{name}.json").read_text())
@@ -629,7 +629,7 @@ def test_shipped_surrogates_still_load(name: str) -> None:
 
 
 def test_surrogate_inputs_are_type_checked() -> None:
-    from learned.surrogates import Surrogate
+    from selenv.learned.surrogates import Surrogate
 
     sur = Surrogate.create("ldmv", hidden=(4,))
     P, H = np.eye(9), np.ones((1, 9))
@@ -818,7 +818,7 @@ def test_rejected_filter_and_gain_state_calls_leave_the_object_unchanged() -> No
 
 
 def test_rejected_set_normalisation_leaves_the_surrogate_unchanged() -> None:
-    from learned.surrogates import Surrogate
+    from selenv.learned.surrogates import Surrogate
 
     sur = Surrogate.create("ldmv", hidden=(4,))
     mean, std = sur.net.mean.clone(), sur.net.std.clone()

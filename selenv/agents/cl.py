@@ -102,7 +102,7 @@ register_agent(
     AgentSpec(
         "ppo",
         _ID,
-        "learned.rl.agent:make_ppo_agent",
+        "selenv.learned.rl.agent:make_ppo_agent",
         "MaskablePPO pair-scoring policy (checkpoints/cl_scheduling_ppo.zip)",
         kwargs={"env_id": CL_ENV_ID},
     )

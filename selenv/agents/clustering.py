@@ -317,7 +317,7 @@ register_agent(
     AgentSpec(
         "ppo",
         _ID,
-        "learned.rl.agent:make_ppo_agent",
+        "selenv.learned.rl.agent:make_ppo_agent",
         "edit-ranking policy, its top edit (checkpoints/receiver_clustering_ppo.zip)",
         kwargs={"env_id": CLUSTERING_ENV_ID},
     )
@@ -327,7 +327,7 @@ for _k in (4, 8):
         AgentSpec(
             f"ppo_top{_k}",
             _ID,
-            "learned.rl.agent:make_ppo_agent",
+            "selenv.learned.rl.agent:make_ppo_agent",
             f"edit-ranking policy's {_k} best edits costed, best improving one played",
             kwargs={"env_id": CLUSTERING_ENV_ID, "verify_top_k": _k},
         )

@@ -113,7 +113,7 @@ register_agent(
     AgentSpec(
         "ppo",
         (FIM_ENV_ID,),
-        "learned.rl.agent:make_ppo_agent",
+        "selenv.learned.rl.agent:make_ppo_agent",
         "MaskablePPO candidate-scoring policy (checkpoints/fim_selection_ppo.zip)",
         kwargs={"env_id": FIM_ENV_ID},
     )

@@ -139,7 +139,7 @@ register_agent(
     AgentSpec(
         "ppo",
         _ID,
-        "learned.rl.agent:make_ppo_agent",
+        "selenv.learned.rl.agent:make_ppo_agent",
         "MaskablePPO candidate-scoring policy (checkpoints/landmark_selection_ppo.zip)",
         kwargs={"env_id": LANDMARK_ENV_ID},
     )

@@ -274,7 +274,7 @@ register_agent(
     AgentSpec(
         "ppo",
         _FIM,
-        "learned.rl.marl:make_shared_ppo",
+        "selenv.learned.rl.marl:make_shared_ppo",
         "shared (parameter-sharing) policy, each agent on its own observation "
         "(checkpoints/fim_marl_ppo.zip)",
     )
@@ -288,15 +288,15 @@ register_agent(
         "single-agent greedy's best move/swap, by the receivers concerned",
     )
 )
-# an RLlib-trained shared module (learned.rl.rllib_agent, lazy: selenv never imports ray)
+# an RLlib-trained shared module (selenv.learned.rl.rllib_agent, lazy: selenv never imports ray)
 for _module in (FIM_MODULE, CLUSTERING_MODULE):
     register_agent(
         AgentSpec(
             "rllib",
             (_module,),
-            "learned.rl.rllib_agent:make_rllib_policy",
+            "selenv.learned.rl.rllib_agent:make_rllib_policy",
             "RLlib-trained shared module on each agent's own candidate view "
-            "(rllib:path=runs/rllib_<env>/policy.json; train/train_rllib_marl.py)",
+            "(rllib:path=runs/rllib_<env>/policy.json; selenv/train/train_rllib_marl.py)",
             kwargs={"env_id": _module},
         )
     )

@@ -16,7 +16,7 @@ overconfident. The estimators here:
                                     for m = 1, exact reduction to m dimensions for m > 1,
                                     cvxpy/Clarabel reference (``method="sdp"``)
 :func:`ldmv_update`,                LDMV / LPECMV (Sec. III): the same updates with ``omega`` /
-:func:`lpecmv_update`               ``C`` predicted by a learned surrogate (``learned/``,
+:func:`lpecmv_update`               ``C`` predicted by a learned surrogate (``selenv/learned/``,
                                     loaded lazily through :data:`SURROGATE_HOOK`)
 :func:`dmv_omega_batch`,            vectorised labels ``w*`` / ``C*`` for a dataset (LDMV,
 :func:`pecmv_batch`                 LPECMV surrogate training)
@@ -44,7 +44,7 @@ API, import from ``selenv.core.fusion``.
 ``selenv.core`` imports nothing from ``learned``: the one plugin point is
 :data:`SURROGATE_HOOK` (``"module:attr"`` of a surrogate loader, imported lazily on the first
 LDMV / LPECMV call without an explicit ``surrogate=``), which the shipped hook points at
-``learned.surrogates``.
+``selenv.learned.surrogates``.
 """
 
 from __future__ import annotations

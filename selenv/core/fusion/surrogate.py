@@ -8,7 +8,7 @@ update itself is the exact one of :func:`~selenv.core.fusion.dmv.dmv_update` /
 a valid DMV bound (any ``omega`` in [0, 1]) or an admissible joint covariance (Lemma III.1) even
 when the prediction is poor; only optimality is learned.
 
-The surrogates live in ``learned.surrogates`` (torch), above ``selenv`` in the import order.
+The surrogates live in ``selenv.learned.surrogates`` (torch), above ``selenv`` in the import order.
 They are reached through the lazy hook :data:`SURROGATE_HOOK` (``"module:attr"``, imported on
 first use only), or passed in explicitly as any object with ``predict_omega`` / ``predict_C``
 and a ``meta`` dict holding the training ``"R"``.
@@ -37,11 +37,11 @@ __all__ = [
 ]
 
 #: where the shipped surrogates are loaded from: ``callable(kind) -> Surrogate``
-SURROGATE_HOOK = "learned.surrogates:shipped"
+SURROGATE_HOOK = "selenv.learned.surrogates:shipped"
 
 
 class Surrogate(Protocol):
-    """What the fusion layer needs from a learned surrogate (``learned.surrogates.Surrogate``)."""
+    """What the fusion layer needs from a learned surrogate (``selenv.learned.surrogates``)."""
 
     kind: str
     meta: dict[str, Any]
@@ -97,7 +97,7 @@ def load_surrogate(
         if R_trained.shape != R.shape or not np.allclose(R_trained, R):
             raise ValueError(
                 f"the {kind} surrogate was trained with R = {R_trained.tolist()}, but R = "
-                f"{R.tolist()}; retrain it for this R (python -m train.train_surrogate)"
+                f"{R.tolist()}; retrain it for this R (python -m selenv.train.train_surrogate)"
             )
     return surrogate
 

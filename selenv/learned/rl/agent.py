@@ -1,0 +1,296 @@
+"""A trained (Maskable)PPO checkpoint as a :class:`selenv.agents.Agent` (registry name ``ppo``).
+
+The checkpoint is a zip saved by SB3 with a JSON of its metadata next to it (same stem), as
+written by the ``train/*_ppo.py`` scripts: the env id it was trained on, the candidate view
+(:mod:`selenv.learned.rl.views`) that turns the env's observation into the policy's input, and the
+layout. The policy's weights do not depend on the number of candidates, so one checkpoint
+plays any instance of its env with the same per-candidate width::
+
+    agent = selenv.agents.make("ppo", "selenv/LandmarkSelection-v0")  # shipped checkpoint
+    agent = SB3PolicyAgent("my_run.zip", env_id="selenv/LandmarkSelection-v0")
+    obs, info = env.reset(seed=0)
+    agent.reset(env, seed=0)
+    action = agent.act(obs, info)
+
+Every failure to load or to apply a checkpoint (missing file, another env, another width) is
+a ``ValueError`` naming the file and what was expected.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, cast
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from selenv.agents.base import Agent
+from selenv.learned.resources import checkpoint_dir
+from selenv.learned.rl.candidate_policy import (
+    CandidateScoringPolicy,
+    CandidateScoringPPOPolicy,
+    obs_layout,
+)
+from selenv.learned.rl.lean import LeanScorer, TopMScorer
+from selenv.learned.rl.safe_load import load_policy
+from selenv.learned.rl.views import CandidateView, view_for
+
+__all__ = [
+    "CHECKPOINT_DIR",
+    "DEFAULT_CHECKPOINTS",
+    "SB3PolicyAgent",
+    "load_metadata",
+    "make_ppo_agent",
+]
+
+FIM_ENV_ID = "selenv/FIMSelection-v0"
+CHECKPOINT_DIR = checkpoint_dir()
+#: env id -> the shipped checkpoint the ``ppo`` agent loads by default
+DEFAULT_CHECKPOINTS = {
+    FIM_ENV_ID: CHECKPOINT_DIR / "fim_selection_ppo.zip",
+    "selenv/LandmarkSelection-v0": CHECKPOINT_DIR / "landmark_selection_ppo.zip",
+    "selenv/CLScheduling-v0": CHECKPOINT_DIR / "cl_scheduling_ppo.zip",
+    "selenv/ReceiverClustering-v0": CHECKPOINT_DIR / "receiver_clustering_ppo.zip",
+}
+
+
+def load_metadata(checkpoint: str | Path) -> dict[str, Any]:
+    """Read and check the JSON metadata next to ``checkpoint`` (``foo.zip`` -> ``foo.json``).
+
+    Raises:
+        ValueError: the JSON is missing, unreadable, or lacks ``obs_layout`` with an integer
+            ``whitened_dim`` (and ``whitened_dim = m d`` when ``m``, ``d`` are given).
+    """
+    path = Path(checkpoint).with_suffix(".json")
+    if not path.is_file():
+        raise ValueError(f"checkpoint metadata {path} not found (expected next to {checkpoint})")
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"checkpoint metadata {path} is not valid JSON: {exc}") from exc
+    layout = meta.get("obs_layout") if isinstance(meta, dict) else None
+    if not isinstance(layout, dict) or not isinstance(layout.get("whitened_dim"), int):
+        raise ValueError(
+            f"checkpoint metadata {path} lacks obs_layout with an integer whitened_dim "
+            f"(got {layout!r})"
+        )
+    m, d = layout.get("m"), layout.get("d")
+    if m is not None and d is not None and layout["whitened_dim"] != m * d:
+        raise ValueError(
+            f"checkpoint metadata {path}: obs_layout whitened_dim={layout['whitened_dim']} "
+            f"!= m*d = {m}*{d}"
+        )
+    return meta
+
+
+class SB3PolicyAgent(Agent):
+    """Acts with a MaskablePPO or PPO candidate-scoring checkpoint (greedy in its logits).
+
+    Args:
+        checkpoint: path of the SB3 zip; default: the shipped one of ``env_id``
+            (:data:`DEFAULT_CHECKPOINTS`).
+        env_id: the env the agent will play; the checkpoint must have been trained on it.
+        deterministic: take the most likely action (default) rather than sample one.
+        verify_top_k: 0 (default) plays the policy's action. ``k > 0`` uses the policy as a
+            proposal: its ``k`` highest-scoring allowed actions are costed exactly by the
+            view's :meth:`~selenv.learned.rl.views.CandidateView.verify` (only
+            ``ReceiverClustering-v0``: ``k`` Algorithm 1 evaluations per decision) and the
+            best improving one is played.
+        lean: with ``deterministic``, take the action through
+            :class:`~selenv.learned.rl.lean.LeanScorer` (the scorer's forward under
+            ``torch.inference_mode``, the same action as SB3's ``predict`` at a fraction of
+            its cost); ``False`` calls ``predict``.
+        top_m: ``m > 0`` scores only the ``m`` allowed candidates of largest gain, in numpy
+            (:class:`~selenv.learned.rl.lean.TopMScorer`): an approximation of the policy for large
+            pools (``ppo:top_m=32``); 0 (default) evaluates the whole pool.
+
+    Raises:
+        ValueError: the checkpoint or its JSON is missing or unreadable, they disagree, or
+            the checkpoint was trained on another env.
+    """
+
+    name = "ppo"
+
+    def __init__(
+        self,
+        checkpoint: str | Path | None = None,
+        env_id: str = FIM_ENV_ID,
+        deterministic: bool = True,
+        verify_top_k: int = 0,
+        lean: bool = True,
+        top_m: int = 0,
+    ) -> None:
+        if isinstance(verify_top_k, bool) or not isinstance(verify_top_k, int) or verify_top_k < 0:
+            raise ValueError(f"verify_top_k must be an int >= 0, got {verify_top_k!r}")
+        self.verify_top_k = verify_top_k
+        if not isinstance(lean, bool):
+            raise TypeError(f"lean must be a bool, got {type(lean).__name__}")
+        self.lean = lean
+        if isinstance(top_m, bool) or not isinstance(top_m, int) or top_m < 0:
+            raise ValueError(f"top_m must be an int >= 0, got {top_m!r}")
+        if top_m and not deterministic:
+            raise ValueError("top_m needs deterministic=True (it takes the top scorer's argmax)")
+        self.top_m = top_m
+        self._top: dict[int, TopMScorer] = {}
+        if checkpoint is None:
+            if env_id not in DEFAULT_CHECKPOINTS:
+                raise ValueError(f"no shipped checkpoint for {env_id!r}; pass checkpoint=")
+            checkpoint = DEFAULT_CHECKPOINTS[env_id]
+        self.checkpoint = Path(checkpoint)
+        self.env_id = env_id
+        self.deterministic = deterministic
+        if not self.checkpoint.is_file():
+            raise ValueError(f"checkpoint {self.checkpoint} not found")
+        self.metadata = load_metadata(self.checkpoint)
+        trained_on = self.metadata.get("env_id", FIM_ENV_ID)
+        if trained_on != env_id:
+            raise ValueError(
+                f"checkpoint {self.checkpoint} was trained on {trained_on!r}, not {env_id!r}"
+            )
+        # never SB3's load(): it unpickles the zip's data (code execution); see safe_load
+        policy = load_policy(self.checkpoint, self.metadata)
+        self.masked = isinstance(policy, CandidateScoringPolicy)  # MaskablePPO's policy
+        layout = obs_layout(policy.observation_space)
+        meta_layout = self.metadata["obs_layout"]
+        if layout["whitened_dim"] != meta_layout["whitened_dim"]:
+            raise ValueError(
+                f"checkpoint {self.checkpoint}: the model's per-candidate width is "
+                f"{layout['whitened_dim']} but its metadata says {self._expected()}"
+            )
+        trained_n = meta_layout.get("n_candidates_trained", layout["n"])
+        if trained_n != layout["n"]:
+            raise ValueError(
+                f"checkpoint {self.checkpoint}: the model has {layout['n']} candidates but its "
+                f"metadata says obs_layout n_candidates_trained={trained_n!r}"
+            )
+        self.whitened_dim = layout["whitened_dim"]
+        self._policies: dict[int, CandidateScoringPolicy | CandidateScoringPPOPolicy] = {
+            layout["n"]: policy
+        }
+        self.view: CandidateView | None = None
+        self._lean: dict[int, LeanScorer] = {}
+
+    # -- shape checks and N-independent rebuilds ---------------------------------------------
+    def _expected(self) -> str:
+        lay = self.metadata["obs_layout"]
+        md = f"m={lay['m']}, d={lay['d']}, " if "m" in lay and "d" in lay else ""
+        return f"{md}whitened_dim={lay['whitened_dim']}, 4 features"
+
+    def check_space(self, observation_space: spaces.Space, env: Any = None) -> int:
+        """Check a candidate-view ``observation_space`` against the checkpoint; return ``N``.
+
+        Raises:
+            ValueError: another per-candidate width or layout, naming both.
+        """
+        try:
+            layout = obs_layout(observation_space)
+        except ValueError as exc:
+            raise ValueError(
+                f"checkpoint {self.checkpoint} expects candidate observations with "
+                f"{self._expected()}: {exc}"
+            ) from exc
+        if layout["whitened_dim"] != self.whitened_dim:
+            actual = f"whitened_dim={layout['whitened_dim']}"
+            base = getattr(env, "unwrapped", None)
+            m, d = getattr(base, "m", None), getattr(base, "d", None)
+            if m is not None and d is not None:
+                actual = f"m={m}, d={d} ({actual})"
+            raise ValueError(
+                f"checkpoint {self.checkpoint} was trained on observations with "
+                f"{self._expected()}; this env has {actual}"
+            )
+        return layout["n"]
+
+    def policy_for(
+        self, observation_space: spaces.Dict
+    ) -> CandidateScoringPolicy | CandidateScoringPPOPolicy:
+        """The checkpoint's policy for this candidate space (rebuilt once per new ``N``)."""
+        n = self.check_space(observation_space)
+        if n not in self._policies:
+            src = next(iter(self._policies.values()))
+            params = src._get_constructor_parameters()
+            params.update(observation_space=observation_space, action_space=spaces.Discrete(n))
+            policy = type(src)(**params)
+            policy.load_state_dict(src.state_dict())
+            policy.set_training_mode(False)
+            self._policies[n] = policy
+        return self._policies[n]
+
+    # -- Agent protocol ------------------------------------------------------------------------
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
+        """Build the env's candidate view and check it against the checkpoint."""
+        super().reset(env, seed)
+        self.view = view_for(self.env_id, env, self.metadata.get("view"))
+        if self.verify_top_k and type(self.view).verify is CandidateView.verify:
+            raise ValueError(
+                f"verify_top_k={self.verify_top_k}: the {self.view.name!r} view of "
+                f"{self.env_id} has no exact verification (use verify_top_k=0)"
+            )
+        try:
+            space = self.view.space(env.observation_space)
+        except ValueError as exc:
+            raise ValueError(f"checkpoint {self.checkpoint}: {exc}") from exc
+        self.check_space(space, env)
+        self._policy = self.policy_for(space)
+        if id(self._policy) not in self._lean:
+            self._lean[id(self._policy)] = LeanScorer(self._policy)
+
+    def act(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> Any:
+        """The policy's action on the candidate view, with the env's mask applied."""
+        if self.view is None:
+            raise ValueError("call reset(env) before act()")
+        cand = self.view(obs)
+        width = np.shape(cand["whitened"])[1]
+        if width != self.whitened_dim:
+            raise ValueError(
+                f"checkpoint {self.checkpoint} expects {self._expected()}; "
+                f"got an observation with whitened width {width}"
+            )
+        mask = np.asarray(cand["action_mask"], dtype=bool)
+        if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:  # env's own
+            mask = mask & np.asarray(info["action_mask"], dtype=bool)  # a view may restrict
+        if self.verify_top_k:
+            return self.view.env_action(obs, self._verified(obs, cand, mask))
+        if self.top_m:
+            key = id(self._policy)
+            if key not in self._top:
+                self._top[key] = TopMScorer(self._policy, self.top_m)
+            return self.view.env_action(obs, self._top[key].action(cand, mask))
+        if self.deterministic and self.lean:
+            return self.view.env_action(obs, self._lean[id(self._policy)].action(cand, mask))
+        if self.masked:
+            action, _ = self._policy.predict(  # type: ignore[call-arg]
+                cand, action_masks=mask, deterministic=self.deterministic
+            )
+        else:  # plain PPO: the policy masks its logits from the observation's mask
+            cand = {**cand, "action_mask": mask.astype(cand["action_mask"].dtype)}
+            action, _ = self._policy.predict(cand, deterministic=self.deterministic)
+        return self.view.env_action(obs, int(action))
+
+    def scores(self, cand: dict[str, np.ndarray]) -> np.ndarray:
+        """The policy's per-candidate scores (action logits before masking), ``(N,)``."""
+        import torch as th
+
+        policy = self._policy
+        obs_t, _ = policy.obs_to_tensor(cand)
+        with th.no_grad():
+            feats = cast(th.Tensor, policy.extract_features(obs_t, policy.pi_features_extractor))
+        n = np.shape(cand["action_mask"])[0]
+        return np.asarray(feats[0, :n].cpu().numpy(), dtype=np.float64)
+
+    def _verified(self, obs: dict[str, np.ndarray], cand: dict[str, np.ndarray], mask: Any) -> int:
+        """The best of the policy's ``verify_top_k`` highest-scoring allowed candidates."""
+        allowed = np.flatnonzero(mask)
+        if allowed.size == 0:
+            raise ValueError("no allowed action to verify (empty action mask)")
+        s = self.scores({**cand, "action_mask": np.asarray(mask, cand["action_mask"].dtype)})
+        k = min(self.verify_top_k, allowed.size)
+        top = allowed[np.argsort(-s[allowed], kind="stable")[:k]]
+        return int(self.view.verify(self.env, obs, top))  # type: ignore[union-attr]
+
+
+def make_ppo_agent(**kwargs: Any) -> SB3PolicyAgent:
+    """Registry factory of the ``ppo`` agent (``env_id=``, ``checkpoint=``, ``deterministic=``)."""
+    return SB3PolicyAgent(**kwargs)

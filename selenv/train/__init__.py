@@ -1,0 +1,1 @@
+"""Thin training entry points (``python -m selenv.train.train_fim_ppo``)."""

@@ -1,0 +1,122 @@
+"""One DAgger round for a ranking-trained ``ReceiverClustering-v0`` policy (Ross et al. 2011).
+
+The ranking stage of :mod:`selenv.train.train_clustering_ppo` labels states that the greedy expert
+visits; the policy then meets states of its own. Here the policy (acting as
+``SB3PolicyAgent(checkpoint, verify_top_k=behaviour_top_k)``) drives the labelling
+trajectories, the exact Algorithm 1 cost change of every edit labels them
+(:func:`selenv.learned.rl.ranking.collect_clustering_ranking` with ``behaviour``), and the policy's
+logits are fitted to those labels (ListNet, :func:`selenv.learned.rl.ranking.fit_ranking`),
+starting from the checkpoint's weights. The result is saved with the source metadata plus a
+``dagger`` block, and evaluated like the training scripts do.
+
+    python -m selenv.train.train_clustering_dagger --out runs/clustering_dagger.zip
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import torch
+
+from selenv.learned.config import parse_config
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
+from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
+from selenv.learned.rl.safe_load import model_from_checkpoint
+from selenv.learned.rl.training import evaluate_checkpoint
+from selenv.learned.rl.views import CandidateViewWrapper, view_for
+
+ENV_ID = "selenv/ReceiverClustering-v0"
+
+
+@dataclass
+class Config:
+    """Every field is a ``--kebab-case`` option."""
+
+    checkpoint: str = str(DEFAULT_CHECKPOINTS[ENV_ID])  # the policy to improve
+    out: str = "runs/clustering_dagger.zip"
+    env_kwargs: str = json.dumps({"n_agents": 30, "horizon": 500})
+    states: int = 3000
+    behaviour_top_k: int = 4  # the behaviour plays as ppo_top4
+    explore: float = 0.05
+    label_every: int = 5
+    epochs: int = 10
+    learning_rate: float = 5e-4
+    temperature: float = 0.1
+    workers: int = 2
+    seed: int = 1
+    progress: bool = True
+    eval_episodes: int = 10
+    eval_seed: int = 10_000
+    verify_top_k: str = "4,8"
+    baselines: str = "ga"
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Collect, fit, save, evaluate; return the new checkpoint's metadata."""
+    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    out = Path(cfg.out)
+    if out.suffix != ".zip":
+        raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
+    meta = load_metadata(cfg.checkpoint)
+    if meta.get("env_id") != ENV_ID:
+        raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {meta.get('env_id')!r}")
+    kwargs = json.loads(cfg.env_kwargs)
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    data = collect_clustering_ranking(
+        kwargs,
+        cfg.states,
+        cfg.seed,
+        label_every=cfg.label_every,
+        explore=cfg.explore,
+        workers=cfg.workers,
+        progress=cfg.progress,
+        behaviour=cfg.checkpoint,
+        behaviour_top_k=cfg.behaviour_top_k,
+    )
+    # weights read safely (never SB3's load(), which unpickles the zip), onto a fresh model
+    env = gym.make(ENV_ID, **{**kwargs, "action_mode": "edit"})
+    env = CandidateViewWrapper(env, view_for(ENV_ID, env, meta.get("view")))
+    model = model_from_checkpoint(cfg.checkpoint, meta, env)
+    fit = fit_ranking(
+        model.policy,
+        data,
+        epochs=cfg.epochs,
+        learning_rate=cfg.learning_rate,
+        temperature=cfg.temperature,
+        seed=cfg.seed,
+        progress=cfg.progress,
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    model.save(out)
+    meta = {
+        **meta,
+        "dagger": {**asdict(cfg), **fit, "wall_seconds": round(time.perf_counter() - start, 1)},
+        "metrics": None,
+    }
+    json_path = out.with_suffix(".json")
+    json_path.write_text(json.dumps(meta, indent=2) + "\n")
+    if cfg.eval_episodes:
+        eval_kwargs = meta.get("eval_env_kwargs", kwargs)
+        ks = [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]
+        meta["metrics"] = evaluate_checkpoint(
+            out,
+            env_id=ENV_ID,
+            make_eval_env=lambda: gym.make(ENV_ID, **eval_kwargs),
+            seeds=[cfg.eval_seed + e for e in range(cfg.eval_episodes)],
+            baselines=cfg.baselines,
+            policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
+        )
+        json_path.write_text(json.dumps(meta, indent=2) + "\n")
+        summary = {k: v["mean_final_objective"] for k, v in meta["metrics"]["agents"].items()}
+        print(json.dumps({"mean_final_objective": summary}, indent=2))
+    return meta
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,321 @@
+"""Train an LDMV or LPECMV fusion surrogate (Chen & Kia 2022, Sec. III-IV) on simulator data.
+
+Readable top to bottom (CleanRL style): the :class:`Config` dataclass is the command line, then
+data (generated with :func:`selenv.learned.surrogate_data.generate_dataset` or loaded with
+``--data``),
+a seeded train / validation / test split (paper: 40000 / 5000 / 5000), training with Table II's
+hyper-parameters by default (but Adam for LDMV, see :data:`DEFAULT_OPTIMIZER`) behind a tqdm
+bar, TensorBoard under ``runs/``, early stopping on the validation loss (best weights kept),
+then test metrics and the checkpoint ``<out>.pt`` with its metadata ``<out>.json``:
+
+* LDMV: MSE, ``R`` of the fit (Pearson correlation of ``omega_hat`` and ``omega*``, Fig. 6a),
+  ``R^2`` and the DMV cost gap ``log det Pbar(omega_hat) - log det Pbar(omega*) >= 0``.
+* LPECMV: MSE and the objective gap of Fig. 2, ``log det P(C_hat) - log det P(C*) <= 0``
+  (``C*`` maximises eq. 8a, so a learned ``C`` is less conservative by that many nats).
+
+    python -m selenv.train.train_surrogate --kind ldmv             # -> checkpoints/ldmv.pt + .json
+    python -m selenv.train.train_surrogate --kind lpecmv --method 3
+    tensorboard --logdir runs
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from tqdm.auto import tqdm
+
+from selenv.core.fusion import dmv_update, pecmv_update
+from selenv.learned.config import parse_config
+from selenv.learned.surrogate_data import (
+    SurrogateDataset,
+    generate_dataset,
+    load_dataset,
+    save_dataset,
+)
+from selenv.learned.surrogates import C_SCALE, KINDS, METHODS, TABLE_II, Surrogate, barrier_loss
+from selenv.parallel import make_executor
+
+#: Table II's optimisers except LDMV: its SGD (lr 0.05, batch 256) stays at the mean on our data
+#: (test R 0.16; 0.24 with momentum 0.9) while Adam at the same lr reaches R 0.92 (50k samples,
+#: seed 0). ``--optimizer sgd`` restores Table II.
+DEFAULT_OPTIMIZER = {"ldmv": "adam", "lpecmv": str(TABLE_II["lpecmv"]["optimizer"])}
+
+
+@dataclass
+class Config:
+    """Every knob of a run; each field is a ``--kebab-case`` command-line option."""
+
+    kind: str = "ldmv"  # ldmv | lpecmv
+    method: int = 3  # LPECMV output method of Table I (1, 2, 3)
+    # data
+    samples: int = 50_000
+    data: str = ""  # load this .npz instead of generating
+    save_data: str = ""  # write the generated dataset here
+    workers: int = 0  # generation processes / Ray tasks in flight (0: all cores)
+    executor: str = ""  # local | process | ray ("": a local pool of --workers processes)
+    address: str = ""  # Ray cluster to join (with --executor ray; "": start a local instance)
+    val_fraction: float = 0.1
+    test_fraction: float = 0.1
+    # model and training (0 / "": Table II)
+    hidden: str = ""  # comma-separated hidden widths, e.g. "256,256,256"
+    activation: str = ""  # sigmoid | tanh | relu
+    epochs: int = 200
+    batch_size: int = 0
+    lr: float = 0.0
+    optimizer: str = ""  # sgd | adam ("": DEFAULT_OPTIMIZER)
+    momentum: float = 0.0  # sgd only
+    lr_schedule: str = "constant"  # constant | onecycle (cosine one-cycle peaking at --lr)
+    barrier_lambda: float = 1e-3  # method 1 only (eq. 14)
+    patience: int = 20  # epochs without a better validation loss before stopping
+    seed: int = 0
+    # outputs
+    out: str = ""  # default checkpoints/ldmv.pt, checkpoints/lpecmv.pt (method 3)
+    tensorboard_dir: str = "runs"  # empty string: no TensorBoard logs
+    progress: bool = True
+    torch_threads: int = 1
+
+
+def parse_args(argv: list[str] | None = None) -> Config:
+    """Build a :class:`Config` from the command line (one option per field)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+
+
+def targets(ds: SurrogateDataset, kind: str, method: int) -> np.ndarray:
+    """Labels: ``omega`` (B,), ``diag C*`` (B, n) for method 3, ``vec C*`` (B, n^2) else."""
+    if kind == "ldmv":
+        return ds.omega
+    return ds.C_diag if method == 3 else ds.C.reshape(len(ds), -1)
+
+
+def evaluate(sur: Surrogate, ds: SurrogateDataset) -> dict[str, float]:
+    """Test metrics of ``sur`` on ``ds`` (see the module docstring)."""
+    args = (ds.P_i, ds.P_j, ds.H_i, ds.H_j)
+    if sur.kind == "ldmv":
+        w_hat, w = sur.predict_omega(*args), ds.omega
+
+        def dmv_cost(k: int, omega: float) -> float:
+            return dmv_update(
+                ds.P_i[k], ds.P_j[k], ds.H_i[k], ds.H_j[k], ds.R, omega=omega, validate=False
+            ).log_det
+
+        best = np.array([dmv_cost(k, float(w[k])) for k in range(len(ds))])
+        gap = np.array([dmv_cost(k, float(w_hat[k])) for k in range(len(ds))]) - best
+        gap_one = np.array([dmv_cost(k, 1.0) for k in range(len(ds))]) - best  # no update
+        r = float(np.corrcoef(w_hat, w)[0, 1]) if np.std(w_hat) > 0 and np.std(w) > 0 else 0.0
+        ss_res, ss_tot = float(np.sum((w_hat - w) ** 2)), float(np.sum((w - w.mean()) ** 2))
+        return {
+            "mse": float(np.mean((w_hat - w) ** 2)),
+            "R": r,
+            "R2": 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0,
+            "dmv_cost_gap_mean": float(np.mean(gap)),
+            "dmv_cost_gap_max": float(np.max(gap)),
+            "dmv_cost_gap_omega1_mean": float(np.mean(gap_one)),  # baseline: never update
+        }
+    C_hat = sur.predict_C(*args)
+    y = targets(ds, "lpecmv", sur.method)
+    y_hat = np.diagonal(C_hat, axis1=1, axis2=2) if sur.method == 3 else C_hat.reshape(len(ds), -1)
+
+    def pecmv_value(k: int, C: np.ndarray) -> float:
+        return pecmv_update(
+            ds.P_i[k], ds.P_j[k], ds.H_i[k], ds.H_j[k], ds.R, C=C, validate=False
+        ).log_det
+
+    gap = np.array([pecmv_value(k, C_hat[k]) for k in range(len(ds))]) - ds.log_det_pecmv
+    zero = np.zeros((sur.n, sur.n))
+    gap_zero = np.array([pecmv_value(k, zero) for k in range(len(ds))]) - ds.log_det_pecmv
+    diag = [np.diag(np.diag(ds.C[k])) * C_SCALE for k in range(len(ds))]  # method 3's target
+    gap_diag = np.array([pecmv_value(k, diag[k]) for k in range(len(ds))]) - ds.log_det_pecmv
+    return {
+        "mse": float(np.mean((y_hat - y) ** 2)),
+        "objective_gap_mean": float(np.mean(gap)),
+        "objective_gap_median": float(np.median(gap)),
+        "objective_gap_min": float(np.min(gap)),
+        "objective_gap_zero_C_mean": float(np.mean(gap_zero)),  # baseline: X = 0 (naive)
+        "objective_gap_diag_C_star_mean": float(np.mean(gap_diag)),  # baseline: exact diag(C*)
+        "max_norm_C": float(np.max(np.linalg.norm(C_hat, 2, axis=(1, 2)))),
+    }
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Generate or load data, train, save the checkpoint and its metadata; return the metadata."""
+    cfg = parse_args(argv)
+    if cfg.kind not in KINDS:
+        raise ValueError(f"--kind must be one of {KINDS}, got {cfg.kind!r}")
+    if cfg.method not in METHODS:
+        raise ValueError(f"--method must be one of {METHODS}, got {cfg.method}")
+    if not (
+        0 < cfg.val_fraction and 0 < cfg.test_fraction and cfg.val_fraction + cfg.test_fraction < 1
+    ):
+        raise ValueError("--val-fraction and --test-fraction must be > 0 with a sum < 1")
+    t2 = TABLE_II[cfg.kind]
+    batch_size = cfg.batch_size or int(t2["batch_size"])
+    lr = cfg.lr or float(t2["lr"])
+    opt_name = cfg.optimizer or DEFAULT_OPTIMIZER[cfg.kind]
+    method = cfg.method if cfg.kind == "lpecmv" else 3
+    name = cfg.kind if cfg.kind == "ldmv" or method == 3 else f"lpecmv_method{method}"
+    out = Path(cfg.out or f"checkpoints/{name}.pt").with_suffix(".pt")
+    torch.set_num_threads(cfg.torch_threads)
+    torch.manual_seed(cfg.seed)
+
+    # 1. data
+    start = time.perf_counter()
+    if cfg.data:
+        ds = load_dataset(cfg.data)
+    else:
+        executor = None
+        if cfg.executor or cfg.address:
+            executor = make_executor(
+                cfg.executor or "process",
+                num_workers=cfg.workers or None,
+                address=cfg.address or None,
+            )
+        with executor or contextlib.nullcontext():
+            ds = generate_dataset(
+                cfg.samples,
+                seed=cfg.seed,
+                workers=cfg.workers,
+                progress=cfg.progress,
+                executor=executor,
+            )
+        if cfg.save_data:
+            save_dataset(ds, cfg.save_data)
+    gen_seconds = time.perf_counter() - start
+    N = len(ds)
+    n_val, n_test = max(1, int(cfg.val_fraction * N)), max(1, int(cfg.test_fraction * N))
+    if N - n_val - n_test < 1:
+        raise ValueError(f"dataset of {N} rows is too small to split")
+    perm = np.random.default_rng(cfg.seed).permutation(N)
+    test, val, train = perm[:n_test], perm[n_test : n_test + n_val], perm[n_test + n_val :]
+    X = ds.features().astype(np.float32)
+    Y = targets(ds, cfg.kind, method).astype(np.float32)
+    Xt, Yt = torch.from_numpy(X[train]), torch.from_numpy(Y[train])
+    Xv, Yv = torch.from_numpy(X[val]), torch.from_numpy(Y[val])
+
+    # 2. model (input standardisation from the training split only)
+    n, m = int(ds.header["n"]), int(ds.header["m"])
+    try:
+        hidden = tuple(int(h) for h in cfg.hidden.split(",")) if cfg.hidden else None
+    except ValueError:
+        raise ValueError(f"--hidden must be comma-separated integers, got {cfg.hidden!r}") from None
+    sur = Surrogate.create(
+        cfg.kind, method=method, n=n, m=m, hidden=hidden, activation=cfg.activation or None
+    )
+    sur.set_normalisation(X[train])
+    net = sur.net
+    if opt_name == "sgd":
+        opt: torch.optim.Optimizer = torch.optim.SGD(net.parameters(), lr=lr, momentum=cfg.momentum)
+    elif opt_name == "adam":
+        opt = torch.optim.Adam(net.parameters(), lr=lr)
+    else:
+        raise ValueError(f"--optimizer must be sgd or adam, got {opt_name!r}")
+    steps_per_epoch = -(-len(train) // batch_size)
+    if cfg.lr_schedule == "onecycle":
+        sched: torch.optim.lr_scheduler.LRScheduler | None = torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=lr, total_steps=max(1, cfg.epochs * steps_per_epoch)
+        )
+    elif cfg.lr_schedule == "constant":
+        sched = None
+    else:
+        raise ValueError(f"--lr-schedule must be constant or onecycle, got {cfg.lr_schedule!r}")
+
+    def loss_fn(pred: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        if method == 1 and cfg.kind == "lpecmv":
+            return barrier_loss(pred, y, cfg.barrier_lambda)
+        return torch.mean((pred - y) ** 2)  # MSE (Table II)
+
+    # 3. train: early stopping on the validation loss, best weights restored
+    log_dir = Path(cfg.tensorboard_dir) / f"surrogate_{name}_{cfg.seed}_{int(time.time())}"
+    writer = SummaryWriter(str(log_dir)) if cfg.tensorboard_dir else None
+    gen = torch.Generator().manual_seed(cfg.seed)
+    best, best_state, best_epoch, epoch = float("inf"), None, -1, 0
+    start = time.perf_counter()
+    bar = tqdm(range(cfg.epochs), desc=f"train {name}", unit="epoch", disable=not cfg.progress)
+    for epoch in bar:
+        net.train()
+        total = 0.0
+        for idx in torch.randperm(len(Xt), generator=gen).split(batch_size):
+            loss = loss_fn(net(Xt[idx]), Yt[idx])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if sched is not None:
+                sched.step()
+            total += float(loss.detach()) * len(idx)
+        net.eval()
+        with torch.no_grad():
+            val_loss = float(loss_fn(net(Xv), Yv))
+        train_loss = total / len(Xt)
+        if writer is not None:
+            writer.add_scalar("loss/train", train_loss, epoch)
+            writer.add_scalar("loss/val", val_loss, epoch)
+        bar.set_postfix(train=f"{train_loss:.3g}", val=f"{val_loss:.3g}")
+        if val_loss < best:
+            best, best_epoch = val_loss, epoch
+            best_state = {k: v.clone() for k, v in net.state_dict().items()}
+        elif epoch - best_epoch >= cfg.patience:
+            break
+    bar.close()
+    if best_state is not None:
+        net.load_state_dict(best_state)
+    wall = time.perf_counter() - start
+
+    # 4. test metrics, checkpoint and metadata
+    metrics = evaluate(sur, ds.subset(test))
+    if writer is not None:
+        for k, v in metrics.items():
+            writer.add_scalar(f"test/{k}", v, best_epoch)
+        writer.close()
+    sur.meta.update(
+        {
+            "R": ds.R.tolist(),
+            "training_data": {
+                **{k: ds.header.get(k) for k in ("format", "count", "seed", "generation")},
+                "label_stats": ds.header.get("label_stats"),
+                "source": cfg.data or "generated",
+                "split": {"train": len(train), "val": len(val), "test": len(test)},
+                "generation_seconds": round(gen_seconds, 1),
+            },
+            "training": {
+                "command": "python -m selenv.train.train_surrogate "
+                + " ".join(argv or sys.argv[1:]),
+                "optimizer": opt_name,
+                "lr_schedule": cfg.lr_schedule,
+                "momentum": cfg.momentum if opt_name == "sgd" else None,
+                "lr": lr,
+                "batch_size": batch_size,
+                "loss": "barrier eq. 14" if method == 1 and cfg.kind == "lpecmv" else "mse",
+                "barrier_lambda": cfg.barrier_lambda if method == 1 else None,
+                "epochs_max": cfg.epochs,
+                "epochs_run": epoch + 1 if cfg.epochs else 0,
+                "best_epoch": best_epoch,
+                "best_val_loss": best,
+                "patience": cfg.patience,
+                "seed": cfg.seed,
+                "wall_seconds": round(wall, 1),
+                "tensorboard": str(log_dir) if writer is not None else None,
+            },
+            "metrics": {"test": metrics},
+        }
+    )
+    sur.save(out)
+    meta = json.loads(out.with_suffix(".json").read_text())
+    print(json.dumps({"checkpoint": str(out), "metrics": metrics}, indent=2))
+    return meta
+
+
+def cli() -> None:
+    """Console-script entry point ``selenv-train-surrogate`` (same options as ``main``)."""
+    main()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,1 +1,0 @@
-"""Thin training entry points (``python -m train.train_fim_ppo``)."""
