@@ -24,7 +24,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -133,7 +135,49 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_executor_arguments(bench)
+    scripts = training_scripts()
+    train = sub.add_parser(
+        "train",
+        help="run a training entry point of selenv.train (same options as python -m ...)",
+        description="Run one of selenv's training entry points; everything after SCRIPT is "
+        "passed to it (`selenv train SCRIPT --help` shows its options).\n\nscripts:\n"
+        + "\n".join(f"  {name:<24}{doc}" for name, doc in scripts.items()),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    train.add_argument("script", choices=list(scripts), metavar="SCRIPT", help="which script")
+    train.add_argument("script_args", nargs=argparse.REMAINDER, help="the script's options")
     return parser
+
+
+def training_scripts() -> dict[str, str]:
+    """Module name -> first docstring line of each entry point in :mod:`selenv.train`.
+
+    Read from the sources (``ast``), so listing them imports neither torch nor Ray.
+    """
+    import ast
+    import importlib.util
+
+    spec = importlib.util.find_spec("selenv.train")
+    folder = Path(next(iter(spec.submodule_search_locations or [])))  # type: ignore[union-attr]
+    out = {}
+    for path in sorted(folder.glob("*.py")):
+        if path.stem.startswith("_") or path.stem == "tune_results":
+            continue
+        doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+        out[path.stem] = doc.split("\n")[0].rstrip(".")
+    return out
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Run ``selenv.train.<script>.main(script_args)``; its exit code is the command's."""
+    import importlib
+
+    module = importlib.import_module(f"selenv.train.{args.script}")
+    try:
+        result = module.main(list(args.script_args))
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    return result if isinstance(result, int) else 0
 
 
 def _listed_env_ids() -> list[str]:
@@ -211,12 +255,87 @@ def cmd_bench(args: argparse.Namespace) -> int:
         why = _check_baseline(args.baseline, env_ids, names)
         if why is not None:
             return _error(why)
+    why = _precheck(args, env_ids, names, several)
+    if why is not None:
+        return _error(why)
     try:
         executor = executor_from_args(args)
         with executor:
             return _run_envs(args, env_ids, names, several, executor)
     except ExecutorError as exc:
         return _error(str(exc))
+
+
+def _probe(folder: Path) -> str | None:
+    """Why no file can be created in the existing ``folder`` (``None`` if one can).
+
+    A real probe (a temporary file, removed at once), not ``os.access``: root passes every
+    permission check yet cannot create files in, e.g., ``/proc``.
+    """
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None
+
+
+def _unwritable(path: Path, option: str, *, folder: bool) -> str | None:
+    """Why ``path`` cannot be written (``None`` if it can), creating nothing that stays."""
+    if path.exists():
+        if folder != path.is_dir():
+            kind = "not a folder" if folder else "a folder, expected a file path"
+            return f"{option} {path}: exists and is {kind}"
+        target = path if folder else path.parent
+    else:
+        target = path.parent
+        while not target.exists():
+            target = target.parent
+        if not target.is_dir():
+            return f"{option} {path}: {target} is not a folder"
+    why = _probe(target)
+    return None if why is None else f"{option} {path}: cannot write into {target} ({why})"
+
+
+def _precheck(
+    args: argparse.Namespace, env_ids: list[str], names: list[str] | None, several: bool
+) -> str | None:
+    """Check every argument before any work: outputs, env kwargs, named agents (and files).
+
+    Returns:
+        The one-line reason of the first problem, or ``None``.
+    """
+    from selenv.agents import make
+    from selenv.bench import BenchError, EnvKwargsError, check_env_kwargs
+
+    if args.json and (why := _unwritable(Path(args.json), "--json", folder=False)):
+        return why
+    if args.plot and (why := _unwritable(Path(args.plot), "--plot", folder=True)):
+        return why
+    for env_id in env_ids:
+        try:
+            check_env_kwargs(env_id, args.env_kwargs)
+        except EnvKwargsError as exc:
+            return f"--env-kwargs: {exc}"
+        except BenchError as exc:
+            return str(exc)
+    for env_id in env_ids:
+        for name in names or []:
+            if env_id not in AGENTS[parse_spec(name)[0]]:
+                if several:
+                    continue  # noted and skipped when that env runs
+                return (
+                    f"agent {name!r} does not apply to {env_id} "
+                    f"(agents for it: {', '.join(agents_for(env_id))})"
+                )
+            try:
+                agent = make(name, env_id)  # options parsed, checkpoint files found and loaded
+            except ValueError as exc:
+                return f"cannot build agent {name!r} for {env_id}: {exc}"
+            close = getattr(agent, "close", None)
+            if callable(close):
+                close()
+    return None
 
 
 def _run_envs(
@@ -286,6 +405,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     if args.command == "list":
         return cmd_list()
+    if args.command == "train":
+        return cmd_train(args)
     args.argv = ["selenv", *(sys.argv[1:] if argv is None else argv)]
     return cmd_bench(args)
 

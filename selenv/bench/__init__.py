@@ -25,7 +25,7 @@ from selenv.bench.results import (
     EnvBenchResult,
     EnvKwargsError,
 )
-from selenv.bench.runner import check_env_id, run_bench, run_episode
+from selenv.bench.runner import check_env_id, check_env_kwargs, run_bench, run_episode
 from selenv.bench.stats import PairedComparison, compare_paired
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "EnvKwargsError",
     "PairedComparison",
     "check_env_id",
+    "check_env_kwargs",
     "compare_paired",
     "format_table",
     "multiagent_modules",

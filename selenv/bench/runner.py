@@ -56,6 +56,7 @@ __all__ = [
     "EnvKwargsError",
     "EpisodeBlock",
     "check_env_id",
+    "check_env_kwargs",
     "play_block",
     "run_bench",
     "run_episode",
@@ -219,6 +220,17 @@ def play_block(
     finally:
         env.close()
     return BlockResult(result)
+
+
+def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any]) -> None:
+    """Build (and close) the bench's env once: bad keywords fail before anything runs.
+
+    Raises:
+        BenchError: unknown env or module.
+        EnvKwargsError: the constructor rejected ``env_kwargs``.
+    """
+    build, _ = _env_factory(env_id, check_env_id(env_id), dict(env_kwargs))
+    build().close()
 
 
 def _blocks_per_agent(episodes: int, workers: int) -> int:

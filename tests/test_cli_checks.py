@@ -1,0 +1,79 @@
+"""selenv bench checks every argument before any work; selenv train dispatches the scripts."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import selenv.cli as cli
+from selenv.cli import main, training_scripts
+
+FIM = "selenv/FIMSelection-v0"
+LANDMARK = "selenv/LandmarkSelection-v0"
+
+
+@pytest.fixture
+def no_run(monkeypatch):
+    """Fail the test if any env is run (the checks must stop the command first)."""
+
+    def boom(*args, **kwargs):
+        raise AssertionError("the bench ran although an argument was bad")
+
+    monkeypatch.setattr(cli, "_run_envs", boom)
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--agents", "greedy,ppo:nope.zip"], "cannot build agent 'ppo:nope.zip'"),
+        (["--agents", "greedy", "--env-kwargs", '{"k": 3}'], "--env-kwargs"),  # FIM rejects k
+        (["--agents", "greedy", "--plot", "/proc/selenv_plots"], "--plot"),
+        (["--agents", "greedy", "--json", "/proc/x.json"], "--json"),
+        (["--agents", "greedy", "--json", "DIR"], "is a folder"),
+        (["--agents", "greedy", "--plot", "FILE"], "is not a folder"),
+        (["--agents", "rollout:top_k=0"], "rollout:top_k=0"),
+    ],
+)
+def test_bad_arguments_stop_before_any_env_runs(tmp_path, capsys, no_run, extra, needle):
+    (tmp_path / "f").write_text("x")
+    extra = [str(tmp_path) if e == "DIR" else str(tmp_path / "f") if e == "FILE" else e
+             for e in extra]  # fmt: skip
+    argv = ["bench", FIM, LANDMARK, "--episodes", "1", "--no-progress", *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and len(err.splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]  # nothing written
+
+
+def test_kwargs_rejected_by_the_second_env_only(capsys, no_run):
+    # LandmarkSelection accepts n_landmarks, FIMSelection does not: fails before FIM runs
+    argv = ["bench", LANDMARK, FIM, "--agents", "greedy", "--env-kwargs", '{"n_landmarks": 5}']
+    assert main([*argv, "--no-progress"]) == 2
+    assert FIM in capsys.readouterr().err
+
+
+def test_good_arguments_still_run_and_create_output_folders(tmp_path):
+    out = tmp_path / "new" / "deeper" / "r.json"
+    argv = ["bench", FIM, "--agents", "greedy,random", "--episodes", "1", "--no-progress",
+            "--env-kwargs", '{"n_candidates": 8, "budget": 2}', "--json", str(out),
+            "--plot", str(tmp_path / "plots")]  # fmt: skip
+    assert main(argv) == 0
+    assert json.loads(out.read_text())["results"][0]["env_id"] == FIM
+    assert list((tmp_path / "plots").glob("*.png"))
+
+
+def test_train_lists_every_entry_point():
+    scripts = training_scripts()
+    folder = Path(cli.__file__).parent / "train"
+    expected = {p.stem for p in folder.glob("*.py")} - {"__init__", "tune_results"}
+    assert set(scripts) == expected
+    assert all(scripts.values())  # each has a one-line description
+
+
+def test_train_dispatches_and_reports_exit_codes(capsys):
+    assert main(["train", "train_fim_ppo", "--help"]) == 0
+    assert "--total-timesteps" in capsys.readouterr().out
+    assert main(["train", "no_such_script"]) == 2
+    assert "invalid choice" in capsys.readouterr().err
