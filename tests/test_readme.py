@@ -1,0 +1,212 @@
+"""Every ```python block of README.md runs as pasted.
+
+Each fenced block whose info string is exactly ``python`` is one test case (id: the block's
+index and its first line). A block runs
+
+* in a fresh namespace (``{"__name__": "__main__"}``): it must import and set up every name it
+  uses, so a reader can paste any single block into a new interpreter;
+* from a temporary working directory (``monkeypatch.chdir(tmp_path)``), so whatever it writes
+  (logs, checkpoints, figures) lands there and never in the repository, and a relative path to
+  a repository file (``"checkpoints/ldmv.pt"``) fails as it would for a user of an installed
+  package;
+* with matplotlib's Agg backend (headless);
+* under a wall-clock guard of ``BLOCK_TIMEOUT`` seconds (SIGALRM, where available): README
+  blocks are meant to run in seconds.
+
+A block fails the test if it raises (including ``SyntaxError`` and the timeout).
+
+Convention for blocks that must not run: a first line ``# not run: <reason>`` skips the block
+with that reason (reported by ``-ra``). Use it sparingly -- for a block that needs a cluster,
+network access or legitimately takes more than about 20 s -- and prefer a ``bash`` block for
+commands. ``bash`` (and any other non-``python``) blocks are never executed here.
+"""
+
+from __future__ import annotations
+
+import linecache
+import os
+import re
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+
+import pytest
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+NOT_RUN = re.compile(r"^#\s*not run:\s*(?P<reason>\S.*)$")
+BLOCK_TIMEOUT = 60  # seconds of wall clock per block (a slow shared CI box, not a target)
+_FENCE_OPEN = re.compile(r"^(?P<fence>`{3,}|~{3,})\s*(?P<info>[^`]*)$")
+
+
+@dataclass(frozen=True)
+class Block:
+    """One fenced code block: its index among the python blocks, first line number, source."""
+
+    index: int
+    line: int
+    source: str
+
+    @property
+    def first_line(self) -> str:
+        """The first non-empty line of the source (for the test id)."""
+        return next((s.strip() for s in self.source.splitlines() if s.strip()), "<empty>")
+
+    @property
+    def skip_reason(self) -> str | None:
+        """The reason of a ``# not run: <reason>`` first line, else ``None``."""
+        match = NOT_RUN.match(self.first_line)
+        return match["reason"].strip() if match else None
+
+
+def fenced_blocks(text: str) -> Iterator[tuple[str, int, str]]:
+    """``(info string, 1-based line of the opening fence, source)`` of every fenced block.
+
+    A fence closes on a line of the same character, at least as long, and nothing else
+    (CommonMark); an unclosed fence runs to the end of the text.
+    """
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines):
+        match = _FENCE_OPEN.match(lines[i].strip()) if not lines[i].startswith("    ") else None
+        if match is None:
+            i += 1
+            continue
+        fence, info, start = match["fence"], match["info"].strip(), i
+        body: list[str] = []
+        i += 1
+        while i < len(lines):
+            stripped = lines[i].strip()
+            if stripped and set(stripped) == {fence[0]} and len(stripped) >= len(fence):
+                break
+            body.append(lines[i])
+            i += 1
+        i += 1
+        yield info, start + 1, "\n".join(body) + "\n"
+
+
+def python_blocks(text: str) -> list[Block]:
+    """The blocks fenced as ``python`` (the info string's first word), in order."""
+    found = [
+        (line, src) for info, line, src in fenced_blocks(text) if info.split()[:1] == ["python"]
+    ]
+    return [Block(k, line, src) for k, (line, src) in enumerate(found)]
+
+
+BLOCKS = python_blocks(README.read_text(encoding="utf-8"))
+
+
+def _block_id(block: Block) -> str:
+    first = re.sub(r"[^\w.=()\"',:/ -]", "", block.first_line)[:60].strip()
+    return f"{block.index:02d}-L{block.line}-{first}"
+
+
+class BlockTimeout(Exception):
+    """A README block ran longer than ``BLOCK_TIMEOUT``."""
+
+
+def run_block(block: Block, timeout: float = BLOCK_TIMEOUT) -> dict[str, object]:
+    """Execute ``block`` in a fresh namespace under a SIGALRM guard; return the namespace."""
+    filename = f"README.md:{block.line}(python block {block.index})"
+    # tracebacks show the README's lines instead of "???"
+    linecache.cache[filename] = (len(block.source), None, block.source.splitlines(True), filename)
+    code = compile(block.source, filename, "exec")
+    namespace: dict[str, object] = {"__name__": "__main__"}
+    use_alarm = hasattr(signal, "SIGALRM") and threading.current_thread() is threading.main_thread()
+    previous = None
+    if use_alarm:
+
+        def _expire(signum: int, frame: FrameType | None) -> None:
+            raise BlockTimeout(f"README block at line {block.line} ran longer than {timeout} s")
+
+        previous = signal.signal(signal.SIGALRM, _expire)
+        signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        exec(code, namespace)
+    finally:
+        if use_alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, signal.SIG_DFL if previous is None else previous)
+    return namespace
+
+
+@pytest.fixture
+def sandbox(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """A temporary cwd, the Agg backend, no pyplot figures left behind, sys.path unchanged."""
+    import matplotlib
+
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    matplotlib.use("Agg", force=True)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    yield tmp_path
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
+
+@pytest.mark.parametrize("block", BLOCKS, ids=[_block_id(b) for b in BLOCKS])
+def test_readme_python_block_runs(block: Block, sandbox: Path) -> None:
+    """The block runs as pasted into a fresh interpreter, from an empty directory."""
+    if block.skip_reason is not None:
+        pytest.skip(f"README.md:{block.line}: not run: {block.skip_reason}")
+    run_block(block)
+    assert Path.cwd() == sandbox, "a README block changed the working directory"
+
+
+# -- the harness itself ---------------------------------------------------------------------------
+
+
+def test_readme_has_python_blocks_and_skips_are_rare() -> None:
+    """The README is parsed (blocks found) and most blocks really run."""
+    assert len(BLOCKS) >= 10
+    skipped = [b for b in BLOCKS if b.skip_reason is not None]
+    assert len(skipped) <= 2, [f"README.md:{b.line}: {b.skip_reason}" for b in skipped]
+
+
+def test_only_python_fences_are_collected() -> None:
+    """``bash``, untagged and other fences are never run; ``python`` ones all are."""
+    text = README.read_text(encoding="utf-8")
+    infos = [info for info, _, _ in fenced_blocks(text)]
+    assert "bash" in infos  # the README has command blocks: they must not be executed
+    assert len(BLOCKS) == sum(info.split()[:1] == ["python"] for info in infos)
+    sample = (
+        "text\n```bash\nrm -rf /\n```\n\n```python\nx = 1\n```\n```\nuntagged\n```\n"
+        "````python\ny = '```'\n```\nz = 2\n````\n~~~python\n# not run: needs a cluster\n~~~\n"
+    )
+    blocks = python_blocks(sample)
+    assert [b.source for b in blocks] == [
+        "x = 1\n",
+        "y = '```'\n```\nz = 2\n",
+        "# not run: needs a cluster\n",
+    ]
+    assert [b.line for b in blocks] == [6, 12, 17]
+    assert [b.skip_reason for b in blocks] == [None, None, "needs a cluster"]
+
+
+def test_a_failing_block_fails(sandbox: Path) -> None:
+    """The runner propagates errors: a block using a name it did not define raises."""
+    with pytest.raises(NameError):
+        run_block(Block(0, 1, "import numpy as np\nprint(np.zeros(2) + undefined_name)\n"))
+    with pytest.raises(SyntaxError):
+        run_block(Block(0, 1, "def broken(:\n"))
+
+
+def test_blocks_run_in_fresh_namespaces_and_in_the_sandbox(sandbox: Path) -> None:
+    """Names do not leak between blocks; files go to the temporary directory."""
+    first = run_block(Block(0, 1, "leaked = 1\nopen('out.txt', 'w').write('x')\n"))
+    assert first["leaked"] == 1
+    assert (sandbox / "out.txt").is_file()
+    with pytest.raises(NameError):
+        run_block(Block(1, 5, "leaked\n"))
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGALRM"), reason="SIGALRM guard is POSIX-only")
+def test_timeout_guard(sandbox: Path) -> None:
+    """A block that runs too long is stopped with ``BlockTimeout``."""
+    with pytest.raises(BlockTimeout):
+        run_block(Block(0, 1, "import time\nwhile True:\n    time.sleep(0.01)\n"), timeout=0.2)
+    assert os.getcwd() == str(sandbox)
