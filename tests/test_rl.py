@@ -252,7 +252,7 @@ def test_marl_training_script(tmp_path: Path) -> None:
     assert all(np.isfinite(v) for v in finals.values())
     assert meta["marl"]["path"] == "selenv.learned.rl.marl.SharedPolicyEnv"
     # --eval-only re-evaluates the saved checkpoint on its own env kwargs: same numbers
-    again = train_fim_marl.main(["--eval-only", "--eval-episodes=2", f"--out={out}"])
+    again = train_fim_marl.main(["--eval-only", "--eval-episodes=2", f"--out={out}", "--force"])
     assert again["metrics"] == meta["metrics"]
 
 
@@ -295,7 +295,7 @@ def test_fim_training_script_with_plain_ppo(tmp_path: Path) -> None:
     assert not agent.masked
     assert np.isfinite(_play(agent, gym.make(FIM_ID, n_candidates=12, budget=4), seed=2)[1])
     with pytest.raises(ValueError, match="--algo must be one of"):
-        train_fim_ppo.main([*TINY, "--algo=dqn", f"--out={out}"])
+        train_fim_ppo.main([*TINY, "--algo=dqn", f"--out={out}", "--force"])
 
 
 def test_training_learns_a_toy_problem_with_known_optimum() -> None:

@@ -153,7 +153,11 @@ def test_clustering_script_ranks_then_verifies(tmp_path: Path) -> None:
     assert np.isfinite(_play_final(SB3PolicyAgent(tmp_path / "dagger.zip", env_id=CLU_ID)))
     with pytest.raises(ValueError, match="was trained on 'selenv/FIMSelection-v0'"):
         train_clustering_dagger.main(
-            [f"--checkpoint={DEFAULT_CHECKPOINTS[FIM_ID]}", "--no-progress"]
+            [
+                f"--checkpoint={DEFAULT_CHECKPOINTS[FIM_ID]}",
+                f"--out={tmp_path / 'x.zip'}",
+                "--no-progress",
+            ]
         )
     with pytest.raises(ValueError, match="no exact verification"):
         fim = SB3PolicyAgent(env_id="selenv/FIMSelection-v0", verify_top_k=3)

@@ -16,7 +16,10 @@ held-out seeds ``--eval-seed .. --eval-seed + --eval-episodes - 1`` (training ep
 seeds >= 10**6), and the bench's paired statistics and the exact command are written into
 the checkpoint's metadata.
 
-    python -m selenv.train.train_cl_expert --out runs/cl_expert.zip        # ~25 min on 2 cores
+    python -m selenv.train.train_cl_expert   # -> runs/train_cl_expert/policy.zip (~25 min, 2 cores)
+
+Outputs (all refused if they exist, unless ``--force``): ``<out>.zip`` + ``.json``, every
+round's ``<out>_round<r>.zip`` + ``.json`` and, with ``--eval-episodes``, ``<out>.bench.json``.
 """
 
 from __future__ import annotations
@@ -35,36 +38,72 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
-from selenv.learned.config import parse_config
+from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.expert import CL_ID, collect_cl_rollout_labels
 from selenv.learned.rl.ranking import RankingData, fit_ranking
 from selenv.learned.rl.safe_load import model_from_checkpoint
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
+SCRIPT = "selenv.train.train_cl_expert"
+
 
 @dataclass
 class Config:
     """Every field is a ``--kebab-case`` option."""
 
-    checkpoint: str = str(DEFAULT_CHECKPOINTS[CL_ID])  # starting weights
-    out: str = "runs/cl_expert.zip"
-    force: bool = False  # overwrite --out
-    env_kwargs: str = "{}"  # the benchmark preset
-    view: str = "cl_pairs_fused_top3"  # the labeller's candidate set (stop + top-3 by gain)
-    rounds: int = 3
-    states_per_round: int = 1500
-    top_k: int = 3  # the labeller: the bench's ``rollout`` reference
-    horizon: int = 5
-    explore: float = 0.05
-    epochs: int = 20
-    learning_rate: float = 5e-4
-    temperature: float = 0.1
-    workers: int = 2
-    seed: int = 0
-    progress: bool = True
-    eval_episodes: int = 30
-    eval_seed: int = 1000
+    checkpoint: str = arg(str(DEFAULT_CHECKPOINTS[CL_ID]), "starting weights (a .zip)")
+    out: str = arg(
+        "runs/train_cl_expert/policy.zip",
+        "the trained checkpoint (.zip); also writes its .json, <out>_round<r>.zip/.json per "
+        "round and <out>.bench.json",
+    )
+    force: bool = arg(False, "overwrite existing outputs of --out")
+    env_kwargs: str = arg(
+        "{}", "JSON object of gymnasium.make keyword arguments ({}: the benchmark preset)"
+    )
+    view: str = arg(
+        "cl_pairs_fused_top3", "candidate view: the labeller's candidate set (stop + top-3 by gain)"
+    )
+    rounds: int = arg(3, "DAgger rounds (round 0 follows the labeller, later ones the policy)")
+    states_per_round: int = arg(1500, "labelled decisions collected per round")
+    top_k: int = arg(3, "the labeller (the bench's rollout reference) scores stop and its top-k")
+    horizon: int = arg(5, "filter steps the labeller simulates after the current one")
+    explore: float = arg(0.05, "random action probability on the labelling trajectories")
+    epochs: int = arg(20, "epochs of the ranking fit (ListNet) per round")
+    learning_rate: float = arg(5e-4, "Adam learning rate of the ranking fit")
+    temperature: float = arg(
+        0.1, "temperature T of the ListNet targets softmax(-dJ / (T * spread of dJ))"
+    )
+    workers: int = arg(2, "labelling worker processes")
+    seed: int = arg(0, "seed of the labelling episodes (round r: 100 * seed + r) and the fit")
+    progress: bool = arg(True, "show tqdm bars")
+    eval_episodes: int = arg(
+        30, "held-out episodes of the selenv bench evaluation after training (0: none)"
+    )
+    eval_seed: int = arg(1000, "seed of the first held-out episode (then +1, +2, ...)")
+
+
+def expert_outputs(cfg: Any) -> list[Path]:
+    """Every file an expert-iteration run writes (checkpoint, rounds, bench JSON)."""
+    out = Path(cfg.out)
+    files = [out, out.with_suffix(".json")]
+    for r in range(max(cfg.rounds, 0)):
+        round_path = out.with_name(f"{out.stem}_round{r}.zip")
+        files += [round_path, round_path.with_suffix(".json")]
+    if cfg.eval_episodes:
+        files.append(out.with_suffix(".bench.json"))
+    return files
+
+
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes."""
+    return expert_outputs(cfg)
 
 
 def _save(model: Any, meta: dict[str, Any], path: Path) -> None:
@@ -106,10 +145,9 @@ def evaluate_with_bench(
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
-    return run_expert_iteration(
-        cfg, argv, CL_ID, collect_cl_rollout_labels, "selenv.train.train_cl_expert", "greedy"
-    )
+    cfg = parse_args(argv)
+    check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
+    return run_expert_iteration(cfg, argv, CL_ID, collect_cl_rollout_labels, SCRIPT, "greedy")
 
 
 def run_expert_iteration(
@@ -120,12 +158,14 @@ def run_expert_iteration(
     script: str,
     baseline: str,
 ) -> dict[str, Any]:
-    """The DAgger loop shared by the expert-iteration scripts (module docstring)."""
+    """The DAgger loop shared by the expert-iteration scripts (module docstring).
+
+    Existing outputs without ``cfg.force`` exit with code 2 (the scripts check first).
+    """
     out = Path(cfg.out)
     if out.suffix != ".zip":
         raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
-    if out.exists() and not cfg.force:
-        raise ValueError(f"--out {out} exists; pass --force to overwrite it")
+    check_outputs(f"python -m {script}", expert_outputs(cfg), force=cfg.force)
     if cfg.rounds < 1:
         raise ValueError(f"--rounds must be >= 1, got {cfg.rounds}")
     kwargs = json.loads(cfg.env_kwargs)
@@ -200,6 +240,11 @@ def run_expert_iteration(
         }
         out.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return meta
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

@@ -6,31 +6,36 @@ uncertainties, so the policy does not depend on the number of pairs. The gain is
 (``--view cl_pairs_fused``), the exact previewed decrease of the objective by the pair's fused
 update -- the quantity the greedy agent maximises, so with the gain skip the untrained policy
 is a softened greedy -- or (``--view cl_pairs``) the env's cheap naive-EKF proxy, which
-needs no preview (``checkpoints/cl_scheduling_ppo_proxy.zip``). Evaluation: the
+needs no preview (the shipped ``checkpoints/cl_scheduling_ppo_proxy.zip``). Evaluation: the
 saved checkpoint against ``greedy`` (previews every pair's fused update), ``round_robin`` and
 ``random`` with the same fusion, on held-out seeds.
 
-    python -m selenv.train.train_cl_ppo   # -> checkpoints/cl_scheduling_ppo.zip
+    python -m selenv.train.train_cl_ppo   # -> runs/train_cl_ppo/policy.zip (+ .json)
+
+The shipped checkpoints' runs: ``configs/cl_scheduling_ppo.toml`` and
+``configs/cl_scheduling_ppo_proxy.toml`` (``--config FILE``).
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
-from selenv.learned.config import parse_config
-from selenv.learned.rl.training import PPOConfig, train
+from selenv.learned.config import arg, parse_config
+from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/CLScheduling-v0"
+SCRIPT = "selenv.train.train_cl_ppo"
 
 
 @dataclass
 class Config(PPOConfig):
-    """Defaults of the shipped run."""
+    """Defaults of the shipped run, written under ``runs/``."""
 
     env_kwargs: str = json.dumps({"n_agents": 4, "budget": 2, "fusion": "dmv", "horizon": 100})
     total_timesteps: int = 60_000
@@ -39,12 +44,16 @@ class Config(PPOConfig):
     n_steps: int = 256
     batch_size: int = 256
     gain_skip_init: float = 2.0
-    out: str = "checkpoints/cl_scheduling_ppo.zip"
+    out: str = "runs/train_cl_ppo/policy.zip"
     eval_episodes: int = 20
     baselines: str = "greedy,round_robin,random"
-    # cl_pairs_fused (previewed fused gains, the shipped run) | cl_pairs (naive-EKF proxy:
-    # checkpoints/cl_scheduling_ppo_proxy.zip, trained with --view cl_pairs --gain-skip-init 1)
-    view: str = "cl_pairs_fused"
+    view: str = arg(
+        "cl_pairs_fused",
+        "candidate view (selenv.learned.rl.views): cl_pairs_fused (each pair's previewed "
+        "fused gain, the shipped run), cl_pairs (the naive-EKF proxy, no previews: "
+        "cl_scheduling_ppo_proxy, trained with --view cl_pairs --gain-skip-init 1) or "
+        "cl_pairs_fused_top3 (stop and the 3 pairs of largest previewed gain)",
+    )
 
 
 def make_env(kwargs: dict[str, Any], view: str = "cl_pairs") -> gym.Env[Any, Any]:
@@ -53,9 +62,20 @@ def make_env(kwargs: dict[str, Any], view: str = "cl_pairs") -> gym.Env[Any, Any
     return CandidateViewWrapper(env, view_for(ENV_ID, env, view))
 
 
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes."""
+    return output_paths(cfg)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    cfg = parse_args(argv)
+    check_run_outputs(cfg, f"python -m {SCRIPT}")
     kwargs = cfg.kwargs()
     return train(
         cfg,
@@ -65,6 +85,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         view=cfg.view,
         tb_name="cl_ppo",
     )
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

@@ -9,7 +9,10 @@ logits are fitted to those labels (ListNet, :func:`selenv.learned.rl.ranking.fit
 starting from the checkpoint's weights. The result is saved with the source metadata plus a
 ``dagger`` block, and evaluated like the training scripts do.
 
-    python -m selenv.train.train_clustering_dagger --out runs/clustering_dagger.zip
+    python -m selenv.train.train_clustering_dagger   # -> runs/train_clustering_dagger/policy.zip
+
+The shipped ``checkpoints/receiver_clustering_ppo.zip`` is one such round on the ranking-trained
+policy: ``configs/receiver_clustering_ppo.toml`` (its header gives both commands).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from typing import Any
 import gymnasium as gym
 import torch
 
-from selenv.learned.config import parse_config
+from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
 from selenv.learned.rl.safe_load import model_from_checkpoint
@@ -31,34 +34,62 @@ from selenv.learned.rl.training import evaluate_checkpoint
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/ReceiverClustering-v0"
+SCRIPT = "selenv.train.train_clustering_dagger"
 
 
 @dataclass
 class Config:
     """Every field is a ``--kebab-case`` option."""
 
-    checkpoint: str = str(DEFAULT_CHECKPOINTS[ENV_ID])  # the policy to improve
-    out: str = "runs/clustering_dagger.zip"
-    env_kwargs: str = json.dumps({"n_agents": 30, "horizon": 500})
-    states: int = 3000
-    behaviour_top_k: int = 4  # the behaviour plays as ppo_top4
-    explore: float = 0.05
-    label_every: int = 5
-    epochs: int = 10
-    learning_rate: float = 5e-4
-    temperature: float = 0.1
-    workers: int = 2
-    seed: int = 1
-    progress: bool = True
-    eval_episodes: int = 10
-    eval_seed: int = 10_000
-    verify_top_k: str = "4,8"
-    baselines: str = "ga"
+    checkpoint: str = arg(
+        str(DEFAULT_CHECKPOINTS[ENV_ID]), "the policy to improve (a ReceiverClustering-v0 .zip)"
+    )
+    out: str = arg(
+        "runs/train_clustering_dagger/policy.zip",
+        "the improved checkpoint (.zip); its metadata goes next to it as .json",
+    )
+    force: bool = arg(False, "overwrite an existing --out (.zip or .json)")
+    env_kwargs: str = arg(
+        json.dumps({"n_agents": 30, "horizon": 500}),
+        "JSON object of gymnasium.make keyword arguments of the labelling episodes",
+    )
+    states: int = arg(3000, "labelled states (visited by the policy)")
+    behaviour_top_k: int = arg(
+        4, "the behaviour plays as ppo_topK: its K best edits costed, the best played"
+    )
+    explore: float = arg(0.05, "random edit probability on the labelling trajectories")
+    label_every: int = arg(5, "a state is labelled every k-th filter step")
+    epochs: int = arg(10, "epochs of the ranking fit (ListNet)")
+    learning_rate: float = arg(5e-4, "Adam learning rate of the ranking fit")
+    temperature: float = arg(
+        0.1, "temperature T of the ListNet targets softmax(-dJ / (T * spread of dJ))"
+    )
+    workers: int = arg(2, "labelling worker processes")
+    seed: int = arg(1, "seed of the labelling episodes and the fit")
+    progress: bool = arg(True, "show tqdm bars")
+    eval_episodes: int = arg(
+        10, "held-out episodes on which the saved checkpoint is evaluated (0: none)"
+    )
+    eval_seed: int = arg(10_000, "seed of the first held-out episode (then +1, +2, ...)")
+    verify_top_k: str = arg("4,8", "evaluated variants ppo_topK: comma-separated K (empty: none)")
+    baselines: str = arg("ga", "comma-separated registered agents evaluated next to the policy")
+
+
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes: the checkpoint and its ``.json`` metadata."""
+    out = Path(cfg.out)
+    return [out, out.with_suffix(".json")]
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit, save, evaluate; return the new checkpoint's metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    cfg = parse_args(argv)
+    check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
     out = Path(cfg.out)
     if out.suffix != ".zip":
         raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
@@ -116,6 +147,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         summary = {k: v["mean_final_objective"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_final_objective": summary}, indent=2))
     return meta
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

@@ -19,32 +19,42 @@ no cost evaluation at all), ``ppo_top4`` / ``ppo_top8`` (its 4 / 8 best edits co
 best improving one played: <= 4 / 8 evaluations per step) against ``ga`` (20 per step),
 ``greedy`` and ``fixed_random``.
 
-    python -m selenv.train.train_clustering_ppo   # -> checkpoints/receiver_clustering_ppo.zip
+    python -m selenv.train.train_clustering_ppo   # -> runs/train_clustering_ppo/policy.zip
+
+The shipped ``checkpoints/receiver_clustering_ppo.zip`` is this script's ranking stage
+(``configs/receiver_clustering_ppo_ranking.toml``) followed by one DAgger round
+(:mod:`selenv.train.train_clustering_dagger`, ``configs/receiver_clustering_ppo.toml``).
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
-from selenv.learned.config import parse_config
+from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
-from selenv.learned.rl.training import PPOConfig, train
+from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/ReceiverClustering-v0"
+SCRIPT = "selenv.train.train_clustering_ppo"
 
 
 @dataclass
 class Config(PPOConfig):
-    """Defaults of the shipped run."""
+    """Defaults of the shipped run's ranking stage, written under ``runs/``."""
 
     env_kwargs: str = json.dumps({"n_agents": 30, "horizon": 200})
-    eval_horizon: int = 500  # evaluation episodes use the env's default length
-    total_timesteps: int = 0  # PPO after the ranking stage (see the module docstring)
+    eval_horizon: int = arg(
+        500, "episode length of the evaluation episodes (the env's default length)"
+    )
+    total_timesteps: int = arg(
+        0, "PPO environment steps after the ranking stage (0: keep the ranked policy)"
+    )
     n_envs: int = 4
     vec_env: str = "subproc"
     n_steps: int = 256
@@ -52,20 +62,30 @@ class Config(PPOConfig):
     gamma: float = 0.98
     learning_rate: float = 3e-4
     ent_coef: float = 1e-3
-    gain_skip_init: float = 1.0  # starts at ~94 % "keep the clustering" (see ClusteringEditView)
-    out: str = "checkpoints/receiver_clustering_ppo.zip"
+    gain_skip_init: float = arg(
+        1.0,
+        "initial weight w of the gain skip in every edit's logit (1: the policy starts "
+        "at ~94 % 'keep the clustering', see ClusteringEditView)",
+    )
+    out: str = "runs/train_clustering_ppo/policy.zip"
     eval_episodes: int = 10
     baselines: str = "ga,greedy,fixed_random"
     # stage 1: ranking pre-training (0 states: PPO from scratch)
     hidden: str = "128,128"
-    rank_states: int = 6000
-    rank_epochs: int = 20
-    rank_temperature: float = 0.1
-    rank_label_every: int = 5
-    rank_explore: float = 0.2  # random edit probability on the labelling trajectories
-    rank_workers: int = 2
-    rank_horizon: int = 500  # episode length of the labelling trajectories
-    verify_top_k: str = "4,8"  # evaluated variants ppo_topK (comma-separated K; empty: none)
+    rank_states: int = arg(
+        6000, "labelled states of the ranking pre-training (0: none, PPO from scratch)"
+    )
+    rank_epochs: int = arg(20, "epochs of the ranking fit (ListNet)")
+    rank_temperature: float = arg(
+        0.1, "temperature T of the ListNet targets softmax(-dJ / (T * spread of dJ))"
+    )
+    rank_label_every: int = arg(
+        5, "the greedy expert edits (and a state is labelled) every k-th filter step"
+    )
+    rank_explore: float = arg(0.2, "random edit probability on the labelling trajectories")
+    rank_workers: int = arg(2, "labelling worker processes")
+    rank_horizon: int = arg(500, "episode length of the labelling trajectories")
+    verify_top_k: str = arg("4,8", "evaluated variants ppo_topK: comma-separated K (empty: none)")
 
 
 def make_env(kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
@@ -74,9 +94,20 @@ def make_env(kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
     return CandidateViewWrapper(env, view_for(ENV_ID, env))
 
 
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes."""
+    return output_paths(cfg)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    cfg = parse_args(argv)
+    check_run_outputs(cfg, f"python -m {SCRIPT}")
     kwargs = cfg.kwargs()
     eval_kwargs = {**kwargs, "horizon": cfg.eval_horizon}
     eval_kwargs.pop("action_mode", None)
@@ -118,6 +149,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         pretrain=pretrain,
         policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
     )
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

@@ -8,7 +8,12 @@ log-det gain. Trained in ``mode="cooperative"`` (agents take turns and see the s
 evaluated against cooperative greedy and independent greedy (Algorithm 1 per agent, no
 communication) on held-out seeds, in both modes.
 
-    python -m selenv.train.train_fim_marl   # -> checkpoints/fim_marl_ppo.zip
+    python -m selenv.train.train_fim_marl   # -> runs/train_fim_marl/policy.zip (+ .json)
+    python -m selenv.train.train_fim_marl --config configs/fim_marl_ppo.toml \
+        --out checkpoints/fim_marl_ppo.zip --force        # the shipped checkpoint, again
+
+``--eval-only --out FILE --force`` re-evaluates the checkpoint ``FILE`` and rewrites the
+metrics in its JSON (``--force``: the JSON is an existing output).
 """
 
 from __future__ import annotations
@@ -22,25 +27,36 @@ from typing import Any
 import numpy as np
 
 from selenv.agents.fim import CooperativeGreedyPolicy
-from selenv.learned.config import parse_config
+from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.rl.marl import SharedPolicyEnv
 from selenv.learned.rl.safe_load import load_policy
-from selenv.learned.rl.training import PPOConfig, train
+from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 from selenv.multiagent import fim_selection_v0
 
 ENV_ID = "selenv.multiagent.fim_selection_v0"
+SCRIPT = "selenv.train.train_fim_marl"
 
 
 @dataclass
 class Config(PPOConfig):
-    """Defaults of the shipped run."""
+    """Defaults of the shipped run, written under ``runs/``."""
 
     env_kwargs: str = json.dumps({"preset": "example3", "n_candidates": 50, "budgets": 5})
-    mode: str = "cooperative"  # the mode the shared policy is trained in
+    mode: str = arg(
+        "cooperative",
+        "mode the shared policy is trained in: cooperative (turns, shared FIM) or independent",
+        choices=("cooperative", "independent"),
+    )
     total_timesteps: int = 100_000
-    out: str = "checkpoints/fim_marl_ppo.zip"
-    eval_episodes: int = 50
-    eval_only: bool = False  # skip training: evaluate the checkpoint at --out
+    out: str = "runs/train_fim_marl/policy.zip"
+    eval_episodes: int = arg(
+        50, "held-out episodes of the policy and the greedy schemes, in both modes (0: none)"
+    )
+    eval_only: bool = arg(
+        False,
+        "skip training: re-evaluate the checkpoint at --out and rewrite the metrics "
+        "in its JSON (needs --force)",
+    )
 
 
 def play(policy: Any, kwargs: dict[str, Any], mode: str, seed: int) -> float:
@@ -61,14 +77,29 @@ def play(policy: Any, kwargs: dict[str, Any], mode: str, seed: int) -> float:
     return float(info["objective"])
 
 
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes (``--eval-only``: the checkpoint's JSON only)."""
+    return output_paths(cfg)[1:] if cfg.eval_only else output_paths(cfg)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train the shared policy, save it, compare it with the greedy schemes; return metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
-    kwargs = cfg.kwargs()
+    cfg = parse_args(argv)
+    prog = f"python -m {SCRIPT}"
     if cfg.eval_only:  # re-evaluate the checkpoint at --out, rewrite its metrics
+        if not Path(cfg.out).is_file():
+            usage_error(prog, f"--eval-only: no checkpoint {cfg.out}")
+        check_outputs(prog, outputs(cfg), force=cfg.force)
         meta = json.loads(Path(cfg.out).with_suffix(".json").read_text())
         kwargs = meta["env_kwargs"]  # what the checkpoint was trained on
         return _evaluate(cfg, kwargs, meta)
+    check_run_outputs(cfg, prog)
+    kwargs = cfg.kwargs()
     meta = train(
         dataclasses.replace(cfg, eval_episodes=0),
         env_id=ENV_ID,
@@ -78,6 +109,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         tb_name="fim_marl_ppo",
         extra_meta={"marl": {"path": "selenv.learned.rl.marl.SharedPolicyEnv", "mode": cfg.mode}},
     )
+    meta["training"]["eval_episodes"] = cfg.eval_episodes  # train() ran none: _evaluate does
     return _evaluate(cfg, kwargs, meta)
 
 
@@ -103,6 +135,11 @@ def _evaluate(cfg: Config, kwargs: dict[str, Any], meta: dict[str, Any]) -> dict
         Path(cfg.out).with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
         print(json.dumps(meta["metrics"]["mean_final_objective"], indent=2))
     return meta
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

@@ -4,7 +4,9 @@ CleanRL-style: :class:`Config` (the command line, with this env's defaults) then
 :func:`selenv.learned.rl.training.train` (envs, model, tqdm + TensorBoard, checkpoint + JSON,
 evaluation of the saved checkpoint against ``greedy`` and ``random`` on held-out seeds).
 
-    python -m selenv.train.train_fim_ppo  # defaults: the shipped checkpoints/fim_selection_ppo.zip
+    python -m selenv.train.train_fim_ppo          # -> runs/train_fim_ppo/policy.zip (+ .json)
+    python -m selenv.train.train_fim_ppo --config configs/fim_selection_ppo.toml \
+        --out checkpoints/fim_selection_ppo.zip --force    # the shipped checkpoint, again
     tensorboard --logdir runs
 """
 
@@ -12,29 +14,42 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
 from selenv.learned.config import parse_config
-from selenv.learned.rl.training import PPOConfig, train
+from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 
 ENV_ID = "selenv/FIMSelection-v0"
+SCRIPT = "selenv.train.train_fim_ppo"
 
 
 @dataclass
 class Config(PPOConfig):
-    """Defaults of the shipped run (140k steps, ~6 min on 2 cores)."""
+    """Defaults of the shipped run (140k steps, ~6 min on 2 cores), written under ``runs/``."""
 
     env_kwargs: str = json.dumps({"preset": "example2", "n_candidates": 100, "budget": 10})
     total_timesteps: int = 140_000
-    out: str = "checkpoints/fim_selection_ppo.zip"
+    out: str = "runs/train_fim_ppo/policy.zip"
     eval_episodes: int = 100
+
+
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes."""
+    return output_paths(cfg)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    cfg = parse_args(argv)
+    check_run_outputs(cfg, f"python -m {SCRIPT}")
     kwargs = cfg.kwargs()
     probe = gym.make(ENV_ID, **kwargs).unwrapped
     m, d, n = int(probe.m), int(probe.d), int(probe.n)  # type: ignore[attr-defined]
@@ -55,6 +70,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             }
         },
     )
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

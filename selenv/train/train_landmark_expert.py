@@ -8,56 +8,84 @@ score of a candidate subset containing it. The policy starts from the shipped la
 checkpoint and keeps its view; the result is benchmarked against ``brute_force`` and
 ``rollout`` on the held-out seeds, and written into the checkpoint's metadata.
 
-    python -m selenv.train.train_landmark_expert --out runs/landmark_expert.zip
+    python -m selenv.train.train_landmark_expert   # -> runs/train_landmark_expert/policy.zip
+
+The shipped ``checkpoints/landmark_selection_ppo.zip``: ``configs/landmark_selection_ppo.toml``.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-from selenv.learned.config import parse_config
+from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
-from selenv.train.train_cl_expert import run_expert_iteration
+from selenv.train.train_cl_expert import expert_outputs, run_expert_iteration
+
+SCRIPT = "selenv.train.train_landmark_expert"
 
 
 @dataclass
 class Config:
     """Every field is a ``--kebab-case`` option."""
 
-    checkpoint: str = str(DEFAULT_CHECKPOINTS[LANDMARK_ID])
-    out: str = "runs/landmark_expert.zip"
-    force: bool = False
-    env_kwargs: str = "{}"
-    rounds: int = 3
-    states_per_round: int = 3000
-    top_k: int = 4
-    horizon: int = 10
-    explore: float = 0.05
-    epochs: int = 15
-    learning_rate: float = 5e-4
-    temperature: float = 0.1
-    workers: int = 2
-    seed: int = 0
-    progress: bool = True
-    eval_episodes: int = 30
-    eval_seed: int = 1000
+    checkpoint: str = arg(str(DEFAULT_CHECKPOINTS[LANDMARK_ID]), "starting weights (a .zip)")
+    out: str = arg(
+        "runs/train_landmark_expert/policy.zip",
+        "the trained checkpoint (.zip); also writes its .json, <out>_round<r>.zip/.json per "
+        "round and <out>.bench.json",
+    )
+    force: bool = arg(False, "overwrite existing outputs of --out")
+    env_kwargs: str = arg("{}", "JSON object of gymnasium.make keyword arguments")
+    rounds: int = arg(3, "DAgger rounds (round 0 follows the labeller, later ones the policy)")
+    states_per_round: int = arg(3000, "labelled picks collected per round")
+    top_k: int = arg(
+        4,
+        "the labeller (landmark rollout) scores the top-k subsets by one-step gain "
+        "plus brute force's own",
+    )
+    horizon: int = arg(10, "future filter updates the labeller simulates")
+    explore: float = arg(0.05, "random pick probability on the labelling trajectories")
+    epochs: int = arg(15, "epochs of the ranking fit (ListNet) per round")
+    learning_rate: float = arg(5e-4, "Adam learning rate of the ranking fit")
+    temperature: float = arg(
+        0.1, "temperature T of the ListNet targets softmax(-dJ / (T * spread of dJ))"
+    )
+    workers: int = arg(2, "labelling worker processes")
+    seed: int = arg(0, "seed of the labelling episodes (round r: 100 * seed + r) and the fit")
+    progress: bool = arg(True, "show tqdm bars")
+    eval_episodes: int = arg(
+        30, "held-out episodes of the selenv bench evaluation after training (0: none)"
+    )
+    eval_seed: int = arg(1000, "seed of the first held-out episode (then +1, +2, ...)")
+
+
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes."""
+    return expert_outputs(cfg)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    cfg = parse_args(argv)
+    check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
     json.loads(cfg.env_kwargs)
     return run_expert_iteration(
-        cfg,
-        argv,
-        LANDMARK_ID,
-        collect_landmark_rollout_labels,
-        "selenv.train.train_landmark_expert",
-        "brute_force",
+        cfg, argv, LANDMARK_ID, collect_landmark_rollout_labels, SCRIPT, "brute_force"
     )
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

@@ -6,26 +6,32 @@ the candidate-scoring policy reads it as is. The return is the sum over the flig
 solves only the first term of the Bellman equation (13). Evaluation: the saved checkpoint
 against ``brute_force``, ``vns``, ``greedy`` and ``random`` on held-out seeds.
 
-    python -m selenv.train.train_landmark_ppo   # -> checkpoints/landmark_selection_ppo.zip
+    python -m selenv.train.train_landmark_ppo   # -> runs/train_landmark_ppo/policy.zip (+ .json)
+
+The shipped ``checkpoints/landmark_selection_ppo_v01.zip`` is this script's run
+(``configs/landmark_selection_ppo_v01.toml``); ``landmark_selection_ppo.zip`` is that policy
+after expert iteration (:mod:`selenv.train.train_landmark_expert`).
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
 from selenv.learned.config import parse_config
-from selenv.learned.rl.training import PPOConfig, train
+from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 
 ENV_ID = "selenv/LandmarkSelection-v0"
+SCRIPT = "selenv.train.train_landmark_ppo"
 
 
 @dataclass
 class Config(PPOConfig):
-    """Defaults of the shipped run."""
+    """Defaults of the shipped v0.1 run, written under ``runs/``."""
 
     env_kwargs: str = json.dumps({"n_landmarks": 30, "k": 2, "horizon": 100})
     total_timesteps: int = 100_000
@@ -34,14 +40,25 @@ class Config(PPOConfig):
     n_steps: int = 256
     batch_size: int = 256
     gain_skip_init: float = 1.0
-    out: str = "checkpoints/landmark_selection_ppo.zip"
+    out: str = "runs/train_landmark_ppo/policy.zip"
     eval_episodes: int = 20
     baselines: str = "brute_force,vns,greedy,random"
 
 
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes."""
+    return output_paths(cfg)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    cfg = parse_args(argv)
+    check_run_outputs(cfg, f"python -m {SCRIPT}")
     kwargs = cfg.kwargs()
     return train(
         cfg,
@@ -51,6 +68,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         view="identity",
         tb_name="landmark_ppo",
     )
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ masked by ``action_mask``, value from the pooled embedding). Ray is started (or 
 ``--address``) by :func:`selenv.parallel.ray_session` and stopped at the end if started here.
 
 Outputs, next to ``--out`` (default ``runs/rllib_<env>/policy``; refused if they exist,
-unless ``--force``):
+unless ``--force``, before Ray starts):
 
 * ``<out>.pth`` + ``<out>.json``: the trained module, exported without pickle
   (:func:`selenv.learned.rl.rllib_agent.export_module`), playable by ``selenv bench`` as
@@ -23,6 +23,8 @@ After training, ``--eval-episodes`` held-out episodes (seeds ``--eval-seed ...``
 difference with its 95 % CI); the summary goes into the JSON.
 
     python -m selenv.train.train_rllib_marl --env fim_selection_v0 --iterations 40
+    python -m selenv.train.train_rllib_marl --config configs/rllib_fim_selection_v0.toml \
+        --out checkpoints/rllib_fim_selection_v0 --force     # the shipped module's run
     selenv bench selenv.multiagent.fim_selection_v0 --agents greedy,random,rllib:path=P
 
 with ``P = runs/rllib_fim_selection_v0/policy.json``.
@@ -30,7 +32,6 @@ with ``P = runs/rllib_fim_selection_v0/policy.json``.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import json
@@ -45,16 +46,18 @@ import numpy as np
 import torch as th
 from tqdm.auto import tqdm
 
+from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.rl.candidate_policy import obs_layout
 from selenv.learned.rl.rllib_env import SelenvMultiAgentEnv, resolve_env
 
-__all__ = ["Config", "UsageError", "build_config", "main", "parse_args"]
+__all__ = ["Config", "UsageError", "build_config", "main", "outputs", "parse_args"]
 
 ENVS = ("fim_selection_v0", "receiver_clustering_v0")
 #: --gain-skip-init when not given: 0 (near uniform) as the shipped fim_marl run; 1 for
 #: clustering, whose view gives the "stay" label the only positive gain (p(stay) ~ 0.999)
 GAIN_SKIP_DEFAULTS = {"fim_selection_v0": 0.0, "receiver_clustering_v0": 1.0}
-PROG = "train_rllib_marl"
+SCRIPT = "selenv.train.train_rllib_marl"
+PROG = f"python -m {SCRIPT}"
 
 
 class UsageError(ValueError):
@@ -65,116 +68,73 @@ class UsageError(ValueError):
 class Config:
     """Every option of the command line (``--kebab-case``); see ``--help`` for each."""
 
-    env: str = "fim_selection_v0"
-    iterations: int = 20
-    max_minutes: float = 0.0
-    seed: int = 0
-    env_kwargs: str = "{}"
-    num_env_runners: int = 0
-    num_envs_per_env_runner: int = 1
-    address: str | None = None
-    num_cpus: int | None = None
-    out: str | None = None
-    force: bool = False
-    train_batch_size: int = 2000
-    minibatch_size: int = 256
-    num_epochs: int = 4
-    lr: float = 1e-3
-    gamma: float = 1.0
-    lambda_: float = 0.95
-    clip_param: float = 0.2
-    entropy_coeff: float = 1e-3
-    vf_loss_coeff: float = 0.5
-    vf_clip_param: float = 1e6
-    grad_clip: float = 0.5
-    hidden: str = "64,64"
-    vf: str = "64"
-    activation: str = "tanh"
-    gain_skip_init: float | None = None
-    eval_episodes: int = 20
-    eval_seed: int = 10_000
-    tensorboard_dir: str = ""
-    progress: bool = True
-    torch_threads: int = 1
-
-
-_HELP: dict[str, str] = {
-    "env": "PettingZoo module of selenv.multiagent to train on",
-    "iterations": "PPO iterations (each samples --train-batch-size env steps, then learns)",
-    "max_minutes": "stop early, before an iteration that would end past this many minutes "
-    "since the start (0: run every iteration)",
-    "seed": "seed of RLlib (env runners' env resets, torch initialisation, minibatches)",
-    "env_kwargs": "JSON object of the env constructor's keywords ({}: the env's defaults)",
-    "num_env_runners": "remote RLlib env runners (Ray actors) sampling in parallel; 0 samples "
-    "in this process",
-    "num_envs_per_env_runner": "envs stepped together by each env runner",
-    "address": "join the running Ray cluster at HOST:PORT (or 'auto'); None: start a local "
-    "Ray instance and stop it at the end",
-    "num_cpus": "CPUs of the local Ray instance (None: all of this machine's)",
-    "out": "output stem: writes OUT.pth, OUT.json, OUT.metrics.json (None: "
-    "runs/rllib_<env>/policy)",
-    "force": "overwrite existing output files",
-    "train_batch_size": "env steps sampled per iteration (RLlib train_batch_size_per_learner)",
-    "minibatch_size": "minibatch size of the PPO epochs (agent steps)",
-    "num_epochs": "passes over each iteration's batch",
-    "lr": "Adam learning rate",
-    "gamma": "discount (1: the undiscounted team return is the objective)",
-    "lambda_": "GAE lambda",
-    "clip_param": "PPO clip range",
-    "entropy_coeff": "entropy bonus coefficient",
-    "vf_loss_coeff": "value loss coefficient",
-    "vf_clip_param": "clip of the squared value error (RLlib's default 10 stops value "
-    "learning when returns are ~36 nats; large = no clip)",
-    "grad_clip": "max global gradient norm (0: none)",
-    "hidden": "comma-separated widths of the shared per-candidate MLP",
-    "vf": "comma-separated widths of the value MLP on the pooled embedding",
-    "activation": "activation of both MLPs",
-    "gain_skip_init": "initial weight w of the relative-gain skip w r_k in every logit "
-    f"(None: per env {GAIN_SKIP_DEFAULTS}; 1 starts receiver clustering near 'stay')",
-    "eval_episodes": "held-out episodes played by greedy and the trained module after "
-    "training (0: none)",
-    "eval_seed": "seed of the first held-out episode",
-    "tensorboard_dir": "also write TensorBoard scalars there (empty: only OUT.metrics.json)",
-    "progress": "show a tqdm bar over the iterations",
-    "torch_threads": "torch CPU threads of this process",
-}
-
-
-class _Parser(argparse.ArgumentParser):
-    """``argparse`` whose usage errors are one line on stderr, exit code 2."""
-
-    def error(self, message: str) -> NoReturn:
-        """Print ``message`` on one line and exit 2 (argparse prints usage + message)."""
-        _fail(message)
+    env: str = arg("fim_selection_v0", "PettingZoo module of selenv.multiagent to train on",
+                   choices=ENVS)  # fmt: skip
+    iterations: int = arg(
+        20, "PPO iterations (each samples --train-batch-size env steps, then learns)"
+    )
+    max_minutes: float = arg(
+        0.0,
+        "stop early, before an iteration that would end past this many minutes since "
+        "the start (0: run every iteration)",
+    )
+    seed: int = arg(0, "seed of RLlib (env runners' env resets, torch initialisation, minibatches)")
+    env_kwargs: str = arg(
+        "{}", "JSON object of the env constructor's keywords ({}: the env's defaults)"
+    )
+    num_env_runners: int = arg(
+        0, "remote RLlib env runners (Ray actors) sampling in parallel; 0 samples in this process"
+    )
+    num_envs_per_env_runner: int = arg(1, "envs stepped together by each env runner")
+    address: str | None = arg(
+        None,
+        "join the running Ray cluster at HOST:PORT (or 'auto'); None: start a local "
+        "Ray instance and stop it at the end",
+    )
+    num_cpus: int | None = arg(None, "CPUs of the local Ray instance (None: all of this machine's)")
+    out: str | None = arg(
+        None,
+        "output stem: writes OUT.pth, OUT.json, OUT.metrics.json (None: runs/rllib_<env>/policy)",
+    )
+    force: bool = arg(False, "overwrite existing output files")
+    train_batch_size: int = arg(
+        2000, "env steps sampled per iteration (RLlib train_batch_size_per_learner)"
+    )
+    minibatch_size: int = arg(256, "minibatch size of the PPO epochs (agent steps)")
+    num_epochs: int = arg(4, "passes over each iteration's batch")
+    lr: float = arg(1e-3, "Adam learning rate")
+    gamma: float = arg(1.0, "discount (1: the undiscounted team return is the objective)")
+    lambda_: float = arg(0.95, "GAE lambda")
+    clip_param: float = arg(0.2, "PPO clip range")
+    entropy_coeff: float = arg(1e-3, "entropy bonus coefficient")
+    vf_loss_coeff: float = arg(0.5, "value loss coefficient")
+    vf_clip_param: float = arg(
+        1e6,
+        "clip of the squared value error (RLlib's default 10 stops value learning when "
+        "returns are ~36 nats; large = no clip)",
+    )
+    grad_clip: float = arg(0.5, "max global gradient norm (0: none)")
+    hidden: str = arg("64,64", "comma-separated widths of the shared per-candidate MLP")
+    vf: str = arg("64", "comma-separated widths of the value MLP on the pooled embedding")
+    activation: str = arg("tanh", "activation of both MLPs", choices=("tanh", "relu"))
+    gain_skip_init: float | None = arg(
+        None,
+        "initial weight w of the relative-gain skip w r_k in every logit (None: per env "
+        f"{GAIN_SKIP_DEFAULTS}; 1 starts receiver clustering near 'stay')",
+    )
+    eval_episodes: int = arg(
+        20, "held-out episodes played by greedy and the trained module after training (0: none)"
+    )
+    eval_seed: int = arg(10_000, "seed of the first held-out episode")
+    tensorboard_dir: str = arg(
+        "", "also write TensorBoard scalars there (empty: only OUT.metrics.json)"
+    )
+    progress: bool = arg(True, "show a tqdm bar over the iterations")
+    torch_threads: int = arg(1, "torch CPU threads of this process")
 
 
 def _fail(message: object) -> NoReturn:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
-    raise SystemExit(2)
-
-
-def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog=f"python -m train.{PROG}",
-        description=(__doc__ or "").split("\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    types = {
-        "int": int, "float": float, "str": str,
-        "str | None": str, "int | None": int, "float | None": float,
-    }  # fmt: skip
-    for f in dataclasses.fields(Config):
-        flag = "--" + f.name.rstrip("_").replace("_", "-")
-        kwargs: dict[str, Any] = {"default": f.default, "help": _HELP[f.name], "dest": f.name}
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
-        elif f.name == "env":
-            parser.add_argument(flag, choices=ENVS, **kwargs)
-        elif f.name == "activation":
-            parser.add_argument(flag, choices=("tanh", "relu"), **kwargs)
-        else:
-            parser.add_argument(flag, type=types[str(f.type)], **kwargs)
-    return parser
+    usage_error(PROG, message)
 
 
 def _widths(text: str, option: str) -> list[int]:
@@ -188,13 +148,22 @@ def _widths(text: str, option: str) -> list[int]:
 
 
 def parse_args(argv: list[str] | None = None) -> tuple[Config, dict[str, Any]]:
-    """The config and the parsed env kwargs; usage errors exit 2 with a one-line reason."""
-    cfg = Config(**vars(_parser().parse_args(argv)))
+    """The config and the parsed env kwargs; usage errors exit 2 with a one-line reason.
+
+    ``--config FILE`` (TOML) supplies defaults (:func:`selenv.learned.config.parse_config`).
+    Existing outputs are checked by :func:`main` (:func:`outputs`), not here.
+    """
+    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
     try:
         env_kwargs = _check(cfg)
     except UsageError as exc:
         _fail(exc)
     return cfg, env_kwargs
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes: ``<out>.json``, ``<out>.pth``, ``<out>.metrics.json``."""
+    return list(_outputs(cfg))
 
 
 def _check(cfg: Config) -> dict[str, Any]:
@@ -234,10 +203,6 @@ def _check(cfg: Config) -> dict[str, Any]:
         SelenvMultiAgentEnv({"env": cfg.env, "env_kwargs": env_kwargs}).close()
     except (TypeError, ValueError) as exc:
         raise UsageError(f"--env-kwargs rejected by {cfg.env}: {exc}") from None
-    json_path, pth_path, metrics_path = _outputs(cfg)
-    existing = [str(p) for p in (json_path, pth_path, metrics_path) if p.exists()]
-    if existing and not cfg.force:
-        raise UsageError(f"{', '.join(existing)} exist(s); pass --force to overwrite")
     return env_kwargs
 
 
@@ -379,6 +344,8 @@ def _evaluate(cfg: Config, env_kwargs: dict[str, Any], json_path: Path) -> dict[
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, export, evaluate; return the exported metadata (the JSON's content)."""
     cfg, env_kwargs = parse_args(argv)
+    folders = [cfg.tensorboard_dir] if cfg.tensorboard_dir else []
+    check_outputs(PROG, outputs(cfg), force=cfg.force, folders=folders)
     import ray
 
     from selenv.learned.rl.rllib_agent import export_module
@@ -461,6 +428,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         metadata = json.loads(json_path.read_text())
     print(f"wrote {json_path} (+ .pth, .metrics.json) in {wall:.0f} s", file=sys.stderr)
     return metadata
+
+
+def cli() -> None:
+    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
+    main()
 
 
 if __name__ == "__main__":

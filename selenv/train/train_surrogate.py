@@ -13,15 +13,23 @@ then test metrics and the checkpoint ``<out>.pt`` with its metadata ``<out>.json
 * LPECMV: MSE and the objective gap of Fig. 2, ``log det P(C_hat) - log det P(C*) <= 0``
   (``C*`` maximises eq. 8a, so a learned ``C`` is less conservative by that many nats).
 
-    python -m selenv.train.train_surrogate --kind ldmv             # -> checkpoints/ldmv.pt + .json
-    python -m selenv.train.train_surrogate --kind lpecmv --method 3
+    python -m selenv.train.train_surrogate --kind ldmv       # -> runs/surrogates/ldmv.pt + .json
+    python -m selenv.train.train_surrogate --kind lpecmv --method 1   # -> lpecmv_method1.pt there
+    python -m selenv.train.train_surrogate --config configs/ldmv.toml \
+        --out checkpoints/ldmv.pt --force                      # the shipped checkpoint, again
     tensorboard --logdir runs
+
+An existing output (``<out>.pt``, ``<out>.json``, ``--save-data``) is refused before any data is
+generated, unless ``--force``; the shipped surrogates' runs are ``configs/ldmv.toml``,
+``configs/lpecmv*.toml``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
+import shlex
 import sys
 import time
 from dataclasses import dataclass
@@ -34,7 +42,7 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm.auto import tqdm
 
 from selenv.core.fusion import dmv_update, pecmv_update
-from selenv.learned.config import parse_config
+from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.surrogate_data import (
     SurrogateDataset,
     generate_dataset,
@@ -48,45 +56,76 @@ from selenv.parallel import make_executor
 #: (test R 0.16; 0.24 with momentum 0.9) while Adam at the same lr reaches R 0.92 (50k samples,
 #: seed 0). ``--optimizer sgd`` restores Table II.
 DEFAULT_OPTIMIZER = {"ldmv": "adam", "lpecmv": str(TABLE_II["lpecmv"]["optimizer"])}
+SCRIPT = "selenv.train.train_surrogate"
+#: where a run writes without --out: runs/surrogates/<name>.pt (never checkpoints/)
+DEFAULT_OUT_DIR = "runs/surrogates"
 
 
 @dataclass
 class Config:
     """Every knob of a run; each field is a ``--kebab-case`` command-line option."""
 
-    kind: str = "ldmv"  # ldmv | lpecmv
-    method: int = 3  # LPECMV output method of Table I (1, 2, 3)
+    kind: str = arg("ldmv", "surrogate: ldmv (omega of DMV) or lpecmv (C of PECMV)")
+    method: int = arg(3, "LPECMV output method of Table I (1, 2, 3); ldmv ignores it")
     # data
-    samples: int = 50_000
-    data: str = ""  # load this .npz instead of generating
-    save_data: str = ""  # write the generated dataset here
-    workers: int = 0  # generation processes / Ray tasks in flight (0: all cores)
-    executor: str = ""  # local | process | ray ("": a local pool of --workers processes)
-    address: str = ""  # Ray cluster to join (with --executor ray; "": start a local instance)
-    val_fraction: float = 0.1
-    test_fraction: float = 0.1
+    samples: int = arg(50_000, "dataset rows to generate (ignored with --data)")
+    data: str = arg("", "load this .npz dataset instead of generating one")
+    save_data: str = arg("", "also write the generated dataset to this .npz")
+    workers: int = arg(0, "generation processes / Ray tasks in flight (0: all cores)")
+    executor: str = arg("", "local | process | ray (empty: a local pool of --workers processes)")
+    address: str = arg(
+        "", "Ray cluster to join with --executor ray (empty: start a local instance)"
+    )
+    val_fraction: float = arg(0.1, "validation share of the rows (early stopping)")
+    test_fraction: float = arg(0.1, "test share of the rows (the metrics in the JSON)")
     # model and training (0 / "": Table II)
-    hidden: str = ""  # comma-separated hidden widths, e.g. "256,256,256"
-    activation: str = ""  # sigmoid | tanh | relu
-    epochs: int = 200
-    batch_size: int = 0
-    lr: float = 0.0
-    optimizer: str = ""  # sgd | adam ("": DEFAULT_OPTIMIZER)
-    momentum: float = 0.0  # sgd only
-    lr_schedule: str = "constant"  # constant | onecycle (cosine one-cycle peaking at --lr)
-    barrier_lambda: float = 1e-3  # method 1 only (eq. 14)
-    patience: int = 20  # epochs without a better validation loss before stopping
-    seed: int = 0
+    hidden: str = arg("", "comma-separated hidden widths, e.g. 256,256,256 (empty: Table II)")
+    activation: str = arg("", "sigmoid | tanh | relu (empty: Table II)")
+    epochs: int = arg(200, "maximum training epochs")
+    batch_size: int = arg(0, "minibatch size (0: Table II)")
+    lr: float = arg(0.0, "learning rate; the peak one with --lr-schedule onecycle (0: Table II)")
+    optimizer: str = arg("", "sgd | adam (empty: adam for ldmv, Table II's for lpecmv)")
+    momentum: float = arg(0.0, "SGD momentum (--optimizer sgd only)")
+    lr_schedule: str = arg("constant", "constant | onecycle (cosine one-cycle peaking at --lr)")
+    barrier_lambda: float = arg(1e-3, "weight of the barrier term of eq. 14 (method 1 only)")
+    patience: int = arg(20, "epochs without a better validation loss before stopping")
+    seed: int = arg(0, "seed of the data generation, the split, the initialisation and batches")
     # outputs
-    out: str = ""  # default checkpoints/ldmv.pt, checkpoints/lpecmv.pt (method 3)
-    tensorboard_dir: str = "runs"  # empty string: no TensorBoard logs
-    progress: bool = True
-    torch_threads: int = 1
+    out: str = arg(
+        "",
+        f"checkpoint path (.pt; its metadata goes next to it as .json); empty: "
+        f"{DEFAULT_OUT_DIR}/<name>.pt with name ldmv, lpecmv (method 3) or lpecmv_method<m>",
+    )
+    force: bool = arg(False, "overwrite existing outputs (--out .pt / .json, --save-data)")
+    tensorboard_dir: str = arg("runs", "TensorBoard log folder (empty: no TensorBoard logs)")
+    progress: bool = arg(True, "show tqdm bars")
+    torch_threads: int = arg(1, "torch CPU threads of this process")
 
 
 def parse_args(argv: list[str] | None = None) -> Config:
-    """Build a :class:`Config` from the command line (one option per field)."""
-    return parse_config(Config, argv, (__doc__ or "").split("\n")[0])
+    """Build a :class:`Config` from the command line (one option per field, ``--config``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def checkpoint_name(cfg: Config) -> str:
+    """``ldmv``, ``lpecmv`` (method 3) or ``lpecmv_method<m>``."""
+    method = cfg.method if cfg.kind == "lpecmv" else 3
+    return cfg.kind if cfg.kind == "ldmv" or method == 3 else f"lpecmv_method{method}"
+
+
+def output_path(cfg: Config) -> Path:
+    """The checkpoint's ``.pt`` path: ``--out`` or ``runs/surrogates/<name>.pt``."""
+    return Path(cfg.out or f"{DEFAULT_OUT_DIR}/{checkpoint_name(cfg)}.pt").with_suffix(".pt")
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes: ``.pt`` and ``.json`` (and ``--save-data``'s ``.npz``)."""
+    pt = output_path(cfg)
+    files = [pt, pt.with_suffix(".json")]
+    if cfg.save_data and not cfg.data:
+        data = Path(cfg.save_data)
+        files.append(data if data.suffix == ".npz" else Path(f"{data}.npz"))  # numpy's rule
+    return files
 
 
 def targets(ds: SurrogateDataset, kind: str, method: int) -> np.ndarray:
@@ -148,6 +187,12 @@ def evaluate(sur: Surrogate, ds: SurrogateDataset) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Generate or load data, train, save the checkpoint and its metadata; return the metadata."""
     cfg = parse_args(argv)
+    check_outputs(
+        f"python -m {SCRIPT}",
+        outputs(cfg),
+        force=cfg.force,
+        folders=[cfg.tensorboard_dir] if cfg.tensorboard_dir else [],
+    )
     if cfg.kind not in KINDS:
         raise ValueError(f"--kind must be one of {KINDS}, got {cfg.kind!r}")
     if cfg.method not in METHODS:
@@ -161,8 +206,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     lr = cfg.lr or float(t2["lr"])
     opt_name = cfg.optimizer or DEFAULT_OPTIMIZER[cfg.kind]
     method = cfg.method if cfg.kind == "lpecmv" else 3
-    name = cfg.kind if cfg.kind == "ldmv" or method == 3 else f"lpecmv_method{method}"
-    out = Path(cfg.out or f"checkpoints/{name}.pt").with_suffix(".pt")
+    name = checkpoint_name(cfg)
+    out = output_path(cfg)
     torch.set_num_threads(cfg.torch_threads)
     torch.manual_seed(cfg.seed)
 
@@ -285,8 +330,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 "generation_seconds": round(gen_seconds, 1),
             },
             "training": {
-                "command": "python -m selenv.train.train_surrogate "
-                + " ".join(argv or sys.argv[1:]),
+                "command": f"python -m {SCRIPT} "
+                + shlex.join(sys.argv[1:] if argv is None else argv),
+                "config": dataclasses.asdict(cfg),
                 "optimizer": opt_name,
                 "lr_schedule": cfg.lr_schedule,
                 "momentum": cfg.momentum if opt_name == "sgd" else None,

@@ -10,7 +10,8 @@ A script defines a :class:`PPOConfig` subclass with its env's defaults and calls
    ``algo="maskable_ppo"`` (default: masks from the env's ``action_masks()``) or ``"ppo"``;
 3. training with a tqdm bar and TensorBoard logs (``runs/``);
 4. checkpoint ``<out>.zip`` + metadata ``<out>.json`` (env id and kwargs, candidate view,
-   layout, architecture, hyper-parameters, versions);
+   layout, architecture, hyper-parameters, versions); an existing file is refused without
+   ``--force`` (:func:`check_run_outputs`, which the scripts call before any work);
 5. evaluation of the saved checkpoint, reloaded through the ``ppo`` agent adapter, against
    the env's heuristics on the same held-out seeds (``eval_seed``, ``eval_seed + 1``, ...);
    the metrics are written into the JSON.
@@ -40,41 +41,63 @@ from tqdm.auto import tqdm
 import selenv
 from selenv.agents import Agent
 from selenv.bench.runner import AgentResult, run_episode
+from selenv.learned.config import arg, check_outputs
 from selenv.learned.rl.candidate_policy import ALGORITHMS, make_ppo, obs_layout
 
-__all__ = ["PPOConfig", "TqdmCallback", "evaluate", "evaluate_checkpoint", "train"]
+__all__ = [
+    "PPOConfig",
+    "TqdmCallback",
+    "check_run_outputs",
+    "evaluate",
+    "evaluate_checkpoint",
+    "output_paths",
+    "train",
+]
 
 
 @dataclass
 class PPOConfig:
     """Knobs common to every RL training script; each is a ``--kebab-case`` option."""
 
-    env_kwargs: str = "{}"  # JSON of gymnasium.make keyword arguments
+    env_kwargs: str = arg("{}", "JSON object of gymnasium.make keyword arguments")
     # training
-    algo: str = "maskable_ppo"  # maskable_ppo | ppo
-    total_timesteps: int = 100_000
-    seed: int = 0
-    n_envs: int = 8
-    vec_env: str = "dummy"  # dummy | subproc
-    n_steps: int = 128
-    batch_size: int = 512
-    n_epochs: int = 4
-    learning_rate: float = 1e-3
-    ent_coef: float = 1e-3
-    gamma: float = 1.0
+    algo: str = arg("maskable_ppo", "maskable_ppo (masks from action_masks()) or ppo")
+    total_timesteps: int = arg(
+        100_000, "PPO environment steps in total (SB3 rounds up to whole rollouts)"
+    )
+    seed: int = arg(0, "seed of the training envs, the network initialisation and PPO")
+    n_envs: int = arg(8, "training envs stepped together (one rollout: n_envs * n_steps)")
+    vec_env: str = arg(
+        "dummy", "dummy (envs in this process) or subproc (one worker process per env)"
+    )
+    n_steps: int = arg(128, "steps per env per rollout")
+    batch_size: int = arg(512, "minibatch size of the PPO epochs")
+    n_epochs: int = arg(4, "passes over each rollout")
+    learning_rate: float = arg(1e-3, "Adam learning rate (constant)")
+    ent_coef: float = arg(1e-3, "entropy bonus coefficient")
+    gamma: float = arg(1.0, "discount (1: the episode's total gain is the objective)")
     # policy
-    hidden: str = "64,64"
-    activation: str = "tanh"
-    gain_skip_init: float = 0.0
+    hidden: str = arg("64,64", "comma-separated widths of the shared per-candidate MLP")
+    activation: str = arg("tanh", "activation of the per-candidate MLP (tanh or relu)")
+    gain_skip_init: float = arg(
+        0.0,
+        "initial weight w of the gain skip w * gain in every candidate's logit "
+        "(0: near-uniform start; > 0: a softened greedy)",
+    )
     # outputs
-    out: str = ""
-    tensorboard_dir: str = "runs"  # empty string: no TensorBoard logs
-    progress: bool = True
-    torch_threads: int = 1
+    out: str = arg("", "checkpoint path (.zip); its metadata goes next to it as .json")
+    force: bool = arg(False, "overwrite an existing --out (.zip or .json)")
+    tensorboard_dir: str = arg("runs", "TensorBoard log folder (empty: no TensorBoard logs)")
+    progress: bool = arg(True, "show a tqdm bar over the timesteps")
+    torch_threads: int = arg(1, "torch CPU threads of this process")
     # evaluation on held-out seeds
-    eval_episodes: int = 20
-    eval_seed: int = 10_000
-    baselines: str = "greedy,random"  # registered agents evaluated next to the policy
+    eval_episodes: int = arg(
+        20, "held-out episodes on which the saved checkpoint is evaluated (0: none)"
+    )
+    eval_seed: int = arg(10_000, "seed of the first held-out episode (then +1, +2, ...)")
+    baselines: str = arg(
+        "greedy,random", "comma-separated registered agents evaluated next to the policy"
+    )
 
     def kwargs(self) -> dict[str, Any]:
         """``env_kwargs`` parsed (a JSON object)."""
@@ -85,6 +108,22 @@ class PPOConfig:
         if not isinstance(out, dict):
             raise ValueError(f"--env-kwargs must be a JSON object, got {self.env_kwargs!r}")
         return out
+
+
+def output_paths(cfg: PPOConfig) -> list[Path]:
+    """The files a run writes: the checkpoint ``cfg.out`` and its ``.json`` metadata."""
+    out = Path(cfg.out)
+    return [out, out.with_suffix(".json")]
+
+
+def check_run_outputs(cfg: PPOConfig, prog: str) -> None:
+    """Exit 2 (one line, before any work) on outputs that exist or cannot be written.
+
+    An existing ``cfg.out`` or its ``.json`` without ``--force``, or an output or TensorBoard
+    folder that cannot be written (:func:`selenv.learned.config.check_outputs`).
+    """
+    folders = [cfg.tensorboard_dir] if cfg.tensorboard_dir else []
+    check_outputs(prog, output_paths(cfg), force=cfg.force, folders=folders)
 
 
 class TqdmCallback(BaseCallback):
@@ -205,6 +244,7 @@ def train(
         raise ValueError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
     if cfg.vec_env not in ("dummy", "subproc"):
         raise ValueError(f"--vec-env must be dummy or subproc, got {cfg.vec_env!r}")
+    check_run_outputs(cfg, "selenv.learned.rl.training.train")  # the scripts check first
     out.parent.mkdir(parents=True, exist_ok=True)
 
     # 1. envs
