@@ -13,10 +13,16 @@ realisation, as in the paper) with the registered agents (the same code as ``sel
 * **Fig. 4** (N_max = 42, initial 15 clusters of 2): number of clusters, cost and the best
   assignment over time.
 
+``--ga-variant`` picks the GA's Table I operators (``GAConfig.variant``): ``improved`` (default,
+ours: aligned crossovers, O1M may open a singleton), ``literal`` (Table I as printed) or
+``both``: Table II and Fig. 4 for each variant on the same seeds (Fig. 3 with ``improved``),
+printed one after the other; the literal figures get a ``_literal`` suffix.
+
 Usage::
 
     python scripts/reproduce_greiff.py [--runs 100] [--table-runs 50] [--steps 500]
                                        [--workers 2] [--seed 2022] [--out docs/figures] [--quick]
+                                       [--ga-variant improved|literal|both]
     # the paper's 1000 runs per setting, on a Ray cluster (`ray start --head` on the head node):
     python scripts/reproduce_greiff.py --runs 1000 --table-runs 1000 \
         --executor ray --address HOST:6379
@@ -51,6 +57,7 @@ ENV_ID = "selenv/ReceiverClustering-v0"
 #: the paper's noise model: ``sigma`` fixed per realisation (the env's default is time-varying)
 PAPER_PRESET = {"preset": "paper"}
 GA_START = 50  #: the paper switches the GA on at k = 50
+GA_VARIANTS = ("improved", "literal")  #: GAConfig.variant values; ``--ga-variant both`` runs each
 OPERATOR_SETS: tuple[tuple[int, ...], ...] = (
     (0, 1, 1, 1, 1),
     (1, 0, 1, 1, 1),
@@ -108,7 +115,15 @@ def run_all(tasks: list[dict[str, Any]], pool: Executor, desc: str) -> list[dict
 
 
 # -- experiments ---------------------------------------------------------------------------------
-def fig3_experiment(args: argparse.Namespace, sigma: np.ndarray) -> dict[str, Any]:
+def ga_kwargs(variant: str, **extra: Any) -> dict[str, Any]:
+    """The GA's agent keywords: on at ``GA_START``, ``variant`` only when not the default."""
+    kwargs = {"start_step": GA_START, **extra}
+    return kwargs if variant == "improved" else {**kwargs, "variant": variant}
+
+
+def fig3_experiment(
+    args: argparse.Namespace, sigma: np.ndarray, variant: str = "improved"
+) -> dict[str, Any]:
     """Singletons, fixed random (MC), GA from the same starts (MC), single cluster."""
     base = {"sigma": sigma, "horizon": args.steps}
     rng = np.random.default_rng(args.seed)
@@ -122,7 +137,7 @@ def fig3_experiment(args: argparse.Namespace, sigma: np.ndarray) -> dict[str, An
             "env_kwargs": base,
             "seed": r,
             "agent": "ga",
-            "agent_kwargs": {"start_step": GA_START},
+            "agent_kwargs": ga_kwargs(variant),
             "clustering": s,
         }
         for r, s in enumerate(starts)
@@ -153,20 +168,22 @@ def k_star(J: np.ndarray, eps: float) -> int:
     return int(np.flatnonzero(gap <= eps)[0])
 
 
-def table2_experiment(args: argparse.Namespace) -> dict[tuple[int, ...], dict[str, Any]]:
-    """GA with each operator set; the same realisations (seeds) for every set."""
+def table2_experiment(
+    args: argparse.Namespace, variant: str = "improved"
+) -> dict[tuple[int, ...], dict[str, Any]]:
+    """GA with each operator set; the same realisations (seeds) for every set and variant."""
     base = {"horizon": args.steps}
     tasks = [
         {
             "env_kwargs": base,
             "seed": 10_000 + r,
             "agent": "ga",
-            "agent_kwargs": {"start_step": GA_START, "operators": ops},
+            "agent_kwargs": ga_kwargs(variant, operators=ops),
         }
         for ops in OPERATOR_SETS
         for r in range(args.table_runs)
     ]
-    res = run_all(tasks, args.pool, "Table II")
+    res = run_all(tasks, args.pool, "Table II" + ("" if variant == "improved" else f" ({variant})"))
     out = {}
     for i, ops in enumerate(OPERATOR_SETS):
         J = np.stack([r["J"] for r in res[i * args.table_runs : (i + 1) * args.table_runs]])
@@ -179,7 +196,9 @@ def table2_experiment(args: argparse.Namespace) -> dict[tuple[int, ...], dict[st
     return out
 
 
-def fig4_experiment(args: argparse.Namespace, sigma: np.ndarray) -> dict[str, Any]:
+def fig4_experiment(
+    args: argparse.Namespace, sigma: np.ndarray, variant: str = "improved"
+) -> dict[str, Any]:
     """N_max = 42 from 15 clusters of 2, GA on from k = 50; one run with the labels."""
     rng = np.random.default_rng(args.seed + 1)
     start = random_feasible_clustering(30, 2, rng)  # 15 clusters of 2
@@ -187,7 +206,7 @@ def fig4_experiment(args: argparse.Namespace, sigma: np.ndarray) -> dict[str, An
         "env_kwargs": {"sigma": sigma, "horizon": args.steps, "n_max_states": 42},
         "seed": 0,
         "agent": "ga",
-        "agent_kwargs": {"start_step": GA_START},
+        "agent_kwargs": ga_kwargs(variant),
         "clustering": start,
         "record_labels": True,
     }
@@ -273,8 +292,9 @@ def plot_fig4(res: dict[str, Any], path: Path) -> None:
 def format_tables(results: dict[str, Any]) -> str:
     """Markdown tables of the three experiments."""
     f3 = results["fig3"]
+    v3 = results.get("fig3_variant", "improved")
     lines = [
-        "### Fig. 3: J at k = K",
+        "### Fig. 3: J at k = K" + ("" if v3 == "improved" else f" (GA variant: {v3})"),
         "",
         "| clustering | E[J(I_K)] | Var[J(I_K)] |",
         "|---|---:|---:|",
@@ -282,9 +302,16 @@ def format_tables(results: dict[str, Any]) -> str:
     for key in ("singletons", "fixed_random", "ga", "single_cluster"):
         J = np.atleast_2d(f3[key]["J"])[:, -1]
         lines.append(f"| {key} | {J.mean():.4f} | {J.var():.2e} |")
-    lines += [
+    for variant, res in results["by_variant"].items():
+        lines += format_variant(res, "" if variant == "improved" else f" (GA variant: {variant})")
+    return "\n".join(lines)
+
+
+def format_variant(results: dict[str, Any], title: str) -> list[str]:
+    """Markdown Table II and Fig. 4 lines of one GA variant; ``title`` ends each heading."""
+    lines = [
         "",
-        "### Table II",
+        f"### Table II{title}",
         "",
         "| O | k*_0.1 | k*_0.05 | k*_0.01 | E[J(I_K)] | Var[J(I_K)] | paper k* | paper E[J] |",
         "|---|---:|---:|---:|---:|---:|---|---:|",
@@ -300,13 +327,13 @@ def format_tables(results: dict[str, Any]) -> str:
     first3 = np.flatnonzero(f4["m"] <= 3)
     lines += [
         "",
-        "### Fig. 4 (N_max = 42)",
+        f"### Fig. 4 (N_max = 42){title}",
         "",
         f"final J = {f4['J'][-1]:.4f}; clusters at k = K: {int(f4['m'][-1])}; "
         f"sizes {sorted(np.bincount(f4['labels'][-1]).tolist(), reverse=True)}; "
         f"first k with <= 3 clusters: {int(first3[0]) if first3.size else 'never'}",
     ]
-    return "\n".join(lines)
+    return lines
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -319,6 +346,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=2022)
     p.add_argument("--out", type=Path, default=Path("docs/figures"))
     p.add_argument("--quick", action="store_true", help="4 runs, 3 per O, K = 120 (for tests)")
+    p.add_argument(
+        "--ga-variant",
+        choices=(*GA_VARIANTS, "both"),
+        default="improved",
+        help="GA operators: improved (ours, default), literal (Table I as printed) or both "
+        "(Table II and Fig. 4 for each)",
+    )
     args = p.parse_args(argv)
     if args.quick:
         args.runs, args.table_runs, args.steps = 4, 3, 120
@@ -335,21 +369,28 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     sigma = make_clustering_problem(ClusteringConfig(), np.random.default_rng(args.seed)).sigma
+    variants = GA_VARIANTS if args.ga_variant == "both" else (args.ga_variant,)
     with pool:
         args.pool = pool
-        results: dict[str, Any] = {
-            "fig3": fig3_experiment(args, np.asarray(sigma)),
-            "table2": table2_experiment(args),
-            "fig4": fig4_experiment(args, np.asarray(sigma)),
+        results: dict[str, Any] = {"fig3": fig3_experiment(args, np.asarray(sigma), variants[0])}
+        results["by_variant"] = {
+            v: {
+                "table2": table2_experiment(args, v),
+                "fig4": fig4_experiment(args, np.asarray(sigma), v),
+            }
+            for v in variants
         }
         del args.pool
+    results.update(results["by_variant"][variants[0]])  # "table2", "fig4": the first variant
+    results["fig3_variant"] = variants[0]
     results["executor"] = pool.describe()
-    paths = {
-        name: args.out / f"{name}.png" for name in ("greiff_fig3", "greiff_table2", "greiff_fig4")
-    }
+    suffix = {v: "" if v == "improved" else f"_{v}" for v in variants}
+    paths = {"greiff_fig3": args.out / f"greiff_fig3{suffix[variants[0]]}.png"}
     plot_fig3(results["fig3"], paths["greiff_fig3"])
-    plot_table2(results["table2"], paths["greiff_table2"])
-    plot_fig4(results["fig4"], paths["greiff_fig4"])
+    for v in variants:
+        for name, plot in (("greiff_table2", plot_table2), ("greiff_fig4", plot_fig4)):
+            paths[name + suffix[v]] = args.out / f"{name}{suffix[v]}.png"
+            plot(results["by_variant"][v][name.removeprefix("greiff_")], paths[name + suffix[v]])
     wall = time.perf_counter() - t0
     results["figures"] = {k: str(v) for k, v in paths.items()}
     results["config"] = {**vars(args), "out": str(args.out), "wall_time_s": wall}

@@ -174,3 +174,18 @@ def test_bench_counts_cost_evaluations_per_decision() -> None:
     assert greedy.cost_evaluations is not None and greedy.cost_evaluations > 0
     assert res.to_json()["agents"]["ga"]["cost_evaluations_per_decision"] == pytest.approx(22.0)
     assert "cost evals/decision" in format_table(res).splitlines()[1]
+
+
+def test_reproduction_ga_variant_option(capsys) -> None:
+    """--ga-variant: improved by default, literal / both accepted, anything else exit 2."""
+    module = load_script("reproduce_greiff")
+    assert module.parse_args([]).ga_variant == "improved"
+    for v in ("improved", "literal", "both"):
+        assert module.parse_args(["--ga-variant", v]).ga_variant == v
+    with pytest.raises(SystemExit) as exc:
+        module.parse_args(["--ga-variant", "Literal"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--ga-variant" in err and "'improved', 'literal', 'both'" in err
+    assert module.ga_kwargs("improved") == {"start_step": module.GA_START}
+    assert module.ga_kwargs("literal", operators=(1, 1, 1, 1, 1))["variant"] == "literal"

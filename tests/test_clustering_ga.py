@@ -1,4 +1,8 @@
-"""Clustering GA (Greiff et al. 2022, Alg. 2 / Table I): operators, selection, GA on a toy cost."""
+"""Clustering GA (Greiff et al. 2022, Alg. 2 / Table I): operators, selection, GA on a toy cost.
+
+Also the two operator variants (GitHub issue 18): "improved" (ours, bit-identical to the runs
+recorded before the option existed) and "literal" (Table I as printed).
+"""
 
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from selenv.agents.clustering_ga import (
+    VARIANTS,
     GAConfig,
     GeneticClustering,
     align_labels,
@@ -20,9 +25,13 @@ from selenv.agents.clustering_ga import (
     draw_rank,
     is_feasible,
     o1c,
+    o1c_literal,
     o1m,
+    o1m_literal,
     o2c,
+    o2c_literal,
     o2m,
+    o2m_literal,
     o3m,
     random_feasible_clustering,
 )
@@ -481,3 +490,198 @@ def test_huge_labels_are_compacted_before_counting() -> None:
     assert ga.best[0] == 0 and np.bincount(ga.best).max() <= 2  # canonical and feasible
     with pytest.raises(ValueError, match=r"cluster 10000000000 has 3 members"):
         GeneticClustering(lambda c: c.sum(axis=1).astype(float), [10**10] * 3, 2, rng=0)
+
+
+# ----------------------------------------------------------------------------- variants (issue 18)
+
+
+def _trace(seed, n=12, max_size=3, gens=12, **cfg):
+    """(sha256 prefix of every population, final best labels, final best cost) of a GA run."""
+    import hashlib
+
+    cost = ToyCost(n, seed)
+    x0 = random_feasible_clustering(n, max_size, np.random.default_rng(seed))
+    ga = GeneticClustering(cost, x0, max_size, GAConfig(**cfg), rng=seed)
+    h = hashlib.sha256(ga.population.astype(np.int64).tobytes())
+    for _ in range(gens):
+        ga.generation()
+        h.update(ga.population.astype(np.int64).tobytes())
+    return h.hexdigest()[:16], ga.best.tolist(), round(ga.best_cost, 10)
+
+
+# recorded from the code before GAConfig.variant existed (same seeds, same calls)
+IMPROVED_RECORDED = {
+    ("default", 0): ("994de8cac07919db", [0, 1, 0, 2, 3, 2, 4, 3, 1, 2, 3, 0], -1.5137343197),
+    ("default", 1): ("e5ea3586dd8f1119", [0, 0, 1, 2, 1, 0, 1, 2, 3, 2, 3, 3], -1.8828779498),
+    ("default", 2): ("28ba37d51353c84a", [0, 0, 1, 2, 3, 4, 4, 0, 4, 2, 3, 2], -2.086900834),
+    ("ops10101", 3): ("ab24af18d2fd7364", [0, 1, 2, 3, 2, 4, 2, 4, 1, 0, 1, 3], -2.0415312385),
+    ("ops01110", 4): ("db66138eca8cdfc7", [0, 1, 2, 0, 3, 3, 1, 3, 3, 0, 0, 1], -2.3513857091),
+}
+IMPROVED_CFG = {
+    "default": {},
+    "ops10101": {"operators": (1, 0, 1, 0, 1), "population_size": 9},
+    "ops01110": {
+        "operators": (0, 1, 1, 1, 0),
+        "redraw_partner": True,
+        "n_labels": 5,
+        "max_size": 4,
+    },
+}
+
+
+@pytest.mark.parametrize("explicit", [False, True])
+@pytest.mark.parametrize(("cfg", "seed"), list(IMPROVED_RECORDED))
+def test_improved_variant_is_bit_identical_to_the_recorded_runs(cfg, seed, explicit):
+    kwargs = dict(IMPROVED_CFG[cfg])
+    if explicit:
+        kwargs["variant"] = "improved"
+    assert _trace(seed, **kwargs) == IMPROVED_RECORDED[(cfg, seed)]
+
+
+def test_improved_operators_are_bit_identical_to_the_recorded_draws():
+    import hashlib
+
+    rng = np.random.default_rng(7)
+    a = np.array([0, 0, 1, 1, 2, 2, 3, 3, 4, 4])
+    b = np.array([4, 3, 3, 2, 2, 1, 1, 0, 0, 4])
+    h = hashlib.sha256()
+    for _ in range(50):
+        for c in (o1c(a, b, rng, 3), o2c(a, b, rng, 3), o1m(a, 10, rng, 3), o2m(a, rng, 2),
+                  o3m(a, rng, 3)):  # fmt: skip
+            h.update(np.asarray(c, np.int64).tobytes())
+    assert h.hexdigest()[:16] == "ea66a1e853920bd7"
+
+
+def _raw_crossover(a, b, rng, max_size, max_tries, uniform):
+    """Reference: Table I's O1C / O2C on raw labels with the retry loop, same rng draws."""
+    for _ in range(max_tries):
+        if uniform:
+            child = np.where(rng.random(a.size) < 0.5, a, b)
+        else:
+            j = int(rng.integers(1, a.size + 1))
+            child = np.concatenate([a[:j], b[j:]])
+        if np.bincount(child).max() <= max_size:
+            return child
+    return a.copy()
+
+
+@pytest.mark.parametrize("uniform", [False, True])
+@pytest.mark.parametrize("max_size", [3, 9])
+def test_literal_crossovers_cross_raw_labels_without_alignment(uniform, max_size):
+    a = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2])
+    # a relabelled (aligned, b is a); under the cap 3 every one-point cut of the rotation
+    # overfills a cluster (only j = n fits), so there swap two labels instead
+    b = np.array([0, 0, 0, 2, 2, 2, 1, 1, 1] if max_size == 3 else [2, 2, 2, 0, 0, 0, 1, 1, 1])
+    np.testing.assert_array_equal(align_labels(a, b), a)
+    literal, improved = (o2c_literal, o2c) if uniform else (o1c_literal, o1c)
+    changed = 0
+    for seed in range(40):
+        child = literal(a, b, np.random.default_rng(seed), max_size, 20)
+        expected = _raw_crossover(a, b, np.random.default_rng(seed), max_size, 20, uniform)
+        np.testing.assert_array_equal(child, expected)
+        assert np.bincount(child).max() <= max_size
+        # the aligned crossover of a partition with itself is always a
+        np.testing.assert_array_equal(improved(a, b, np.random.default_rng(seed), max_size), a)
+        changed += not np.array_equal(child, a)
+    assert changed >= 10  # without alignment the children really differ from a
+
+
+def test_literal_o1c_cut_reaches_n():
+    a, b = np.zeros(4, int), np.ones(4, int)
+    cuts = Counter(int(o1c_literal(a, b, np.random.default_rng(s), 4).sum()) for s in range(400))
+    # j in {1..4}: 4 - j elements from b, j = n (a copy of a) included
+    assert set(cuts) == {0, 1, 2, 3}
+
+
+def test_literal_o1m_never_opens_a_new_cluster():
+    improved_new = 0
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        n = int(rng.integers(2, 12))
+        max_size = int(rng.integers(1, n + 1))
+        a = random_feasible_clustering(n, max_size, rng) * 3 + 1  # arbitrary label names
+        child = o1m_literal(a, rng, max_size, 20)
+        assert set(child.tolist()) <= set(a.tolist())
+        assert np.sum(child != a) <= 1 and is_feasible(child, max_size)
+        improved_new += not set(o1m(a, n, rng, max_size).tolist()) <= set(a.tolist())
+    assert improved_new > 0  # the improved O1M does open singletons
+    full = np.array([0, 0, 1, 1, 2, 2])  # every cluster at the cap: only no-op moves fit
+    for seed in range(20):
+        np.testing.assert_array_equal(o1m_literal(full, np.random.default_rng(seed), 2), full)
+    assert len(set(o1m(full, 6, np.random.default_rng(0), 2).tolist())) == 4
+
+
+def test_literal_o1m_moves_to_any_present_label_when_room():
+    a = np.array([0, 1, 1, 2])
+    seen = {tuple(o1m_literal(a, np.random.default_rng(s), 4)) for s in range(300)}
+    # 4 agents x 3 labels, 4 of them no-ops (the parent): 8 moves + the parent
+    assert len(seen) == 9 and tuple(a) in seen
+
+
+def test_literal_o2m_swaps_any_two_elements():
+    a = np.array([0, 0, 0, 1])
+    same = 0
+    for seed in range(200):
+        child = o2m_literal(a, np.random.default_rng(seed), 3)
+        assert sorted(child) == sorted(a) and np.sum(child != a) in (0, 2)
+        same += np.array_equal(child, a)
+        assert not np.array_equal(o2m(a, np.random.default_rng(seed), 3), a)
+    assert 60 < same < 140  # 3 of the 6 pairs are in one cluster
+
+
+def test_literal_ga_never_exceeds_the_initial_cluster_count():
+    for variant in VARIANTS:
+        ga, cost = _ga(seed=1, variant=variant)
+        x0 = random_feasible_clustering(12, 3, np.random.default_rng(1))  # as _ga builds it
+        m0 = len(set(x0.tolist()))
+        most, history = 0, [ga.best_cost]
+        for _ in range(30):
+            best, J = ga.generation()
+            history.append(J)
+            assert J == pytest.approx(cost.base(best)[0])
+            assert all(is_feasible(r, 3) for r in ga.population)
+            most = max(most, max(len(set(r.tolist())) for r in ga.population))
+        assert np.all(np.diff(history) <= 0) and history[-1] < history[0]
+        if variant == "literal":
+            assert most <= m0  # no operator of Table I opens a cluster
+        else:
+            assert most > m0  # the improved O1M does
+
+
+def test_literal_variant_changes_the_trajectory():
+    assert _trace(0, variant="literal") != IMPROVED_RECORDED[("default", 0)]
+    assert _trace(0, variant="literal") == _trace(0, variant="literal")
+
+
+@pytest.mark.parametrize("bad", ["Literal", "both", "", 1, None])
+def test_bad_variant_names_the_field_and_the_choices(bad):
+    with pytest.raises(ValueError, match=r"variant must be one of \('improved', 'literal'\)"):
+        GAConfig(variant=bad)
+
+
+def test_literal_refuses_n_labels():
+    with pytest.raises(ValueError, match="n_labels"):
+        GAConfig(variant="literal", n_labels=5)
+
+
+def test_variant_round_trips_through_the_bench():
+    from selenv.agents import make
+    from selenv.bench import run_bench
+
+    env_id = "selenv/ReceiverClustering-v0"
+    assert make("ga:variant=literal", env_id).config.variant == "literal"
+    assert make("ga", env_id).config.variant == "improved"
+    with pytest.raises(ValueError, match="variant must be one of"):
+        make("ga:variant=literl", env_id)
+    res = run_bench(
+        env_id,
+        ["ga", "ga:variant=literal"],
+        episodes=1,
+        env_kwargs={"horizon": 5},
+        progress=False,
+    )
+    ga, lit = res.agents["ga"], res.agents["ga:variant=literal"]
+    # "ga" as recorded before the variant existed
+    assert ga.returns == pytest.approx([-4.551557779647968], rel=1e-12)
+    assert ga.final_objectives == pytest.approx([0.5875014569185504], rel=1e-12)
+    assert lit.returns != ga.returns and np.isfinite(lit.final_objectives).all()

@@ -786,7 +786,10 @@ def ga_config_args(draw: st.DrawFn) -> tuple[dict, dict]:
         "max_tries": draw(st.integers(1, 5)),
         "n_labels": draw(st.one_of(st.none(), st.integers(1, 12))),
         "redraw_partner": draw(st.booleans()),
+        "variant": draw(st.sampled_from(ga.VARIANTS)),
     }
+    if kw["variant"] == "literal":
+        kw["n_labels"] = None  # the literal O1M has no label range
     return kw, {}
 
 
@@ -829,6 +832,7 @@ def check_ga(g: ga.GeneticClustering, kw: dict) -> None:
 def check_ga_config(cfg: ga.GAConfig, kw: dict) -> None:
     assert cfg.operators == tuple(int(o) for o in kw["operators"])
     assert cfg.population_size == kw["population_size"] and cfg.alpha == kw["alpha"]
+    assert cfg.variant == kw["variant"]
 
 
 @st.composite
@@ -843,7 +847,7 @@ def operator_args(draw: st.DrawFn, op: str) -> tuple[dict, dict]:
         "max_size": max_size,
         "max_tries": draw(st.integers(1, 5)),
     }
-    if op in ("o1c", "o2c"):
+    if op.startswith(("o1c", "o2c")):
         kw["b"] = ga.random_feasible_clustering(n, max_size, rng)
     if op == "o1m":
         kw["n_labels"] = draw(st.integers(1, 2 * n))
@@ -930,12 +934,19 @@ GA_APIS = [
                 "rng": "gen",
                 "max_size": "size",
                 "max_tries": "tries",
-                **({"b": "labels"} if op in ("o1c", "o2c") else {}),
+                **({"b": "labels"} if op.startswith(("o1c", "o2c")) else {}),
                 **({"n_labels": "count1"} if op == "o1m" else {}),
             },
             check_child,
         )
-        for op in ("o1c", "o2c", "o1m", "o2m", "o3m")
+        for op in (
+            "o1c",
+            "o2c",
+            "o1m",
+            "o2m",
+            "o3m",
+            *(f"{o}_literal" for o in ("o1c", "o2c", "o1m", "o2m")),
+        )
     ),
     Api(
         ga.draw_rank,

@@ -101,7 +101,9 @@ class GAAgent(Agent):
         start_step: first step at which the GA runs (the paper switches it on at ``k = 50``);
             before that the current clustering is kept.
         **ga_kwargs: fields of :class:`~selenv.agents.clustering_ga.GAConfig`
-            (``population_size``, ``alpha``, ``operators``, ``max_tries``, ``n_labels``).
+            (``population_size``, ``alpha``, ``operators``, ``max_tries``, ``n_labels``,
+            ``redraw_partner``, ``variant``); on the command line ``ga:variant=literal`` runs
+            Table I's operators as printed.
     """
 
     name = "ga"

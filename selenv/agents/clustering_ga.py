@@ -12,10 +12,19 @@ called as ``op(parents..., rng, max_size, max_tries)`` and return a feasible ``(
 Children are raw labels in the first parent's label space (Table I checks elementwise); the GA
 stores canonical labels. All randomness comes from the ``np.random.Generator`` passed in.
 
-Our additions to the paper: crossovers first relabel the second parent with
-:func:`align_labels` (the paper crosses raw label vectors, for which label-permutation symmetry
-makes O1C/O2C close to a random reassignment); O1M enumerates its feasible moves instead of
-retrying blindly and counts "move to a new cluster" once, not once per unused label.
+Two variants of the operators (:attr:`GAConfig.variant`):
+
+* ``"improved"`` (default), our additions to the paper: crossovers first relabel the second
+  parent with :func:`align_labels` (the paper crosses raw label vectors, for which
+  label-permutation symmetry makes O1C/O2C close to a random reassignment); O1M enumerates its
+  feasible moves instead of retrying blindly, may open a new singleton cluster, and counts
+  "move to a new cluster" once, not once per unused label; O2M swaps two agents of different
+  clusters.
+* ``"literal"``, Table I as printed: :func:`o1c_literal` / :func:`o2c_literal` cross the raw
+  label vectors (no alignment); :func:`o1m_literal` sets a random element to one of the labels
+  present (never a new cluster); :func:`o2m_literal` swaps two random elements (possibly of the
+  same cluster: no change); O3M is :func:`o3m` in both variants (it already is "O2C on two
+  random clusters"). Points Table I leaves open, and our choices, are in each docstring.
 """
 
 from __future__ import annotations
@@ -55,11 +64,14 @@ MAX_POPULATION = 10_000
 MAX_TRIES = 10_000
 #: largest selection spread ``alpha`` (beyond ~1 the partner rank is already near uniform)
 MAX_ALPHA = 100.0
+#: operator variants of :class:`GAConfig` (``variant``): ours, and Table I as printed
+VARIANTS = ("improved", "literal")
 
 __all__ = [
     "MAX_ALPHA",
     "MAX_POPULATION",
     "MAX_TRIES",
+    "VARIANTS",
     "GAConfig",
     "GeneticClustering",
     "align_labels",
@@ -68,9 +80,13 @@ __all__ = [
     "draw_rank",
     "is_feasible",
     "o1c",
+    "o1c_literal",
     "o1m",
+    "o1m_literal",
     "o2c",
+    "o2c_literal",
     "o2m",
+    "o2m_literal",
     "o3m",
     "random_feasible_clustering",
 ]
@@ -268,6 +284,98 @@ def o3m(a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 
     return _retry(draw, x, max_size, max_tries)
 
 
+# -- Table I as printed (GAConfig(variant="literal")) -------------------------------------------
+def o1c_literal(
+    a: ArrayLike, b: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20
+) -> IntArray:
+    """O1C as printed in Table I: ``a[:j] ++ b[j:]`` on the raw labels, ``j ~ U{1..n}``.
+
+    No :func:`align_labels`: label ``l`` of ``b`` is read as label ``l`` of ``a``. Table I
+    prints "randomize ``j`` in {1, ..., n}; combine the first ``l`` elements of ``I^A`` with
+    the last ``j - l`` elements of ``I^B``"; we read it as the first ``j`` of ``a`` and the
+    last ``n - j`` of ``b`` with ``j`` uniform on ``{1..n}`` as printed (``j = n`` gives a copy
+    of ``a``; :func:`o1c` draws ``j`` from ``{1..n-1}``). Arguments, retries and result as
+    :func:`o1c`.
+    """
+    x, y = as_labels(a, "a"), as_labels(b, "b")
+    if x.shape != y.shape:
+        raise ValueError(f"a and b must have the same shape, got {x.shape} and {y.shape}")
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
+
+    def draw() -> IntArray:
+        j = int(rng.integers(1, x.size + 1))  # cut point, j in {1..n}
+        return np.concatenate([x[:j], y[j:]])
+
+    return _retry(draw, x, max_size, max_tries)
+
+
+def o2c_literal(
+    a: ArrayLike, b: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20
+) -> IntArray:
+    """O2C as printed in Table I: each element from ``a`` or raw ``b`` (no alignment) w.p. 1/2.
+
+    The same draws as :func:`o2c` (one ``rng.random(n)`` per try); arguments as :func:`o1c`.
+    """
+    x, y = as_labels(a, "a"), as_labels(b, "b")
+    if x.shape != y.shape:
+        raise ValueError(f"a and b must have the same shape, got {x.shape} and {y.shape}")
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
+    return _retry(lambda: np.where(rng.random(x.size) < 0.5, x, y), x, max_size, max_tries)
+
+
+def o1m_literal(
+    a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20
+) -> IntArray:
+    """O1M as printed in Table I: set a random element of ``a`` to a number in ``[1, |C|]``.
+
+    ``[1, |C|]`` is read as the ``|C|`` labels present in ``a`` (the GA's canonical labels are
+    ``0..|C|-1``), so no new cluster is ever opened; a cluster may empty, so ``|C|`` may drop.
+    Each try draws the element and the label uniformly and independently; the label may be
+    the element's own (Table I does not exclude it: that child equals ``a``). Infeasible
+    draws (target cluster already at ``max_size``) are retried up to ``max_tries`` times, then
+    a copy of ``a`` is returned, as for the other operators. Unlike :func:`o1m`, no
+    ``n_labels``.
+    """
+    x = as_labels(a, "a")
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
+    present = _label_counts(x)[0]  # (|C|,) labels in use, sorted
+
+    def draw() -> IntArray:
+        child = x.copy()
+        child[int(rng.integers(x.size))] = present[int(rng.integers(present.size))]
+        return child
+
+    return _retry(draw, x, max_size, max_tries)
+
+
+def o2m_literal(
+    a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 20
+) -> IntArray:
+    """O2M as printed in Table I: swap the labels of two random elements of ``a`` ``(n,)``.
+
+    The two positions are distinct and uniform over all pairs (Table I does not require
+    different clusters: swapping two members of one cluster returns ``a`` unchanged, where
+    :func:`o2m` draws only pairs from different clusters). Sizes are preserved, so the child is
+    feasible iff ``a`` is. Returns a copy of ``a`` if ``n < 2``.
+    """
+    x = as_labels(a, "a")
+    check_generator(rng)
+    max_size, max_tries = _check_caps(max_size, max_tries)
+    if x.size < 2:
+        return x.copy()
+
+    def draw() -> IntArray:
+        i, j = rng.choice(x.size, size=2, replace=False)
+        child = x.copy()
+        child[[i, j]] = x[[j, i]]
+        return child
+
+    return _retry(draw, x, max_size, max_tries)
+
+
 def draw_rank(rng: np.random.Generator, alpha: float, population_size: int) -> int:
     """Selection of Alg. 2, steps 4-5: rank ``r`` of the partner, the ``(r+1)``-th best.
 
@@ -296,6 +404,13 @@ class GAConfig:
         n_labels: label range of O1M, an int >= 1 (``None``: ``n``).
         redraw_partner: draw a new partner rank for every crossover (``False``: once per
             generation, as Alg. 2 does); a bool.
+        variant: which Table I operators, one of :data:`VARIANTS`: ``"improved"`` (ours:
+            crossovers on aligned labels, O1M may open a singleton, see the module docstring)
+            or ``"literal"`` (Table I as printed: :func:`o1c_literal`, :func:`o2c_literal`,
+            :func:`o1m_literal`, :func:`o2m_literal`, :func:`o3m`). Named ``variant`` because
+            ``operators`` is already Table II's O vector (GitHub issue 18 calls it
+            ``operators="literal"``); the O vector selects among the chosen variant's five.
+            ``n_labels`` only applies to the improved O1M and must be ``None`` with literal.
 
     Raises:
         TypeError, ValueError: naming the field (wrong type, or outside its range).
@@ -307,6 +422,7 @@ class GAConfig:
     max_tries: int = 20
     n_labels: int | None = None
     redraw_partner: bool = False
+    variant: str = "improved"
 
     def __post_init__(self) -> None:
         check_int(self.population_size, "population_size", 2, MAX_POPULATION)
@@ -324,6 +440,14 @@ class GAConfig:
         if self.n_labels is not None:
             check_int(self.n_labels, "n_labels", 1)
         check_bool(self.redraw_partner, "redraw_partner")
+        if not isinstance(self.variant, str) or self.variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {VARIANTS}, got {describe(self.variant)}")
+        if self.variant == "literal" and self.n_labels is not None:
+            raise ValueError(
+                "n_labels applies to the improved O1M only; the literal O1M draws from the "
+                f"labels present, so n_labels must be None with variant='literal', got "
+                f"{describe(self.n_labels)}"
+            )
 
 
 class GeneticClustering:
@@ -418,7 +542,8 @@ class GeneticClustering:
         return self.best, self.best_cost
 
     def _crossover(self, r: int) -> IntArray:
-        op = (o1c, o2c)[self._crossovers[int(self._rng.integers(len(self._crossovers)))]]
+        ops = (o1c_literal, o2c_literal) if self.config.variant == "literal" else (o1c, o2c)
+        op = ops[self._crossovers[int(self._rng.integers(len(self._crossovers)))]]
         a, b = self.population[0], self.population[r]
         return op(a, b, self._rng, self.max_size, self.config.max_tries)
 
@@ -426,6 +551,8 @@ class GeneticClustering:
         k = self._mutations[int(self._rng.integers(len(self._mutations)))]
         a = members[int(self._rng.integers(len(members)))]
         rng, s, t = self._rng, self.max_size, self.config.max_tries
+        if self.config.variant == "literal":
+            return (o1m_literal, o2m_literal, o3m)[k](a, rng, s, t)
         return o1m(a, self.n_labels, rng, s, t) if k == 0 else (o2m, o3m)[k - 1](a, rng, s, t)
 
     def _initialize(self, x: IntArray, name: str) -> None:
