@@ -168,6 +168,45 @@ def k_star(J: np.ndarray, eps: float) -> int:
     return int(np.flatnonzero(gap <= eps)[0])
 
 
+def k_star_bootstrap(
+    Js: dict[tuple[int, ...], np.ndarray],
+    eps: float,
+    reference: tuple[int, ...],
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> dict[tuple[int, ...], dict[str, tuple[float, float]]]:
+    """Percentile bootstrap 95 % intervals of ``k*_eps`` per operator set and of its paired
+    difference to ``reference`` (the all-operators row).
+
+    ``Js`` maps each O vector to its ``(runs, K + 1)`` cost curves; row ``r`` of every set is the
+    same realisation (seed ``10000 + r``), so one resample of the row indices is applied to all
+    sets (a paired bootstrap). Returns ``{O: {"k": (lo, hi), "diff": (lo, hi)}}``.
+    """
+    runs = next(iter(Js.values())).shape[0]
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, runs, size=(n_boot, runs))
+    ks = {ops: np.array([k_star(J[i], eps) for i in idx]) for ops, J in Js.items()}
+    out = {}
+    for ops, k in ks.items():
+        diff = k - ks[reference]
+        out[ops] = {
+            "k": tuple(float(v) for v in np.percentile(k, [2.5, 97.5])),
+            "diff": tuple(float(v) for v in np.percentile(diff, [2.5, 97.5])),
+        }
+    return out
+
+
+def paired_final_cost(J: np.ndarray, J_ref: np.ndarray) -> tuple[float, float, float]:
+    """Mean and 95 % t interval of the per-realisation difference ``J_K - J_ref,K``."""
+    from scipy import stats
+
+    d = J[:, -1] - J_ref[:, -1]
+    if d.size < 2:
+        return float(d.mean()), float("nan"), float("nan")
+    half = float(stats.t.ppf(0.975, d.size - 1) * d.std(ddof=1) / np.sqrt(d.size))
+    return float(d.mean()), float(d.mean() - half), float(d.mean() + half)
+
+
 def table2_experiment(
     args: argparse.Namespace, variant: str = "improved"
 ) -> dict[tuple[int, ...], dict[str, Any]]:
@@ -193,6 +232,12 @@ def table2_experiment(
             "mean_JK": float(J[:, -1].mean()),
             "var_JK": float(J[:, -1].var()),
         }
+    all_ops = OPERATOR_SETS[-1]
+    boot = k_star_bootstrap({ops: r["J"] for ops, r in out.items()}, EPSILONS[-1], all_ops)
+    for ops, r in out.items():
+        r["k_star_ci"] = boot[ops]["k"]
+        r["k_star_diff_ci"] = boot[ops]["diff"]
+        r["JK_diff"] = paired_final_cost(r["J"], out[all_ops]["J"])
     return out
 
 
@@ -313,14 +358,21 @@ def format_variant(results: dict[str, Any], title: str) -> list[str]:
         "",
         f"### Table II{title}",
         "",
-        "| O | k*_0.1 | k*_0.05 | k*_0.01 | E[J(I_K)] | Var[J(I_K)] | paper k* | paper E[J] |",
-        "|---|---:|---:|---:|---:|---:|---|---:|",
+        "| O | k*_0.1 | k*_0.05 | k*_0.01 [95 % CI] | k*_0.01 - all [95 % CI] | E[J(I_K)] "
+        "| J_K - all, paired [95 % CI] | Var[J(I_K)] | paper k* | paper E[J] |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---|---:|",
     ]
     for ops, r in results["table2"].items():
         p = PAPER_TABLE_II[ops]
-        ks = " | ".join(str(v) for v in r["k_star"])
+        k1, k2, k3 = r["k_star"]
+        (lo, hi), (dlo, dhi) = r["k_star_ci"], r["k_star_diff_ci"]
+        jd, jlo, jhi = r["JK_diff"]
+        ref = ops == OPERATOR_SETS[-1]
+        kdiff = "reference" if ref else f"[{dlo:+.0f}, {dhi:+.0f}]"
+        jdiff = "reference" if ref else f"{jd:+.4f} [{jlo:+.4f}, {jhi:+.4f}]"
         lines.append(
-            f"| {ops} | {ks} | {r['mean_JK']:.4f} | {r['var_JK']:.2e} | "
+            f"| {ops} | {k1} | {k2} | {k3} [{lo:.0f}, {hi:.0f}] | {kdiff} | "
+            f"{r['mean_JK']:.4f} | {jdiff} | {r['var_JK']:.2e} | "
             f"{p[0]} / {p[1]} / {p[2]} | {p[3]} |"
         )
     f4 = results["fig4"]
@@ -347,6 +399,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("docs/figures"))
     p.add_argument("--quick", action="store_true", help="4 runs, 3 per O, K = 120 (for tests)")
     p.add_argument(
+        "--save",
+        type=Path,
+        default=None,
+        help="also write the Table II cost curves J (runs, K + 1) per variant and O to this .npz",
+    )
+    p.add_argument(
         "--ga-variant",
         choices=(*GA_VARIANTS, "both"),
         default="improved",
@@ -354,6 +412,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "(Table II and Fig. 4 for each)",
     )
     args = p.parse_args(argv)
+    if args.save is not None and not args.save.parent.is_dir():
+        p.error(f"--save: folder {args.save.parent} does not exist")
     if args.quick:
         args.runs, args.table_runs, args.steps = 4, 3, 120
     return args
@@ -391,6 +451,15 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         for name, plot in (("greiff_table2", plot_table2), ("greiff_fig4", plot_fig4)):
             paths[name + suffix[v]] = args.out / f"{name}{suffix[v]}.png"
             plot(results["by_variant"][v][name.removeprefix("greiff_")], paths[name + suffix[v]])
+    if args.save is not None:
+        np.savez_compressed(
+            args.save,
+            **{
+                f"{v}_{''.join(map(str, ops))}": r["J"]
+                for v, res in results["by_variant"].items()
+                for ops, r in res["table2"].items()
+            },
+        )
     wall = time.perf_counter() - t0
     results["figures"] = {k: str(v) for k, v in paths.items()}
     results["config"] = {**vars(args), "out": str(args.out), "wall_time_s": wall}

@@ -189,3 +189,41 @@ def test_reproduction_ga_variant_option(capsys) -> None:
     assert "--ga-variant" in err and "'improved', 'literal', 'both'" in err
     assert module.ga_kwargs("improved") == {"start_step": module.GA_START}
     assert module.ga_kwargs("literal", operators=(1, 1, 1, 1, 1))["variant"] == "literal"
+
+
+def test_k_star_bootstrap_is_paired_and_brackets_known_shifts() -> None:
+    """Curves delayed by a known number of steps move k* by exactly that shift, in every resample."""
+    module = load_script("reproduce_greiff")
+    rng = np.random.default_rng(3)
+    runs, K = 40, 300
+    rates = rng.uniform(0.02, 0.05, size=(runs, 1))
+    k = np.arange(K + 1)
+    base = 1.0 + 2.0 * np.exp(-rates * k)  # decreasing, noisy across runs
+    shifted = 1.0 + 2.0 * np.exp(-rates * np.maximum(k - 25, 0))  # the same runs, 25 steps later
+    ref = (1, 1, 1, 1, 1)
+    out = module.k_star_bootstrap({(0, 1, 1, 1, 1): shifted, ref: base}, 0.01, ref, n_boot=200)
+    assert out[ref]["diff"] == (0.0, 0.0)
+    lo, hi = out[(0, 1, 1, 1, 1)]["diff"]
+    # the curves differ only by the delay, up to the final-cost normalisation: k* moves by ~25
+    assert 20 <= lo <= hi <= 30
+    klo, khi = out[ref]["k"]
+    assert klo <= module.k_star(base, 0.01) <= khi
+
+
+def test_paired_final_cost_matches_scipy_paired_t() -> None:
+    from scipy import stats
+
+    module = load_script("reproduce_greiff")
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(1.0, 0.1, (30, 5)), rng.normal(1.02, 0.1, (30, 5))
+    mean, lo, hi = module.paired_final_cost(a, b)
+    ci = stats.ttest_rel(a[:, -1], b[:, -1]).confidence_interval(0.95)
+    assert mean == pytest.approx(float(np.mean(a[:, -1] - b[:, -1])))
+    assert (lo, hi) == pytest.approx((ci.low, ci.high))
+
+
+def test_reproduction_save_folder_checked_before_work(tmp_path, capsys) -> None:
+    module = load_script("reproduce_greiff")
+    with pytest.raises(SystemExit) as exc:
+        module.parse_args(["--save", str(tmp_path / "missing" / "t.npz")])
+    assert exc.value.code == 2 and "--save" in capsys.readouterr().err
