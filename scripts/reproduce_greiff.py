@@ -175,8 +175,9 @@ def k_star_bootstrap(
     n_boot: int = 2000,
     seed: int = 0,
 ) -> dict[tuple[int, ...], dict[str, tuple[float, float]]]:
-    """Percentile bootstrap 95 % intervals of ``k*_eps`` per operator set and of its paired
-    difference to ``reference`` (the all-operators row).
+    """Percentile bootstrap 95 % intervals of ``k*_eps`` and of its paired difference.
+
+    The difference is to ``reference`` (the all-operators row).
 
     ``Js`` maps each O vector to its ``(runs, K + 1)`` cost curves; row ``r`` of every set is the
     same realisation (seed ``10000 + r``), so one resample of the row indices is applied to all

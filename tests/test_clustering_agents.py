@@ -192,7 +192,7 @@ def test_reproduction_ga_variant_option(capsys) -> None:
 
 
 def test_k_star_bootstrap_is_paired_and_brackets_known_shifts() -> None:
-    """Curves delayed by a known number of steps move k* by exactly that shift, in every resample."""
+    """Curves delayed by a known number of steps move k* by that shift, in every resample."""
     module = load_script("reproduce_greiff")
     rng = np.random.default_rng(3)
     runs, K = 40, 300
