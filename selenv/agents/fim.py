@@ -4,6 +4,11 @@ Each agent plans on the env's oracle view (the current information and the white
 the plain solvers of :mod:`selenv.agents.fim_solvers`, then plays the plan one pick per step.
 Picks already made in the episode become part of the prior (``Q0 <- FIM(selected)``), so an
 agent can also take over in the middle of an episode.
+
+The solvers optimise the env's objective (:func:`env_objective`: ``env.solver_objective`` and
+``env.interest``, e.g. ``FIMSelection-v0(objective="trace")`` scores the target position), so
+``selenv bench ... --env-kwargs '{"objective": "trace"}'`` runs greedy, swap and brute force
+on the trace; ``lazy_greedy`` refuses a non-log-det objective (it needs submodularity).
 """
 
 from __future__ import annotations
@@ -23,9 +28,27 @@ from selenv.agents.fim_solvers import (
     swap_whitened,
 )
 
-__all__ = ["FIM_ENV_ID", "CooperativeGreedyPolicy", "FIMSolverAgent", "RandomMaskedAgent"]
+__all__ = [
+    "FIM_ENV_ID",
+    "CooperativeGreedyPolicy",
+    "FIMSolverAgent",
+    "RandomMaskedAgent",
+    "env_objective",
+]
 
 FIM_ENV_ID = "selenv/FIMSelection-v0"
+
+
+def env_objective(env: Any) -> dict[str, Any]:
+    """Solver keywords for the objective of ``env`` (unwrapped): ``{}`` for log det.
+
+    ``{"objective": name, "interest": indices}`` from ``env.solver_objective`` and
+    ``env.interest`` otherwise; an env without them is log det.
+    """
+    name = getattr(env, "solver_objective", "logdet")
+    if name == "logdet":
+        return {}  # the solvers' default: calls are exactly what they were before objectives
+    return {"objective": name, "interest": getattr(env, "interest", None)}
 
 
 class FIMSolverAgent(PlanAgent):
@@ -48,12 +71,17 @@ class FIMSolverAgent(PlanAgent):
         self.solver_kwargs = solver_kwargs
 
     def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
-        """Solve on the candidates not yet selected, with the current FIM as the prior."""
+        """Solve on the candidates not yet selected, with the current FIM as the prior.
+
+        The solver maximises the env's objective (:func:`env_objective`); with the current
+        FIM as the prior, its ``f`` differs from the episode's by a constant.
+        """
         env = self.env.unwrapped
         state = env.state  # type: ignore[attr-defined]
         remaining = np.flatnonzero(~state.selected)
         prior = state.information  # Q0 + FIM of the picks so far
-        sel = self.solver(prior, state.G[remaining], env.budget_left, **self.solver_kwargs)  # type: ignore[attr-defined]
+        kwargs = {**env_objective(env), **self.solver_kwargs}
+        sel = self.solver(prior, state.G[remaining], env.budget_left, **kwargs)  # type: ignore[attr-defined]
         return [int(remaining[k]) for k in sel.indices]
 
 

@@ -1,7 +1,18 @@
-"""Plain solvers for log-det measurement selection on raw arrays (Kirchner et al. 2020).
+"""Plain solvers for FIM-based measurement selection on raw arrays (Kirchner et al. 2020).
 
-Every solver maximises ``f(S) = log det(Q0 + sum_{k in S} H_k^T R_k^-1 H_k) - log det Q0``
-(eq. 9) subject to ``|S| <= budget`` (eq. 8), and returns a :class:`Selection`.
+Every solver maximises ``f(S)`` subject to ``|S| <= budget`` (eq. 8) and returns a
+:class:`Selection`. ``objective`` chooses ``f`` (:mod:`selenv.core.objectives`), higher is
+always better and ``f(empty) = 0``:
+
+* ``"logdet"`` (default, D-optimal): ``log det(Q0 + sum_{k in S} H_k^T R_k^-1 H_k) - log det
+  Q0`` (eq. 9, from eq. 5); monotone submodular.
+* ``"trace"`` (A-optimal, eq. 6): ``tr(E P0 E^T) - tr(E P_S E^T)``, the decrease of the
+  mean-square error bound of the parameters of interest (``interest``, default all).
+* ``"max_eig"`` (E-optimal, eq. 7): ``lambda_max(E P0 E^T) - lambda_max(E P_S E^T)``.
+
+``P_S`` is the CRLB ``(Q0 + sum_{k in S} Q_k)^-1``. trace and max_eig are monotone but not
+submodular (the paper, after eq. 7), so the guarantees below hold for ``"logdet"`` only;
+``lazy_greedy`` refuses the other two (its stale gains are upper bounds only by submodularity).
 
 Public solvers take ``(Q0, H, R, budget)`` with ``Q0`` ``(d, d)`` SPD, and either ``H (N, m, d)``
 with ``R (N, m, m)`` / ``(m, m)``, or scalar candidates ``H (N, d)`` with variances ``R (N,)``.
@@ -11,17 +22,21 @@ The ``*_whitened`` variants take the whitened pool ``G (N, m, d)`` (see
 ============== ====================================================== ==================
 solver         method                                                 guarantee
 ============== ====================================================== ==================
-greedy         Algorithm 1 with rank-one (scalar) / block updates     >= (1 - 1/e) OPT
-lazy_greedy    Minoux's lazy evaluations of the same greedy           same set as greedy
+greedy         Algorithm 1 with rank-one (scalar) / block updates     >= (1 - 1/e) OPT (a)
+lazy_greedy    Minoux's lazy evaluations of the same greedy (logdet)  same set as greedy
 swap           greedy, then best-improvement 1-swap local search      >= greedy
 brute_force    exhaustive over all C(N, B) subsets (size-guarded)     optimal
 random         uniform subset                                         baseline
 ============== ====================================================== ==================
 
+(a) log det only; for trace and max_eig greedy has no guarantee (swap >= greedy and brute force
+optimal still hold).
+
 Multi-agent (disjoint pools, a budget per pool, i.e. a partition matroid): ``cooperative_greedy``
 (the paper's per-agent schemes), and the centralised ``partition_greedy_whitened`` (greedy over
 the union of the pools, each pick the best gain among the pools with budget left: >= OPT / 2,
-Fisher, Nemhauser & Wolsey 1978) and ``partition_swap_whitened`` (then swaps within a pool).
+Fisher, Nemhauser & Wolsey 1978, log det only) and ``partition_swap_whitened`` (then swaps
+within a pool); all three take ``objective`` too.
 
 Validation: the raw-array solvers go through :func:`~selenv.core.information.as_candidates`
 (real types only: complex, bool, str, object raise ``TypeError``; shapes name the argument
@@ -55,6 +70,14 @@ from selenv.core.linalg import (
     logdet_spd,
     validate_spd,
 )
+from selenv.core.objectives import (
+    check_interest,
+    check_objective,
+    make_gain_state,
+    objective_value,
+    subset_criteria,
+    swap_criteria,
+)
 from selenv.scenarios.clustering_labels import check_int
 
 __all__ = [
@@ -85,13 +108,17 @@ class Selection:
 
     Attributes:
         indices: selected candidate indices, in the order they were picked.
-        objective: ``f(S)`` of eq. (9) (nats), recomputed exactly from the selection.
+        objective: ``f(S)`` of the chosen objective (higher is better), recomputed exactly
+            from the selection by :func:`~selenv.core.objectives.objective_value`: nats for
+            ``"logdet"`` (eq. 9), squared parameter units for ``"trace"`` / ``"max_eig"``.
         evaluations: number of marginal-gain or subset evaluations the solver made.
+        objective_name: ``"logdet"``, ``"trace"`` or ``"max_eig"``.
     """
 
     indices: tuple[int, ...]
     objective: float
     evaluations: int
+    objective_name: str = "logdet"
 
 
 def _check_budget(budget: object, N: int) -> int:
@@ -126,35 +153,88 @@ def int_indices(value: object, name: str) -> np.ndarray:
     return arr.astype(np.intp)
 
 
-def _finish(Q0: FloatArray, G: FloatArray, indices: Sequence[int], evals: int) -> Selection:
+def _finish(
+    Q0: FloatArray,
+    G: FloatArray,
+    indices: Sequence[int],
+    evals: int,
+    objective: str = "logdet",
+    interest: np.ndarray | None = None,
+) -> Selection:
     idx = tuple(int(k) for k in indices)
-    return Selection(idx, logdet_objective(Q0, G, list(idx)), evals)
+    if objective == "logdet":
+        return Selection(idx, logdet_objective(Q0, G, list(idx)), evals)
+    value = objective_value(Q0, G, list(idx), objective, interest)
+    return Selection(idx, value, evals, objective)
 
 
-def greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selection:
-    """Algorithm 1 with rank-one / block gain updates: ``O(N d^2 + B N m d)``.
+Interest = Sequence[int] | np.ndarray | None
+
+
+def _objective(objective: object, interest: object, d: int) -> tuple[str, np.ndarray | None]:
+    """Validated ``objective`` and ``interest`` indices (``None``: all parameters)."""
+    name = check_objective(objective)
+    return name, check_interest(interest, d, name)
+
+
+def greedy_whitened(
+    Q0: FloatArray,
+    G: FloatArray,
+    budget: int,
+    *,
+    objective: str = "logdet",
+    interest: Interest = None,
+) -> Selection:
+    """Algorithm 1 with rank-one / block gain updates: ``O(N d^2 + B N m d)`` (log det).
+
+    ``objective="trace"`` / ``"max_eig"``: the batched Woodbury gains of
+    :func:`~selenv.core.objectives.criterion_gains` after each pick (``O(B N m d^2)``).
 
     Raises:
-        TypeError: not real numeric, or ``budget`` not an int.
+        TypeError: not real numeric, ``budget`` not an int, ``objective`` not a str,
+            ``interest`` not int indices.
         ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
-            [0, N].
+            [0, N]; an unknown ``objective``; a bad ``interest``.
     """
-    state = LogDetGainState(Q0, G, track_gains=True)  # validates Q0 and G
+    state = make_gain_state(Q0, G, objective, interest=interest, track_gains=True)
     budget = _check_budget(budget, state.N)
     for _ in range(budget):
         state.add(int(np.argmax(state.masked_gains())))  # line 4: best marginal gain
-    return _finish(state.Q0, state.G, state.order, budget * state.N)
+    idx = getattr(state, "interest", None)
+    return _finish(state.Q0, state.G, state.order, budget * state.N, objective, idx)
 
 
-def lazy_greedy_whitened(Q0: FloatArray, G: FloatArray, budget: int) -> Selection:
+def _refuse_lazy(objective: object) -> None:
+    if check_objective(objective) != "logdet":
+        raise ValueError(
+            f"lazy_greedy needs a submodular objective, and objective={objective!r} is not "
+            "submodular (Kirchner et al. 2020, after eq. 7): stale gains are then no upper "
+            "bounds and the lazy picks could differ from greedy's; use greedy with this "
+            "objective, or objective='logdet'"
+        )
+
+
+def lazy_greedy_whitened(
+    Q0: FloatArray,
+    G: FloatArray,
+    budget: int,
+    *,
+    objective: str = "logdet",
+    interest: Interest = None,
+) -> Selection:
     """Greedy with lazy evaluations (Minoux 1978): stale gains are upper bounds by submodularity.
 
     Only ``P = A^-1`` is updated per pick; a candidate's gain is recomputed (``O(m d^2)``) when
     it reaches the top of the heap. Ties break towards the lower index, as in :func:`greedy`.
+    Log det only: ``objective="trace"`` / ``"max_eig"`` are refused (not submodular);
+    ``interest`` (accepted for a uniform solver signature) must then be ``None``.
 
     Raises:
-        TypeError, ValueError: as :func:`greedy_whitened`.
+        TypeError, ValueError: as :func:`greedy_whitened`; ``ValueError`` for an
+            ``objective`` other than ``"logdet"``.
     """
+    _refuse_lazy(objective)
+    check_interest(interest, 0, "logdet")
     state = LogDetGainState(Q0, G, track_gains=True)  # validates Q0 and G
     Q0, G = state.Q0, state.G
     budget = _check_budget(budget, state.N)
@@ -183,17 +263,30 @@ def _subset_logdets(Qk: FloatArray, Q0: FloatArray, combos: np.ndarray) -> Float
 
 
 def brute_force_whitened(
-    Q0: FloatArray, G: FloatArray, budget: int, *, max_subsets: int = MAX_BRUTE_FORCE_SUBSETS
+    Q0: FloatArray,
+    G: FloatArray,
+    budget: int,
+    *,
+    max_subsets: int = MAX_BRUTE_FORCE_SUBSETS,
+    objective: str = "logdet",
+    interest: Interest = None,
 ) -> Selection:
     """Exhaustive optimum over all subsets of size ``budget`` (f is monotone, so ``|S| = B``).
 
+    Every objective: batched Cholesky of each subset's FIM (log det, or ``E A_S^-1 E^T`` for
+    trace / max_eig, :func:`~selenv.core.objectives.subset_criteria`); ties towards the
+    lexicographically first subset.
+
     Raises:
-        TypeError: not real numeric, or ``budget`` / ``max_subsets`` not an int.
+        TypeError: not real numeric, ``budget`` / ``max_subsets`` not an int, ``objective`` /
+            ``interest`` of the wrong type.
         ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
-            [0, N], or ``C(N, budget) > max_subsets`` (the size guard).
+            [0, N], or ``C(N, budget) > max_subsets`` (the size guard); an unknown
+            ``objective``; a bad ``interest``.
     """
     Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
+    objective, idx = _objective(objective, interest, G.shape[2])
     budget = _check_budget(budget, N)
     max_subsets = check_int(max_subsets, "max_subsets", 1)  # NaN would skip the guard
     n_sub = math.comb(N, budget)
@@ -203,7 +296,7 @@ def brute_force_whitened(
             f"{max_subsets:,}); use greedy or swap, or raise max_subsets"
         )
     if budget == 0:
-        return Selection((), 0.0, 1)
+        return Selection((), 0.0, 1, objective)
     Qk = np.einsum("kmi,kmj->kij", G, G)  # Q_k = G_k^T G_k
     best_val, best = -np.inf, None
     it = itertools.combinations(range(N), budget)
@@ -212,12 +305,15 @@ def brute_force_whitened(
         block = np.array(list(itertools.islice(it, chunk)), dtype=np.intp)
         if block.size == 0:
             break
-        vals = _subset_logdets(Qk, Q0, block)
+        if objective == "logdet":
+            vals = _subset_logdets(Qk, Q0, block)
+        else:  # minus the criterion: the argmax of f = crit0 - crit
+            vals = -subset_criteria(Q0, Qk, block, objective, idx)
         i = int(np.argmax(vals))
         if vals[i] > best_val:
             best_val, best = float(vals[i]), block[i]
     assert best is not None
-    return _finish(Q0, G, best.tolist(), n_sub)
+    return _finish(Q0, G, best.tolist(), n_sub, objective, idx)
 
 
 def _swap_deltas(G: FloatArray, P: FloatArray, sel: np.ndarray, uns: np.ndarray) -> FloatArray:
@@ -265,12 +361,17 @@ def swap_whitened(
     initial: Sequence[int] | None = None,
     max_rounds: int = 200,
     tol: float = 1e-9,
+    objective: str = "logdet",
+    interest: Interest = None,
 ) -> Selection:
     """Greedy (or ``initial``) followed by best-improvement swap local search.
 
     Each round evaluates every (selected, unselected) swap in one batched determinant-lemma
     pass (``O(K N m^2 d)``) and applies the best if it gains more than ``tol`` nats. The
-    objective never decreases, so the result is at least as good as greedy.
+    objective never decreases, so the result is at least as good as greedy. For
+    ``objective="trace"`` / ``"max_eig"`` a swap's value is the criterion of ``A - Q_i + Q_j``
+    by batched Cholesky (:func:`~selenv.core.objectives.swap_criteria`, ``O(K N d^3)``) and
+    ``tol`` is in the objective's units.
 
     Raises:
         TypeError: not real numeric, ``budget`` / ``max_rounds`` not an int, ``initial`` not
@@ -284,8 +385,9 @@ def swap_whitened(
     budget = _check_budget(budget, N)
     max_rounds = check_int(max_rounds, "max_rounds", 0)
     tol = _check_tol(tol)
+    objective, idx = _objective(objective, interest, G.shape[2])
     if initial is None:
-        start = greedy_whitened(Q0, G, budget)
+        start = greedy_whitened(Q0, G, budget, objective=objective, interest=idx)
         sel = np.array(start.indices, dtype=np.intp)
     else:
         start, sel = None, int_indices(initial, "initial")
@@ -297,69 +399,119 @@ def swap_whitened(
     for _ in range(max_rounds):
         if budget in (0, N):
             break
-        P = _crlb(Q0, G, sel)
         uns = np.setdiff1d(np.arange(N), sel)
-        delta = _swap_deltas(G, P, sel, uns)
+        delta = _deltas(Q0, G, sel, uns, objective, idx)
         evals += delta.size
         i, j = np.unravel_index(int(np.argmax(delta)), delta.shape)
         if delta[i, j] <= tol:
             break
         sel[i] = uns[j]
-    return _finish(Q0, G, sel.tolist(), evals)
+    return _finish(Q0, G, sel.tolist(), evals, objective, idx)
 
 
-def greedy(Q0: object, H: object, R: object, budget: int) -> Selection:
+def _deltas(
+    Q0: FloatArray,
+    G: FloatArray,
+    sel: np.ndarray,
+    uns: np.ndarray,
+    objective: str,
+    interest: np.ndarray | None,
+) -> FloatArray:
+    """``f(S - i + j) - f(S)`` for every selected ``i`` and unselected ``j``, ``(K, U)``."""
+    if objective == "logdet":
+        return _swap_deltas(G, _crlb(Q0, G, sel), sel, uns)
+    crit = subset_criteria(Q0, np.einsum("kmi,kmj->kij", G, G), sel[None], objective, interest)
+    return float(crit[0]) - swap_criteria(Q0, G, sel, uns, objective, interest)
+
+
+def greedy(
+    Q0: object,
+    H: object,
+    R: object,
+    budget: int,
+    *,
+    objective: str = "logdet",
+    interest: Interest = None,
+) -> Selection:
     """Greedy selection (Algorithm 1) on raw arrays; see the module docstring for shapes.
 
+    ``objective``: ``"logdet"`` (default), ``"trace"`` or ``"max_eig"``; ``interest``: indices
+    of the parameters scored by trace / max_eig (default all ``d``).
+
     Raises:
-        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
-            ``budget`` not an int.
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object),
+            ``budget`` not an int, ``objective`` / ``interest`` of the wrong type.
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
-            [0, N].
+            [0, N]; an unknown ``objective``; a bad ``interest``.
     """
     Q0_a, G = as_candidates(Q0, H, R)
-    return greedy_whitened(Q0_a, G, budget)
+    return greedy_whitened(Q0_a, G, budget, objective=objective, interest=interest)
 
 
-def lazy_greedy(Q0: object, H: object, R: object, budget: int) -> Selection:
+def lazy_greedy(
+    Q0: object, H: object, R: object, budget: int, *, objective: str = "logdet"
+) -> Selection:
     """Lazy greedy on raw arrays; returns the same set as :func:`greedy` with fewer evaluations.
+
+    Log det only (``objective`` other than ``"logdet"`` is refused: not submodular).
 
     Raises:
         TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
             ``budget`` not an int.
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
-            [0, N].
+            [0, N]; ``objective`` not ``"logdet"``.
     """
+    _refuse_lazy(objective)
     Q0_a, G = as_candidates(Q0, H, R)
     return lazy_greedy_whitened(Q0_a, G, budget)
 
 
 def brute_force(
-    Q0: object, H: object, R: object, budget: int, *, max_subsets: int = MAX_BRUTE_FORCE_SUBSETS
+    Q0: object,
+    H: object,
+    R: object,
+    budget: int,
+    *,
+    max_subsets: int = MAX_BRUTE_FORCE_SUBSETS,
+    objective: str = "logdet",
+    interest: Interest = None,
 ) -> Selection:
     """Exhaustive optimum on raw arrays; refuses more than ``max_subsets`` subsets.
 
     Raises:
-        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
-            ``budget`` not an int.
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object),
+            ``budget`` not an int, ``objective`` / ``interest`` of the wrong type.
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
-            [0, N].
+            [0, N]; an unknown ``objective``; a bad ``interest``.
     """
     Q0_a, G = as_candidates(Q0, H, R)
-    return brute_force_whitened(Q0_a, G, budget, max_subsets=max_subsets)
+    return brute_force_whitened(
+        Q0_a, G, budget, max_subsets=max_subsets, objective=objective, interest=interest
+    )
 
 
-def swap(Q0: object, H: object, R: object, budget: int, *, max_rounds: int = 200) -> Selection:
+def swap(
+    Q0: object,
+    H: object,
+    R: object,
+    budget: int,
+    *,
+    max_rounds: int = 200,
+    objective: str = "logdet",
+    interest: Interest = None,
+) -> Selection:
     """Greedy plus swap local search on raw arrays.
 
     Raises:
-        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object), or
-            ``budget`` not an int.
+        TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object),
+            ``budget`` not an int, ``objective`` / ``interest`` of the wrong type.
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
-            [0, N].
+            [0, N]; an unknown ``objective``; a bad ``interest``.
     """
     Q0_a, G = as_candidates(Q0, H, R)
-    return swap_whitened(Q0_a, G, budget, max_rounds=max_rounds)
+    return swap_whitened(
+        Q0_a, G, budget, max_rounds=max_rounds, objective=objective, interest=interest
+    )
 
 
 def random_selection(
@@ -393,6 +545,8 @@ def cooperative_greedy(
     budgets: Sequence[int],
     *,
     mode: str = "cooperative",
+    objective: str = "logdet",
+    interest: Interest = None,
 ) -> CooperativeSelection:
     """Multi-agent greedy selection (Kirchner et al. 2020, Sec. 6, "Cooperative Selection").
 
@@ -405,6 +559,9 @@ def cooperative_greedy(
         pools: one ``(H_i, R_i)`` pool per agent, shapes as in :func:`greedy`.
         budgets: ``B_i`` per agent.
         mode: ``"independent"`` or ``"cooperative"``.
+        objective: ``"logdet"`` (default, the paper's), ``"trace"`` or ``"max_eig"``: the
+            criterion of each agent's greedy and of the centre's ``f``.
+        interest: parameters scored by trace / max_eig (default all).
 
     Returns:
         Each agent's :class:`Selection` (its ``objective`` is the agent's own gain on top of its
@@ -420,18 +577,24 @@ def cooperative_greedy(
     if len(pools) != len(budgets):
         raise ValueError(f"pools ({len(pools)}) and budgets ({len(budgets)}) must match")
     Q0_a = check_magnitude(validate_spd(Q0, "Q0"), "Q0", definite=True)
+    objective, idx = _objective(objective, interest, Q0_a.shape[0])
     Gs = [as_candidates(Q0_a, H, R)[1] for H, R in pools]
     prior = Q0_a
     picks: list[Selection] = []
     centre = Q0_a.copy()
+    rows = [np.zeros((0, Q0_a.shape[0]))]
     for G, B in zip(Gs, budgets, strict=True):
-        s = greedy_whitened(prior, G, B)
+        s = greedy_whitened(prior, G, B, objective=objective, interest=idx)
         picks.append(s)
         Gs_sel = G[list(s.indices)].reshape(-1, G.shape[2])
+        rows.append(Gs_sel)
         centre = centre + Gs_sel.T @ Gs_sel
         if mode == "cooperative":
             prior = centre
-    obj = float(logdet_spd(centre, "FIM")) - float(logdet_spd(Q0_a, "Q0"))
+    if objective == "logdet":
+        obj = float(logdet_spd(centre, "FIM")) - float(logdet_spd(Q0_a, "Q0"))
+    else:  # f of the union: every picked row as one pseudo-candidate (its FIM is the centre's)
+        obj = objective_value(Q0_a, np.concatenate(rows)[None], [0], objective, idx)
     return CooperativeSelection(tuple(picks), obj)
 
 
@@ -455,7 +618,13 @@ def _check_partition(
 
 
 def partition_greedy_whitened(
-    Q0: FloatArray, G: FloatArray, groups: Sequence[Sequence[int]], budgets: Sequence[int]
+    Q0: FloatArray,
+    G: FloatArray,
+    groups: Sequence[Sequence[int]],
+    budgets: Sequence[int],
+    *,
+    objective: str = "logdet",
+    interest: Interest = None,
 ) -> Selection:
     """Greedy under a partition matroid: at most ``budgets[g]`` picks from ``groups[g]``.
 
@@ -464,17 +633,19 @@ def partition_greedy_whitened(
     takes the largest marginal gain among the unselected candidates whose group still has
     budget (ties towards the lower index). ``f`` is monotone submodular, so this is
     ``>= OPT / 2`` (Fisher, Nemhauser & Wolsey 1978); with one group holding every candidate it
-    is :func:`greedy_whitened`. Candidates in no group are never picked.
+    is :func:`greedy_whitened`. Candidates in no group are never picked. ``objective`` /
+    ``interest`` as in :func:`greedy_whitened` (the ``OPT / 2`` bound is for log det only).
 
     Raises:
         TypeError: not real numeric, group members not int indices, budgets not ints.
         ValueError: see :func:`~selenv.core.information.whitened_pool`; groups that overlap
-            or leave ``[0, N)``, a budget larger than its group.
+            or leave ``[0, N)``, a budget larger than its group; an unknown ``objective``.
     """
     Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
     owner, left = _check_partition(N, groups, budgets)
-    state = LogDetGainState(Q0, G, track_gains=True)
+    objective, idx = _objective(objective, interest, G.shape[2])
+    state = make_gain_state(Q0, G, objective, interest=idx, track_gains=True)
     total = int(left.sum())
     for _ in range(total):
         open_ = owner >= 0
@@ -482,7 +653,7 @@ def partition_greedy_whitened(
         k = int(np.argmax(np.where(open_, state.masked_gains(), -np.inf)))
         state.add(k)
         left[owner[k]] -= 1
-    return _finish(Q0, G, state.order, total * N)
+    return _finish(Q0, G, state.order, total * N, objective, idx)
 
 
 def partition_swap_whitened(
@@ -494,6 +665,8 @@ def partition_swap_whitened(
     initial: Sequence[int] | None = None,
     max_rounds: int = 200,
     tol: float = 1e-9,
+    objective: str = "logdet",
+    interest: Interest = None,
 ) -> Selection:
     """:func:`partition_greedy_whitened` (or ``initial``), then swaps within each group.
 
@@ -512,7 +685,12 @@ def partition_swap_whitened(
     owner, B = _check_partition(N, groups, budgets)
     max_rounds = check_int(max_rounds, "max_rounds", 0)
     tol = _check_tol(tol)
-    start = partition_greedy_whitened(Q0, G, groups, budgets) if initial is None else None
+    objective, idx = _objective(objective, interest, G.shape[2])
+    start = (
+        partition_greedy_whitened(Q0, G, groups, budgets, objective=objective, interest=idx)
+        if initial is None
+        else None
+    )
     sel = np.array(start.indices, dtype=np.intp) if start else int_indices(initial, "initial")
     inside = bool(np.all((sel >= 0) & (sel < N)))
     group_of = owner[sel] if inside else np.full(sel.size, -1)
@@ -525,14 +703,13 @@ def partition_swap_whitened(
     for _ in range(max_rounds):
         if sel.size == 0:
             break
-        P = _crlb(Q0, G, sel)
         best, best_i, best_j = tol, -1, -1
         for g in range(len(B)):
             rows = np.flatnonzero(owner[sel] == g)
             uns = np.setdiff1d(np.flatnonzero(owner == g), sel)
             if rows.size == 0 or uns.size == 0:
                 continue
-            delta = _swap_deltas(G, P, sel[rows], uns)
+            delta = _group_deltas(Q0, G, sel, rows, uns, objective, idx)
             evals += delta.size
             i, j = np.unravel_index(int(np.argmax(delta)), delta.shape)
             if delta[i, j] > best:
@@ -540,4 +717,19 @@ def partition_swap_whitened(
         if best_i < 0:
             break
         sel[best_i] = best_j
-    return _finish(Q0, G, sel.tolist(), evals)
+    return _finish(Q0, G, sel.tolist(), evals, objective, idx)
+
+
+def _group_deltas(
+    Q0: FloatArray,
+    G: FloatArray,
+    sel: np.ndarray,
+    rows: np.ndarray,
+    uns: np.ndarray,
+    objective: str,
+    interest: np.ndarray | None,
+) -> FloatArray:
+    """``f(S - sel[r] + j) - f(S)`` for ``r`` in ``rows`` and ``j`` in ``uns``, ``(|rows|, U)``."""
+    if objective == "logdet":
+        return _swap_deltas(G, _crlb(Q0, G, sel), sel[rows], uns)
+    return _deltas(Q0, G, sel, uns, objective, interest)[rows]

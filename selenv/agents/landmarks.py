@@ -15,6 +15,9 @@ of a filter step at its first pick and plays them.
 | ``all`` | every landmark (needs ``k = n_landmarks``): the lower bound |
 
 All of them are myopic (they minimise eq. 11 of the current step, eq. 14), as in the paper.
+With ``objective="trace"`` the env exposes ``solver_objective = "trace"`` and
+``interest = (0, 1, 2)``, and every solver agent (VNS included) then minimises the one-step
+position MSE ``tr(P_post[:3, :3])`` instead (:func:`~selenv.agents.fim.env_objective`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.agents.base import AgentSpec, PlanAgent, register_agent
-from selenv.agents.fim import FIMSolverAgent, RandomMaskedAgent
+from selenv.agents.fim import FIMSolverAgent, RandomMaskedAgent, env_objective
 from selenv.agents.fim_solvers import (
     MAX_BRUTE_FORCE_SUBSETS,
     brute_force_whitened,
@@ -70,13 +73,15 @@ class VNSAgent(PlanAgent):
         budget = int(env.budget_left)  # type: ignore[attr-defined]
         remaining = np.flatnonzero(~state.selected)
         prior, G = state.information, state.G[remaining]
+        obj = env_objective(env)  # {} for log det: the calls are unchanged
         position = {int(r): i for i, r in enumerate(remaining)}
         warm = [position[j] for j in (self._prev or []) if j in position][:budget]
         if len(warm) < budget:
             if self._prev is None and math.comb(remaining.size, budget) <= MAX_BRUTE_FORCE_SUBSETS:
-                warm = list(brute_force_whitened(prior, G, budget).indices)
+                warm = list(brute_force_whitened(prior, G, budget, **obj).indices)
             else:
-                extra = [i for i in greedy_whitened(prior, G, budget).indices if i not in warm]
+                picks = greedy_whitened(prior, G, budget, **obj).indices
+                extra = [i for i in picks if i not in warm]
                 warm = warm + extra[: budget - len(warm)]
         sel = vns_whitened(
             prior,
@@ -87,6 +92,7 @@ class VNSAgent(PlanAgent):
             m_l=self.m_l,
             batched=self.batched,
             rng=self.rng,
+            **obj,
         )
         plan = [int(remaining[i]) for i in sel.indices]
         self._prev = [*(int(j) for j in np.flatnonzero(state.selected)), *plan]

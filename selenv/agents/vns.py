@@ -12,6 +12,12 @@ candidates; if ``f(w) > f(s)`` take it and reset ``l = 1``; after ``M_l`` draws 
 improvement go to ``l + 1``; stop after ``l_max``. ``f`` of a subset is
 ``log det(I + Z_S Z_S^T)`` with ``Z_k = G_k L^-T`` (``Q0 = L L^T``), read off one Gram matrix
 of the whitened rows, so one evaluation is a ``(m K) x (m K)`` log det.
+
+``objective="trace"`` / ``"max_eig"`` (A- / E-optimal, Kirchner et al. 2020 eqs. 6, 7; see
+:mod:`selenv.core.objectives`): with ``Y = G P0 E^T`` (rows ``Z L^-1 E^T``), Woodbury gives
+``E P_S E^T = E P0 E^T - Y_S^T (I + Z_S Z_S^T)^-1 Y_S``, so one evaluation is a Cholesky of the
+same ``(m K) x (m K)`` matrix: ``f = ||C^-1 Y_S||_F^2`` (trace) or
+``lambda_max(E P0 E^T) - lambda_max(E P0 E^T - (C^-1 Y_S)^T C^-1 Y_S)`` (max_eig).
 """
 
 from __future__ import annotations
@@ -22,9 +28,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from selenv.agents.fim_solvers import Selection, _check_budget, _finish, int_indices
+from selenv.agents.fim_solvers import Interest, Selection, _check_budget, _finish, int_indices
 from selenv.core.information import as_candidates, whitened_pool
 from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.core.objectives import check_interest, check_objective
 
 __all__ = ["DEFAULT_M", "vns", "vns_whitened"]
 
@@ -42,6 +49,8 @@ def vns_whitened(
     m_l: Sequence[int] = DEFAULT_M,
     batched: bool = True,
     rng: np.random.Generator | int | None = None,
+    objective: str = "logdet",
+    interest: Interest = None,
 ) -> Selection:
     """Algorithm 2 of Soubaras & Chahbazian on a whitened pool.
 
@@ -62,6 +71,8 @@ def vns_whitened(
             neighbourhood ``V_l`` has at most ``M_l`` members it is enumerated instead of
             sampled, so with ``K = 1`` VNS returns the exact optimum.
         rng: generator or seed for the neighbourhood draws.
+        objective: ``"logdet"`` (default, the paper's), ``"trace"`` or ``"max_eig"``.
+        interest: parameters scored by trace / max_eig (default all ``d``).
 
     Returns:
         The best subset found (indices sorted), ``f`` and the number of subset evaluations.
@@ -77,6 +88,8 @@ def vns_whitened(
     Q0, G = whitened_pool(Q0, G)
     N, m, d = G.shape
     K = _check_budget(budget, N)
+    objective = check_objective(objective)
+    idx = check_interest(interest, d, objective)
     if not isinstance(batched, bool | np.bool_):
         raise TypeError(f"batched must be a bool, got {batched!r}")
     if not (
@@ -101,14 +114,35 @@ def vns_whitened(
     if l_max is not None and (isinstance(l_max, bool) or not isinstance(l_max, int | np.integer)):
         raise TypeError(f"l_max must be an int or None, got {l_max!r}")
     if K == 0 or K == N:
-        return _finish(Q0, G, list(range(K)), 0)
+        return _finish(Q0, G, list(range(K)), 0, objective, idx)
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     L = cholesky_spd(Q0, "Q0")
     Z = np.linalg.solve(L, G.reshape(N * m, d).T).T  # rows of G L^-T, (N m, d)
     gram = Z @ Z.T  # (N m, N m)
     rows = np.arange(N * m).reshape(N, m)
     eye = np.eye(m * K)
-    single = np.linalg.slogdet(eye[:m, :m] + gram[rows[:, :, None], rows[:, None, :]])[1]
+    if objective != "logdet":
+        Et = np.eye(d) if idx is None else np.eye(d)[:, idx]  # E^T (d, p)
+        Ye = np.linalg.solve(L, Et)  # L^-1 E^T
+        Y = Z @ Ye  # rows of G P0 E^T, (N m, p)
+        C0 = Ye.T @ Ye  # E P0 E^T
+        lam0 = float(np.linalg.eigvalsh(C0)[-1])
+
+    def values(cands: np.ndarray) -> FloatArray:  # (B, K') subsets -> (B,) f
+        r = rows[cands].reshape(cands.shape[0], -1)
+        M = eye[: r.shape[1], : r.shape[1]] + gram[r[:, :, None], r[:, None, :]]
+        if objective == "logdet":
+            return np.linalg.slogdet(M)[1]
+        V = np.linalg.solve(np.linalg.cholesky(M), Y[r])  # C^-1 Y_S, (B, m K', p)
+        if objective == "trace":
+            return np.einsum("bip,bip->b", V, V)
+        Mp = C0[None] - np.einsum("bip,biq->bpq", V, V)  # E P_S E^T
+        return lam0 - np.linalg.eigvalsh(Mp)[:, -1]
+
+    if objective == "logdet":  # the original single-gain pass (bit-identical)
+        single = np.linalg.slogdet(eye[:m, :m] + gram[rows[:, :, None], rows[:, None, :]])[1]
+    else:
+        single = values(np.arange(N)[:, None])
     sel = np.sort(np.argsort(-single, kind="stable")[:K]) if init is None else init
     widest = min(K, N - K)  # no swap of more than this many exists
     if l_max is not None and l_max > widest:
@@ -116,10 +150,6 @@ def vns_whitened(
     l_max = min(widest, len(m_l)) if l_max is None else int(l_max)
     if l_max < 1 or not m_l or min(m_l) < 1:
         raise ValueError(f"l_max and every M_l must be >= 1, got l_max={l_max}, m_l={m_l!r}")
-
-    def values(cands: np.ndarray) -> FloatArray:  # (B, K) subsets -> (B,) f
-        r = rows[cands].reshape(cands.shape[0], -1)
-        return np.linalg.slogdet(eye + gram[r[:, :, None], r[:, None, :]])[1]
 
     best = float(values(sel[None])[0])
     evals = 1
@@ -152,7 +182,7 @@ def vns_whitened(
             j += n_draw
             if exhaustive or j >= M:  # V_l was enumerated whole: drawing again cannot help
                 size, j = size + 1, 0
-    return _finish(Q0, G, sel.tolist(), evals)
+    return _finish(Q0, G, sel.tolist(), evals, objective, idx)
 
 
 def vns(

@@ -8,8 +8,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from selenv.core.information import LogDetGainState, whiten
+from selenv.core.information import whiten
 from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd
+from selenv.core.objectives import GainState, make_gain_state
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import (
     EpisodeLengthSpec,
@@ -27,13 +28,29 @@ from selenv.scenarios.landmarks import (
 )
 from selenv.scenarios.validation import ArgumentTypeError, check_choice, describe
 
-__all__ = ["OBJECTIVES", "LandmarkSelectionEnv", "landmark_cost", "landmark_features"]
+__all__ = [
+    "OBJECTIVES",
+    "POSITION",
+    "LandmarkSelectionEnv",
+    "landmark_cost",
+    "landmark_features",
+]
 
-OBJECTIVES = ("logdet", "det")
+OBJECTIVES = ("logdet", "det", "trace")
+
+#: indices of the position ``p`` in the EKF state ``(p, v, theta)``: what ``"trace"`` scores
+POSITION: tuple[int, ...] = (0, 1, 2)
 
 
 def landmark_cost(P: FloatArray, objective: str) -> float:
-    """The cost eq. (11) of a posterior covariance ``P`` (9, 9): ``log det P`` or ``det P``."""
+    """The cost of a posterior covariance ``P`` (9, 9).
+
+    ``"logdet"`` / ``"det"``: ``log det P`` or ``det P`` (eq. 11); ``"trace"``: the position
+    MSE ``tr(P[:3, :3])`` (m^2), the A-optimal criterion (Kirchner et al. 2020, eq. 6) on the
+    position block.
+    """
+    if objective == "trace":
+        return float(np.trace(P[:3, :3]))
     logdet = float(logdet_spd(P, "P"))
     return logdet if objective == "logdet" else float(np.exp(logdet))
 
@@ -60,7 +77,9 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     ``det P`` (``objective="det"``) or ``log det P`` (``"logdet"``, default). For one step both
     are minimised by the same selection, which maximises ``log det(I + W_S)`` with ``W`` the
     selected rows whitened in the predicted covariance; the sequence matters through the
-    future (the Bellman eq. 13 the paper truncates to its first term).
+    future (the Bellman eq. 13 the paper truncates to its first term). ``objective="trace"``
+    scores the position MSE ``tr(P[:3, :3])`` (m^2) instead (A-optimal, Kirchner et al. 2020
+    eq. 6, on the position block; not submodular).
 
     ## Action Space
     ``Discrete(N)``: one landmark per env step; the filter updates after the ``k``-th pick of
@@ -76,18 +95,23 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
 
     | key | shape | meaning |
     |---|---|---|
-    | ``gain`` | ``(N,)`` | marginal ``log det`` information gain given this step's picks |
+    | ``gain`` | ``(N,)`` | marginal gain given this step's picks (see below) |
     | ``whitened`` | ``(N, 18)`` | ``R^-1/2 H_n`` whitened in the current information |
     | ``features`` | ``(N, 4)`` | sin, cos of the predicted azimuth, elevation / (pi/2), time |
     | ``selected`` | ``(N,)`` | 1 if picked in this filter step |
     | ``budget_left`` | ``(1,)`` | fraction of the ``k`` picks still to make |
     | ``action_mask`` | ``(N,)`` | 1 where the action is allowed |
 
+    ``gain``: the marginal ``log det`` information gain (``"logdet"``, ``"det"``), or with
+    ``"trace"`` the decrease of ``tr(P[:3, :3])`` (m^2) of this step's posterior if the landmark
+    were added.
+
     ## Rewards
     0 for the first ``k - 1`` picks of a filter step; at the ``k``-th the filter updates and the
-    reward is minus the cost eq. (11) of the posterior (``-log det P`` or ``-det P``), so the
-    return is minus the paper's objective eq. (12). ``info["objective"]`` is that cost after the
-    latest update and ``info["position_error"]`` the true position error (m) of that posterior
+    reward is minus the cost eq. (11) of the posterior (``-log det P``, ``-det P`` or, with
+    ``"trace"``, ``-tr(P[:3, :3])``), so the return is minus the paper's objective eq. (12).
+    ``info["objective"]`` is that cost after the latest update, ``info["objective_name"]`` the
+    ``objective`` and ``info["position_error"]`` the true position error (m) of that posterior
     estimate (``k`` is the index of the step whose picks are open).
 
     ## Starting State
@@ -106,7 +130,8 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     ## Arguments
     ``gymnasium.make("selenv/LandmarkSelection-v0", n_landmarks=30, k=2, horizon=300,
     objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
-    render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout. Any other
+    render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout; ``objective`` is
+    ``"logdet"``, ``"det"`` or ``"trace"``. Any other
     :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too (its docstring
     gives every range: ``n_landmarks`` an int in ``[1, 200]``, ``horizon`` in ``[1, 100000]``,
     ``dt`` in ``[1e-3, 1]`` s, ...); ``k`` is an int in ``[1, n_landmarks]``. An unknown
@@ -160,7 +185,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         self.observation_space = space  # type: ignore[assignment, unused-ignore]
         self.problem: LandmarkProblem | None = None
         self._ekf: LandmarkEKF | None = None
-        self._state: LogDetGainState | None = None
+        self._state: GainState | None = None
         self.picks: list[int] = []
         self.last_selection: tuple[int, ...] | None = None
         self._cost = float("nan")
@@ -178,11 +203,25 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         return self._ekf
 
     @property
-    def state(self) -> LogDetGainState:
+    def state(self) -> GainState:
         """Gain state of the current filter step: prior ``P_pred^-1`` plus this step's picks."""
         if self._state is None:
             raise RuntimeError("call reset() before using the environment")
         return self._state
+
+    @property
+    def solver_objective(self) -> str:
+        """What the one-step oracle agents maximise: ``"trace"``, else ``"logdet"``.
+
+        ``det`` and ``log det`` of the posterior have the same minimiser, the maximiser of the
+        log-det gain; ``"trace"`` is scored on :data:`POSITION` (:attr:`interest`).
+        """
+        return "trace" if self.objective == "trace" else "logdet"
+
+    @property
+    def interest(self) -> tuple[int, ...] | None:
+        """State indices scored by ``"trace"`` (the position); ``None`` for log det."""
+        return POSITION if self.objective == "trace" else None
 
     @property
     def budget_left(self) -> int:
@@ -270,7 +309,14 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         L = cholesky_spd(ekf.P, "P_pred")
         Linv = np.linalg.solve(L, np.eye(9))
         Q0 = Linv.T @ Linv  # P_pred^-1 from its Cholesky factor
-        self._state = LogDetGainState(0.5 * (Q0 + Q0.T), G, track_gains=True, track_whitened=True)
+        self._state = make_gain_state(
+            0.5 * (Q0 + Q0.T),
+            G,
+            self.solver_objective,
+            interest=self.interest,
+            track_gains=True,
+            track_whitened=True,
+        )
         self.picks = []
         self._slots = 0
 
@@ -290,6 +336,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         mask = self.action_masks() if not self._done else np.ones(self.n, bool)
         return {
             "objective": self._cost,
+            "objective_name": self.objective,
             "position_error": self._error,
             "k": ekf.k,
             "picks": tuple(self.picks),
