@@ -154,9 +154,11 @@ def test_cl_horizon_zero_is_greedy() -> None:
     assert n >= CL_KW["horizon"]
 
 
+@pytest.mark.parametrize("objective", ["logdet", "trace"])
 @pytest.mark.parametrize("base", ["brute_force", "greedy"])
-def test_landmark_horizon_zero_is_brute_force(base: str) -> None:
-    env = gym.make(LM, **LM_KW)
+def test_landmark_horizon_zero_is_brute_force(base: str, objective: str) -> None:
+    """Horizon 0 plays brute force's optimum of the env's objective (trace: position MSE)."""
+    env = gym.make(LM, **LM_KW, objective=objective)
     bf, roll = make("brute_force", LM), make("rollout", LM, horizon=0, base=base)
     obs, info = env.reset(seed=4)
     bf.reset(env, seed=4)

@@ -35,8 +35,9 @@ import numpy as np
 from selenv.agents.base import Agent, AgentSpec, PlanAgent, register_agent
 from selenv.agents.fim_solvers import greedy_whitened
 from selenv.agents.rollout_models import CLForecast, LandmarkForecast
-from selenv.core.information import LogDetGainState, block_logdet_gains
+from selenv.core.information import block_logdet_gains
 from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.core.objectives import make_gain_state, subset_criteria
 from selenv.envs.cl_scheduling import CLSchedulingEnv
 from selenv.envs.landmark_selection import LandmarkSelectionEnv
 
@@ -175,11 +176,25 @@ def _combinations(n: int, k: int) -> np.ndarray:
     return np.array(list(itertools.combinations(range(n), k)), dtype=np.intp).reshape(-1, k)
 
 
-def _subset_gains(P: FloatArray, G: FloatArray, combos: np.ndarray) -> FloatArray:
-    """``log det(I + G_S P G_S^T)`` of each subset (the dual identity), ``(C,)``.
+def _subset_gains(
+    P: FloatArray,
+    G: FloatArray,
+    combos: np.ndarray,
+    objective: str = "logdet",
+    interest: tuple[int, ...] | None = None,
+) -> FloatArray:
+    """One-step gain of each subset, ``(C,)``, higher is better.
 
-    ``G_S P G_S^T`` is gathered from ``S = G P G^T`` over all rows (one ``Nm x Nm`` product).
+    ``"logdet"``: ``log det(I + G_S P G_S^T)`` (the dual identity), ``G_S P G_S^T`` gathered from
+    ``S = G P G^T`` over all rows (one ``Nm x Nm`` product). ``"trace"``: minus the trace of the
+    ``interest`` block of the posterior ``(P^-1 + G_S^T G_S)^-1``
+    (:func:`~selenv.core.objectives.subset_criteria`, batched Cholesky).
     """
+    if objective != "logdet":
+        Linv = np.linalg.inv(cholesky_spd(P, "P"))
+        Qk = np.einsum("kmi,kmj->kij", G, G)
+        idx = None if interest is None else np.asarray(interest, dtype=np.intp)
+        return -subset_criteria(Linv.T @ Linv, Qk, combos, objective, idx)
     N, m, d = G.shape
     Gf = G.reshape(N * m, d)
     S = Gf @ P @ Gf.T  # S = G P G^T, every pair of rows
@@ -191,7 +206,8 @@ class LandmarkRolloutAgent(PlanAgent):
     """Rollout of a myopic selector in ``LandmarkSelection-v0``, one plan per filter step.
 
     At the first pick of a filter step, candidates are the ``top_k`` K-subsets of the open
-    landmarks by one-step gain ``log det(I + W_S)`` (all ``C(N, K)`` subsets ranked when there
+    landmarks by one-step gain in the env's objective (``log det(I + W_S)``, or the decrease of
+    the position trace with ``objective="trace"``) (all ``C(N, K)`` subsets ranked when there
     are at most ``max_subsets``; otherwise each of the ``top_k`` best single landmarks completed
     greedily), plus the base policy's own subset. For each, a forecast applies the update, then
     ``horizon`` future filter steps (prediction with the held IMU sample, the base policy's
@@ -251,14 +267,18 @@ class LandmarkRolloutAgent(PlanAgent):
         ``brute_force``: the best subset by the dual identity ``log det(I + G_S P G_S^T)`` (the
         optimum of :func:`~selenv.agents.fim_solvers.brute_force_whitened`, on ``2K x 2K``
         determinants);
-        ``greedy``: :func:`greedy_whitened` with the prior ``P^-1``.
+        ``greedy``: :func:`greedy_whitened` with the prior ``P^-1``. Both on the env's
+        one-step objective (``solver_objective``: log det, or the position trace).
         """
+        objective, interest = self.lm.solver_objective, self.lm.interest
         if self.base_policy == "brute_force":
             combos = self._subsets(G.shape[0], budget)
-            return tuple(int(i) for i in combos[int(np.argmax(_subset_gains(P, G, combos)))])
+            gains = _subset_gains(P, G, combos, objective, interest)
+            return tuple(int(i) for i in combos[int(np.argmax(gains))])
         Linv = np.linalg.inv(cholesky_spd(P, "P"))
         Q0 = Linv.T @ Linv  # P^-1 from its Cholesky factor
-        return tuple(sorted(greedy_whitened(0.5 * (Q0 + Q0.T), G, budget).indices))
+        extra = {} if objective == "logdet" else {"objective": objective, "interest": interest}
+        return tuple(sorted(greedy_whitened(0.5 * (Q0 + Q0.T), G, budget, **extra).indices))
 
     def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
         """The best candidate subset for the picks left in this filter step."""
@@ -275,7 +295,7 @@ class LandmarkRolloutAgent(PlanAgent):
         out: list[tuple[int, ...]] = []
         if math.comb(remaining.size, budget) <= self.max_subsets:
             combos = self._subsets(remaining.size, budget)
-            gains = _subset_gains(state.P, G, combos)
+            gains = _subset_gains(state.P, G, combos, env.solver_objective, env.interest)
             for c in np.argsort(-gains, kind="stable")[: self.top_k]:
                 out.append(tuple(int(remaining[i]) for i in combos[c]))
             if self.base_policy == "brute_force":  # the top subset is the base's own choice
@@ -284,7 +304,9 @@ class LandmarkRolloutAgent(PlanAgent):
             assert state.gains is not None  # the env tracks them
             singles = np.argsort(-state.gains[remaining], kind="stable")[: self.top_k]
             for j in singles:  # greedy completion of each of the best single landmarks
-                st = LogDetGainState(prior, G, track_gains=True)
+                st = make_gain_state(
+                    prior, G, env.solver_objective, interest=env.interest, track_gains=True
+                )
                 st.add(int(j))
                 for _ in range(budget - 1):
                     st.add(int(np.argmax(st.masked_gains())))
