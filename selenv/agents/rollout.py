@@ -277,8 +277,8 @@ class LandmarkRolloutAgent(PlanAgent):
             return tuple(int(i) for i in combos[int(np.argmax(gains))])
         Linv = np.linalg.inv(cholesky_spd(P, "P"))
         Q0 = Linv.T @ Linv  # P^-1 from its Cholesky factor
-        extra = {} if objective == "logdet" else {"objective": objective, "interest": interest}
-        return tuple(sorted(greedy_whitened(0.5 * (Q0 + Q0.T), G, budget, **extra).indices))
+        sel = greedy_whitened(0.5 * (Q0 + Q0.T), G, budget, objective=objective, interest=interest)
+        return tuple(sorted(sel.indices))
 
     def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
         """The best candidate subset for the picks left in this filter step."""
