@@ -1,24 +1,31 @@
 """Reproduce the results section (Sec. 6, Figs. 2-7) of Kirchner, Hespanha & Garagić (2020).
 
 Monte-Carlo comparison of FIM-based greedy measurement selection (Algorithm 1) against uniformly
-random selection on the scenario presets ``example1`` (one camera), ``example2`` (camera +
-Doppler) and ``example3`` (two agents with camera + Doppler, independent vs cooperative
-selection). The geometry is fixed (``randomize=False``); per trial the true parameter vector is
-a fresh draw from the prior (``make_problem`` on a per-trial generator). Selection uses only the
+random selection, in two readings of the paper's examples:
+
+* the paper's reading (presets ``example1`` one camera, ``example2`` camera + Doppler,
+  ``example3`` two agents with camera + Doppler, independent vs cooperative selection): one
+  stationary vehicle (Example 1: "a stationary vehicle"; Example 2 reuses Example 1's
+  trajectories; every figure marks one ground-truth location), so only its position (and the
+  Doppler offsets) are estimated;
+* the moving-target variant (``example1_moving``, ``example2_moving``, ``example3_moving``):
+  the same pools, velocity and curvature (theta_2, theta_3 of eq. 18) estimated too.
+
+The geometry is fixed (``randomize=False``); per trial the true parameter vector is a fresh
+draw from the prior (``make_problem`` on a per-trial generator). Selection uses only the
 Jacobians at the prior mean (``problem.G``); measurements of the selected candidates are sampled
-at the truth and ``theta`` is estimated by MAP (Gauss-Newton, prior ``N(mu0, P0)``). The metric is
-the position error ``||theta_hat[:2] - theta_true[:2]||`` (m) at the window start. Example 1 is
-the paper's stationary target (position only); the same camera pool with a moving target
-(``MOVING_VARIANT``, theta_1..theta_3 estimated) is the second panel of Fig. 3. Results and
-the comparison with the paper: ``docs/REPRODUCTION.md``.
+at the truth and ``theta`` is estimated by MAP (Gauss-Newton, prior ``N(mu0, P0)``). The metric
+is the position error ``||theta_hat[:2] - theta_true[:2]||`` (m) at the window start. Fig. 2's
+selection pattern is examined by a sweep of the camera altitude (``altitude_m``) in Example 1.
+Results and the comparison with the paper: ``docs/REPRODUCTION.md``.
 
 Usage::
 
     python scripts/reproduce_kirchner.py [--trials N] [--out docs/figures] [--seed S] [--quick]
 
-Writes ``kirchner_fig3.png``, ``kirchner_fig5.png``, ``kirchner_fig7.png`` and
-``kirchner_geometry.png`` into ``--out`` and prints the result tables (Markdown).
-``main(argv)`` returns every number as a dict.
+Writes ``kirchner_fig3.png``, ``kirchner_fig5.png``, ``kirchner_fig7.png``,
+``kirchner_geometry.png`` and ``kirchner_altitude.png`` into ``--out`` and prints the result
+tables (Markdown). ``main(argv)`` returns every number as a dict.
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from typing import Any
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FuncFormatter, NullFormatter
 from tqdm import tqdm
 
 from selenv.agents.fim_solvers import cooperative_greedy, greedy_whitened
@@ -50,16 +57,32 @@ from selenv.scenarios.fim_selection import (
 #: budgets K of the full run (per agent in example 3)
 FULL_KS: tuple[int, ...] = (2, 3, 4, 5, 6, 8, 10, 15, 20, 30, 50)
 #: budgets K of ``--quick``
-QUICK_KS: tuple[int, ...] = (4, 10, 30)
+QUICK_KS: tuple[int, ...] = (2, 10, 30)
 #: budget shown in the geometry figure (Figs. 2, 4, 6 show 10 selections)
 GEOMETRY_K = 10
 DEFAULT_TRIALS, QUICK_TRIALS = 100, 20
 DEFAULT_SEED = 2020
 EX3_METHODS = ("agent1", "agent2", "independent", "cooperative")
-#: variant of example 1: the same camera pool with a moving target, so velocity and curvature
-#: (theta_2, theta_3 of eq. 18) are estimated too (d = 6 instead of the stationary d = 2)
-MOVING_VARIANT: dict[str, bool] = {"stationary": False}
-FIGURE_NAMES = ("kirchner_fig3", "kirchner_fig5", "kirchner_fig7", "kirchner_geometry")
+#: the two readings: preset of each example (paper = stationary target, moving = variant)
+READINGS: dict[str, tuple[str, str, str]] = {
+    "paper": ("example1", "example2", "example3"),
+    "moving": ("example1_moving", "example2_moving", "example3_moving"),
+}
+#: Monte-Carlo runs in the order of their seed streams. The first four keep the streams of the
+#: pre-issue-18 script (where ``example2`` / ``example3`` were the moving presets), so their
+#: numbers are unchanged.
+RUN_ORDER: tuple[str, ...] = (
+    "example1", "example2_moving", "example3_moving", "example1_moving", "example2", "example3",
+)  # fmt: skip
+#: camera altitudes (m) of the Fig. 2 sweep (Example 1); the presets fly at 50 m
+ALTITUDES_M: tuple[float, ...] = (2.0, 3.0, 5.0, 7.0, 10.0, 12.0, 14.0, 15.0, 20.0, 30.0, 50.0)
+#: altitude of the Example 1 panel that shows the paper's closeness / viewing-angle compromise
+GEOMETRY_ALTITUDE_M = 5.0
+#: bearings (deg, seen from the nominal target) further apart than this are distinct directions
+DIRECTION_GAP_DEG = 5.0
+FIGURE_NAMES = (
+    "kirchner_fig3", "kirchner_fig5", "kirchner_fig7", "kirchner_geometry", "kirchner_altitude",
+)  # fmt: skip
 
 
 # -- estimation and bounds -----------------------------------------------------------------------
@@ -126,6 +149,40 @@ def _trial_rngs(ss: np.random.SeedSequence) -> tuple[np.random.Generator, ...]:
     return tuple(np.random.default_rng(s) for s in ss.spawn(3))
 
 
+# -- selections -----------------------------------------------------------------------------------
+class SelectionCache:
+    """Greedy selections per budget, recomputed only when the whitened pool ``G`` changes.
+
+    With a fixed geometry ``problem.G`` (Jacobians at the prior mean) and hence every greedy
+    selection is the same in every trial; the cache checks that instead of assuming it.
+    """
+
+    def __init__(self, select: Callable[[FIMProblem, int], Any]) -> None:
+        self._select = select
+        self._G: np.ndarray | None = None
+        self._Q0: np.ndarray | None = None
+        self._by_k: dict[int, Any] = {}
+
+    def __call__(self, problem: FIMProblem, K: int) -> Any:
+        """The selection of ``K`` picks on ``problem`` (computed once per distinct pool)."""
+        same = (
+            self._G is not None
+            and self._Q0 is not None
+            and np.array_equal(self._G, problem.G)
+            and np.array_equal(self._Q0, problem.Q0)
+        )
+        if not same:
+            self._G, self._Q0, self._by_k = problem.G, problem.Q0, {}
+        if K not in self._by_k:
+            self._by_k[K] = self._select(problem, K)
+        return self._by_k[K]
+
+
+def greedy_indices(problem: FIMProblem, K: int) -> np.ndarray:
+    """Algorithm 1 on the whole pool: ``K`` candidate indices in pick order."""
+    return np.asarray(greedy_whitened(problem.Q0, problem.G, K).indices, dtype=np.intp)
+
+
 # -- examples 1 and 2 ---------------------------------------------------------------------------
 def run_single_agent(
     preset: str,
@@ -141,25 +198,27 @@ def run_single_agent(
     recs = {"fim": _new_record(trials, len(ks)), "random": _new_record(trials, len(ks))}
     n_camera = np.zeros((trials, len(ks)), dtype=int)
     n_doppler = np.zeros((trials, len(ks)), dtype=int)
+    greedy = SelectionCache(greedy_indices)
     for t, tss in enumerate(tqdm(ss.spawn(trials), desc=desc or preset, unit="trial")):
         rng_problem, rng_noise, rng_select = _trial_rngs(tss)
         problem = make_problem(cfg, rng_problem)
         Y = problem.sample_measurements(rng_noise)  # all candidates: common noise for both
         for j, K in enumerate(ks):
-            fim = np.asarray(greedy_whitened(problem.Q0, problem.G, K).indices, dtype=np.intp)
+            fim = greedy(problem, K)
             rnd = rng_select.choice(problem.N, size=K, replace=False)
             _evaluate(recs["fim"], t, j, problem, Y, fim)
             _evaluate(recs["random"], t, j, problem, Y, rnd)
             n_camera[t, j] = int(np.sum(problem.sensor[fim] == CAMERA))
             n_doppler[t, j] = int(np.sum(problem.sensor[fim] == DOPPLER))
-    out: dict[str, Any] = {
+    return {
+        "preset": preset,
         "overrides": dict(overrides),
+        "param_names": list(problem.param_names),
         "ks": list(ks),
         "methods": {name: summarize(rec) for name, rec in recs.items()},
         "fim_n_camera": n_camera.mean(axis=0),
         "fim_n_doppler": n_doppler.mean(axis=0),
     }
-    return out
 
 
 def sensor_mix(preset: str, k_max: int, seed: int) -> dict[str, Any]:
@@ -172,17 +231,66 @@ def sensor_mix(preset: str, k_max: int, seed: int) -> dict[str, Any]:
     ks = np.arange(1, k_max + 1)
     cam, dop = [], []
     for K in ks:
-        sel = np.asarray(greedy_whitened(problem.Q0, problem.G, int(K)).indices, dtype=np.intp)
+        sel = greedy_indices(problem, int(K))
         cam.append(int(np.sum(problem.sensor[sel] == CAMERA)))
         dop.append(int(np.sum(problem.sensor[sel] == DOPPLER)))
     cam_a, dop_a = np.array(cam), np.array(dop)
     return {
+        "preset": preset,
         "ks": ks,
         "n_camera": cam_a,
         "n_doppler": dop_a,
         "camera_fraction": cam_a / ks,
         "doppler_fraction": dop_a / ks,
     }
+
+
+# -- Fig. 2: selection pattern vs camera altitude -----------------------------------------------
+def pick_directions(problem: FIMProblem, idx: np.ndarray) -> dict[str, Any]:
+    """Where the picks ``idx`` view the target from (relative to its nominal track).
+
+    Returns per pick (in time order) the time (s), horizontal range (m) and bearing (deg, from
+    the nominal target position at that time, relative to the bearing of the path's end, the
+    closest approach), the number of distinct viewing directions (bearings split wherever two
+    consecutive sorted bearings are more than ``DIRECTION_GAP_DEG`` apart), the bearing spread
+    (max - min, deg) and the number of picks more than ``DIRECTION_GAP_DEG`` away from the
+    final bearing ("away from the closest approach").
+    """
+    ix = np.sort(np.asarray(idx, dtype=np.intp))
+    full_mean = problem.full_theta(problem.theta_prior_mean)
+    q, _ = km.target_state(full_mean, problem.times[ix])
+    rel = problem.positions[ix, :2] - q
+    pool = problem.pool(int(problem.agent[ix[0]]))
+    last = pool[np.argmax(problem.times[pool])]
+    q_end, _ = km.target_state(full_mean, problem.times[[last]])
+    end = problem.positions[last, :2] - q_end[0]
+    bearing = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]) - np.arctan2(end[1], end[0]))
+    bearing = (bearing + 180.0) % 360.0 - 180.0
+    b = np.sort(bearing)
+    return {
+        "times": problem.times[ix],
+        "ranges": np.hypot(rel[:, 0], rel[:, 1]),
+        "bearings": bearing,
+        "n_directions": 1 + int(np.sum(np.diff(b) > DIRECTION_GAP_DEG)),
+        "spread_deg": float(b[-1] - b[0]),
+        "n_away": int(np.sum(np.abs(bearing) > DIRECTION_GAP_DEG)),
+    }
+
+
+def altitude_sweep(altitudes: Sequence[float], K: int, seed: int) -> dict[str, Any]:
+    """Example 1 (paper reading) with the camera at each altitude: where the ``K`` picks lie.
+
+    The greedy selection depends only on the geometry and the prior mean (not on the truth
+    draw), so one problem per altitude gives the exact selection.
+    """
+    rows = []
+    for alt in altitudes:
+        cfg = config_from("example1", randomize=False, altitude_m=float(alt))
+        problem = make_problem(cfg, np.random.default_rng(seed))
+        rows.append(
+            {"altitude_m": float(alt), **pick_directions(problem, greedy_indices(problem, K))}
+        )
+    return {"K": K, "rows": rows}
 
 
 # -- example 3 ----------------------------------------------------------------------------------
@@ -200,19 +308,27 @@ def ex3_selections(problem: FIMProblem, K: int) -> dict[str, np.ndarray]:
     return out
 
 
-def run_example3(ks: Sequence[int], trials: int, ss: np.random.SeedSequence) -> dict[str, Any]:
+def run_example3(
+    preset: str, ks: Sequence[int], trials: int, ss: np.random.SeedSequence
+) -> dict[str, Any]:
     """Agent 1 alone, agent 2 alone, both independent, cooperative (``K`` picks per agent)."""
-    cfg = config_from("example3", randomize=False)
+    cfg = config_from(preset, randomize=False)
     recs = {name: _new_record(trials, len(ks)) for name in EX3_METHODS}
-    for t, tss in enumerate(tqdm(ss.spawn(trials), desc="example3", unit="trial")):
+    select = SelectionCache(ex3_selections)
+    for t, tss in enumerate(tqdm(ss.spawn(trials), desc=preset, unit="trial")):
         rng_problem, rng_noise, _ = _trial_rngs(tss)
         problem = make_problem(cfg, rng_problem)
         Y = problem.sample_measurements(rng_noise)
         for j, K in enumerate(ks):
-            sels = ex3_selections(problem, K)
+            sels = select(problem, K)
             for name in EX3_METHODS:
                 _evaluate(recs[name], t, j, problem, Y, sels[name])
-    return {"ks": list(ks), "methods": {name: summarize(rec) for name, rec in recs.items()}}
+    return {
+        "preset": preset,
+        "param_names": list(problem.param_names),
+        "ks": list(ks),
+        "methods": {name: summarize(rec) for name, rec in recs.items()},
+    }
 
 
 # -- figures ------------------------------------------------------------------------------------
@@ -243,43 +359,61 @@ def _style_error_axes(ax: Axes, xlabel: str, title: str) -> None:
     ax.legend(fontsize=8)
 
 
-def plot_fig3(res: dict[str, Any], diag: dict[str, Any], trials: int, path: Path) -> None:
+READING_TITLES = {
+    "paper": "paper's reading: stationary target",
+    "moving": "variant: moving target (velocity, curvature estimated)",
+}
+
+
+def plot_fig3(paper: dict[str, Any], moving: dict[str, Any], trials: int, path: Path) -> None:
     fig = Figure(figsize=(13, 5), layout="constrained")
-    ax_a, ax_b = fig.subplots(1, 2, sharey=True)
-    titles = (
-        f"Fig. 3 (Example 1 preset, one camera): MAP error, {trials} trials",
-        "Variant: same camera pool, moving target (theta_1..theta_3 estimated)",
-    )
-    for ax, r, title in zip((ax_a, ax_b), (res, diag), titles, strict=True):
+    axes = fig.subplots(1, 2, sharey=True)
+    for ax, r, reading in zip(axes, (paper, moving), READING_TITLES, strict=True):
         _error_curve(ax, r["ks"], r["methods"]["fim"], "red", "FIM greedy")
         _error_curve(ax, r["ks"], r["methods"]["random"], "blue", "random")
+        title = f"Fig. 3 ({r['preset']}, one camera), {trials} trials\n{READING_TITLES[reading]}"
         _style_error_axes(ax, "number of measurements selected K (of 1000)", title)
-    ax_b.yaxis.set_tick_params(labelleft=True)
+    axes[1].yaxis.set_tick_params(labelleft=True)
     fig.savefig(path, dpi=120)
 
 
-def plot_fig5(res: dict[str, Any], mix: dict[str, Any], trials: int, path: Path) -> None:
-    fig = Figure(figsize=(12, 4.8), layout="constrained")
-    ax_a, ax_b = fig.subplots(1, 2)
-    ks, m = res["ks"], res["methods"]
-    _error_curve(ax_a, ks, m["fim"], "red", "FIM greedy")
-    _error_curve(ax_a, ks, m["random"], "blue", "random")
-    _style_error_axes(
-        ax_a,
-        "number of measurements selected K (of 1000 camera + 1000 RF)",
-        f"Fig. 5a (Example 2, camera + Doppler): MAP error, {trials} trials",
-    )
-    k = mix["ks"]
-    ax_b.plot(k, mix["camera_fraction"], "o-", color="red", ms=3, label="camera (image)")
-    ax_b.plot(k, mix["doppler_fraction"], "s-", color="blue", ms=3, label="RF (Doppler)")
+def plot_fig5(
+    paper: dict[str, Any],
+    moving: dict[str, Any],
+    mixes: dict[str, dict[str, Any]],
+    trials: int,
+    path: Path,
+) -> None:
+    fig = Figure(figsize=(18, 5.2), layout="constrained")
+    ax_a, ax_m, ax_b = fig.subplots(1, 3)
+    for ax, r, reading in ((ax_a, paper, "paper"), (ax_m, moving, "moving")):
+        _error_curve(ax, r["ks"], r["methods"]["fim"], "red", "FIM greedy")
+        _error_curve(ax, r["ks"], r["methods"]["random"], "blue", "random")
+        _style_error_axes(
+            ax,
+            "number of measurements selected K (of 1000 camera + 1000 RF)",
+            f"Fig. 5a ({r['preset']}), {trials} trials\n{READING_TITLES[reading]}",
+        )
+    ax_m.sharey(ax_a)
+    for reading, ls in (("paper", "-"), ("moving", "--")):
+        mix = mixes[reading]
+        k, tag = mix["ks"], "stationary" if reading == "paper" else "moving"
+        ax_b.plot(k, mix["camera_fraction"], ls, color="red", marker="o", ms=3,
+                  label=f"camera, {tag} ({mix['preset']})")  # fmt: skip
+        ax_b.plot(k, mix["doppler_fraction"], ls, color="blue", marker="s", ms=3,
+                  label=f"RF (Doppler), {tag}")  # fmt: skip
     ax_b.axhline(2 / 3, color="red", ls=":", lw=1, label="paper: ~2/3 camera")
     ax_b.axhline(1 / 3, color="blue", ls=":", lw=1, label="paper: ~1/3 RF")
-    if GEOMETRY_K <= len(k):
+    mix = mixes["paper"]
+    if GEOMETRY_K <= len(mix["ks"]):
         c, d = mix["n_camera"][GEOMETRY_K - 1], mix["n_doppler"][GEOMETRY_K - 1]
+        cm = mixes["moving"]["n_camera"][GEOMETRY_K - 1]
+        dm = mixes["moving"]["n_doppler"][GEOMETRY_K - 1]
         ax_b.annotate(
-            f"K={GEOMETRY_K}: {c} camera + {d} RF\n(paper: 7 + 3)",
+            f"K={GEOMETRY_K}: {c} camera + {d} RF (stationary),\n"
+            f"{cm} + {dm} (moving); paper: 7 + 3",
             (GEOMETRY_K, c / GEOMETRY_K),
-            xytext=(GEOMETRY_K + 5, 0.9),
+            xytext=(GEOMETRY_K + 5, 0.95),
             arrowprops={"arrowstyle": "->"},
             fontsize=8,
         )
@@ -288,32 +422,33 @@ def plot_fig5(res: dict[str, Any], mix: dict[str, Any], trials: int, path: Path)
     ax_b.set_ylabel("fraction of FIM-selected measurements")
     ax_b.set_title("Fig. 5b: sensor mix of the greedy selection")
     ax_b.grid(True, alpha=0.3)
-    ax_b.legend(fontsize=8)
+    ax_b.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
     fig.savefig(path, dpi=120)
 
 
-def plot_fig7(res: dict[str, Any], trials: int, path: Path) -> None:
-    fig = Figure(figsize=(7, 4.8), layout="constrained")
-    ax = fig.add_subplot()
-    ks, m = np.asarray(res["ks"]), res["methods"]
+def plot_fig7(paper: dict[str, Any], moving: dict[str, Any], trials: int, path: Path) -> None:
+    fig = Figure(figsize=(13, 5.2), layout="constrained")
+    axes = fig.subplots(1, 2)
     styles = {
         "agent1": ("blue", "agent 1 only"),
         "agent2": ("green", "agent 2 only"),
         "independent": ("cyan", "both, independent selection"),
         "cooperative": ("red", "both, cooperative selection"),
     }
-    for i, (name, (color, label)) in enumerate(styles.items()):
-        s = m[name]
-        x = ks * (1.0 + 0.015 * (i - 1.5))  # small offsets keep the error bars apart
-        ax.errorbar(x, s["mean"], yerr=s["se"], fmt="o-", color=color, lw=2, ms=4, capsize=3,
-                    label=f"{label} (mean ± s.e.)")  # fmt: skip
-        ax.plot(ks, s["crlb"], ":", color=color, lw=1.2)
-    ax.plot([], [], ":", color="gray", label="CRLB at prior mean (same colours)")
-    _style_error_axes(
-        ax,
-        "measurements selected per agent K",
-        f"Fig. 7 (Example 3, two agents): MAP error, {trials} trials",
-    )
+    for ax, res, reading in zip(axes, (paper, moving), READING_TITLES, strict=True):
+        ks, m = np.asarray(res["ks"]), res["methods"]
+        for i, (name, (color, label)) in enumerate(styles.items()):
+            s = m[name]
+            x = ks * (1.0 + 0.015 * (i - 1.5))  # small offsets keep the error bars apart
+            ax.errorbar(x, s["mean"], yerr=s["se"], fmt="o-", color=color, lw=2, ms=4,
+                        capsize=3, label=f"{label} (mean ± s.e.)")  # fmt: skip
+            ax.plot(ks, s["crlb"], ":", color=color, lw=1.2)
+        ax.plot([], [], ":", color="gray", label="CRLB at prior mean (same colours)")
+        _style_error_axes(
+            ax,
+            "measurements selected per agent K",
+            f"Fig. 7 ({res['preset']}, two agents), {trials} trials\n{READING_TITLES[reading]}",
+        )
     fig.savefig(path, dpi=120)
 
 
@@ -326,7 +461,11 @@ def _plot_geometry_panel(
         ax.plot(*problem.positions[cams, :2].T, "k-", lw=1, label="agent path" if i == 0 else None)
         start = problem.positions[cams[0], :2]
         ax.annotate(
-            f"agent {i + 1} start", start, fontsize=7, xytext=(3, 3), textcoords="offset points"
+            f"agent {i + 1} start",
+            (start[0], start[1]),
+            fontsize=7,
+            xytext=(3, 3),
+            textcoords="offset points",
         )
     markers = {"selected": ("o", "filled"), "cooperative": ("D", "none")}
     for key, (marker, fill) in markers.items():
@@ -341,12 +480,15 @@ def _plot_geometry_panel(
             label = f"selected {name}{extra} ({len(pts)})"
             face = color if fill == "filled" else "none"
             size = 30 if fill == "filled" else 70
-            ax.scatter(*pts.T, s=size, marker=marker, facecolors=face, edgecolors=color,
-                       zorder=3, label=label)  # fmt: skip
+            ax.scatter(pts[:, 0], pts[:, 1], s=size, marker=marker, facecolors=face,
+                       edgecolors=color, zorder=3, label=label)  # fmt: skip
     s = np.linspace(0.0, problem.config.window_s, 200)
     q_true, _ = km.target_state(problem.full_theta(problem.theta_true), s)
-    ax.plot(*q_true.T, "g-", lw=2, label="target truth (window)")
-    ax.plot(*problem.theta_true[:2], "g*", ms=14, mec="k", label="target truth at t=0")
+    if problem.config.stationary:
+        ax.plot(*problem.theta_true[:2], "g*", ms=14, mec="k", label="target truth (stationary)")
+    else:
+        ax.plot(*q_true.T, "g-", lw=2, label="target truth (window)")
+        ax.plot(*problem.theta_true[:2], "g*", ms=14, mec="k", label="target truth at t=0")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -356,36 +498,99 @@ def _plot_geometry_panel(
 
 
 def plot_geometry(seed: int, path: Path) -> dict[str, Any]:
-    """Figs. 2/4/6: paths, greedy selections at K = 10 by sensor, one truth draw per example."""
-    fig = Figure(figsize=(18, 7.5), layout="constrained")
-    axes = fig.subplots(1, 3)
+    """Figs. 2/4/6 (paper's reading): paths, greedy selections at K = 10, one truth draw.
+
+    Example 1 is drawn twice: with the presets' 50 m camera altitude and at
+    ``GEOMETRY_ALTITUDE_M``, where the picks show the paper's closeness / viewing-angle
+    compromise (see :func:`altitude_sweep`).
+    """
+    fig = Figure(figsize=(16, 15), layout="constrained")
+    axes = fig.subplots(2, 2).ravel()
+    panels: tuple[tuple[str, dict[str, float], str, str], ...] = (
+        ("example1", {}, "2", "1000"),
+        ("example1", {"altitude_m": GEOMETRY_ALTITUDE_M}, "2", "1000"),
+        ("example2", {}, "4", "1000 camera + 1000 RF"),
+        ("example3", {}, "6", ""),
+    )
     info: dict[str, Any] = {}
-    for ax, preset in zip(axes, ("example1", "example2", "example3"), strict=True):
-        problem = make_problem(config_from(preset, randomize=False), np.random.default_rng(seed))
+    for ax, (preset, over, fig_no, pool) in zip(axes, panels, strict=True):
+        cfg = config_from(preset, randomize=False, **over)
+        problem = make_problem(cfg, np.random.default_rng(seed))
+        alt = f"camera at {cfg.altitude_m:g} m"
+        key = preset if not over else f"{preset}_altitude_{cfg.altitude_m:g}m"
         if preset == "example3":
             ex3 = ex3_selections(problem, GEOMETRY_K)
             coop2 = np.setdiff1d(ex3["cooperative"], ex3["independent"])
             sels = {"selected": ex3["independent"], "cooperative": coop2}
             title = (
-                f"Example 3 (Fig. 6): {GEOMETRY_K} per agent, independent greedy (filled);\n"
-                "hollow diamonds: agent-2 picks that change under cooperative selection"
+                f"Example 3 (Fig. {fig_no}), {alt}: {GEOMETRY_K} per agent, independent greedy\n"
+                "(filled); hollow diamonds: agent-2 picks that change under cooperative selection"
             )
         else:
-            sel = greedy_whitened(problem.Q0, problem.G, GEOMETRY_K).indices
-            sels = {"selected": np.asarray(sel, dtype=np.intp)}
-            fig_no, pool = ("2", "1000") if preset == "example1" else ("4", "1000 camera + 1000 RF")
-            title = f"Example {preset[-1]} (Fig. {fig_no}): {GEOMETRY_K} greedy picks of {pool}"
-            title += "\n(several picks near the end of the path overlap)"
-        info[preset] = {k: v.tolist() for k, v in sels.items()}
+            sels = {"selected": greedy_indices(problem, GEOMETRY_K)}
+            title = (
+                f"Example {preset[-1]} (Fig. {fig_no}), {alt}: {GEOMETRY_K} greedy picks of {pool}"
+            )
+            if preset == "example1":
+                d = pick_directions(problem, sels["selected"])
+                title += (
+                    f"\n{d['n_directions']} viewing direction(s), bearing spread "
+                    f"{d['spread_deg']:.0f}°, {d['n_away']} picks away from the closest approach"
+                )
+        info[key] = {k: v.tolist() for k, v in sels.items()}
         _plot_geometry_panel(ax, problem, sels, title)
-    fig.suptitle("Geometry: agent paths (positions of the candidate pool), selections, target")
-    fig.savefig(path, dpi=110)
+    fig.suptitle(
+        "Geometry, paper's reading (stationary target): agent paths (candidate positions), "
+        "K = 10 selections, target"
+    )
+    fig.savefig(path, dpi=100)
     return info
 
 
+def _altitude_axis(ax: Axes, alts: np.ndarray) -> None:
+    ax.set_xscale("log")
+    ax.set_xticks(alts)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def plot_altitude(sweep: dict[str, Any], path: Path) -> None:
+    """Fig. 2 pattern vs camera altitude: bearing and time of each pick, spread, directions."""
+    fig = Figure(figsize=(13, 4.8), layout="constrained")
+    ax_b, ax_s = fig.subplots(1, 2)
+    rows = sweep["rows"]
+    alts = np.array([r["altitude_m"] for r in rows])
+    for r in rows:
+        sc = ax_b.scatter(np.full(r["bearings"].size, r["altitude_m"]), r["bearings"],
+                          c=r["times"], cmap="viridis", vmin=0, vmax=60, s=25)  # fmt: skip
+    fig.colorbar(sc, ax=ax_b, label="time of the pick (s); path ends (closest) at 60 s")
+    ax_b.axvline(GEOMETRY_ALTITUDE_M, color="gray", ls=":", lw=1)
+    _altitude_axis(ax_b, alts)
+    ax_b.set_xlabel("camera altitude (m)")
+    ax_b.set_ylabel("bearing of the pick from the target,\nrelative to the closest approach (deg)")
+    ax_b.set_title(f"Example 1: where the {sweep['K']} greedy picks view the target from")
+    ax_b.grid(True, alpha=0.3)
+    ax_s.plot(
+        alts, [r["spread_deg"] for r in rows], "o-", color="red", label="bearing spread (deg)"
+    )
+    _altitude_axis(ax_s, alts)
+    ax_s.set_xlabel("camera altitude (m)")
+    ax_s.set_ylabel("bearing spread of the picks (deg)", color="red")
+    ax_t = ax_s.twinx()
+    ax_t.plot(alts, [r["n_away"] for r in rows], "s-", color="blue",
+              label="picks away from the closest approach")  # fmt: skip
+    ax_t.set_ylabel("picks away from the closest approach", color="blue")
+    ax_s.set_title("closeness (0 away) vs viewing-angle diversity")
+    ax_s.grid(True, alpha=0.3)
+    h1, l1 = ax_s.get_legend_handles_labels()
+    h2, l2 = ax_t.get_legend_handles_labels()
+    ax_s.legend(h1 + h2, l1 + l2, fontsize=8, loc="center right")
+    fig.savefig(path, dpi=120)
+
+
 # -- report -------------------------------------------------------------------------------------
-def _fmt(x: float) -> str:
-    return f"{x:.2f}" if np.isfinite(x) else "nan"
+def _fmt(x: float, digits: int = 2) -> str:
+    return f"{x:.{digits}f}" if np.isfinite(x) else "nan"
 
 
 def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -394,67 +599,54 @@ def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndar
     return d.mean(axis=0), d.std(axis=0, ddof=1) / np.sqrt(d.shape[0])
 
 
-def format_tables(results: dict[str, Any]) -> str:
-    """Markdown tables of every figure's numbers."""
-    lines: list[str] = []
-    for ex, fig in (
-        ("example1", "Fig. 3"),
-        ("example2", "Fig. 5a"),
-        ("example1_moving", "Fig. 3 variant, moving target"),
-    ):
-        r = results[ex]
-        f, rn = r["methods"]["fim"], r["methods"]["random"]
-        dm, ds = paired_difference(rn["errors"], f["errors"])
-        lines += [
-            f"### {fig} ({ex})",
-            "",
-            "| K | FIM mean ± s.e. (m) | random mean ± s.e. (m) | random/FIM | "
-            "random − FIM, paired (m) | FIM median | random median | FIM CRLB | random CRLB | "
-            "non-conv. FIM/random |",
-            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-        ]
-        for j, K in enumerate(r["ks"]):
-            lines.append(
-                f"| {K} | {_fmt(f['mean'][j])} ± {_fmt(f['se'][j])} | "
-                f"{_fmt(rn['mean'][j])} ± {_fmt(rn['se'][j])} | "
-                f"{rn['mean'][j] / f['mean'][j]:.2f} | {_fmt(dm[j])} ± {_fmt(ds[j])} | "
-                f"{_fmt(f['median'][j])} | {_fmt(rn['median'][j])} | {_fmt(f['crlb'][j])} | "
-                f"{_fmt(rn['crlb'][j])} | "
-                f"{int(f['nonconverged'][j])}/{int(rn['nonconverged'][j])} |"
-            )
-        lines.append("")
-    mix = results["example2_sensor_mix"]
-    lines += [
-        "### Fig. 5b (example2): sensor mix of the FIM greedy selection",
+def _single_agent_table(r: dict[str, Any], heading: str) -> list[str]:
+    f, rn = r["methods"]["fim"], r["methods"]["random"]
+    dm, ds = paired_difference(rn["errors"], f["errors"])
+    lines = [
+        heading,
         "",
-        "| K | camera | RF (Doppler) | camera fraction |",
-        "|---:|---:|---:|---:|",
+        "| K | FIM mean ± s.e. (m) | random mean ± s.e. (m) | random/FIM | "
+        "random − FIM, paired (m) | FIM median | random median | FIM CRLB | random CRLB | "
+        "non-conv. FIM/random |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for K in results["example2"]["ks"]:
-        if K <= len(mix["ks"]):
-            c, d = int(mix["n_camera"][K - 1]), int(mix["n_doppler"][K - 1])
-            lines.append(f"| {K} | {c} | {d} | {c / K:.2f} |")
-    lines.append("")
-    r = results["example3"]
+    for j, K in enumerate(r["ks"]):
+        lines.append(
+            f"| {K} | {_fmt(f['mean'][j])} ± {_fmt(f['se'][j])} | "
+            f"{_fmt(rn['mean'][j])} ± {_fmt(rn['se'][j])} | "
+            f"{rn['mean'][j] / f['mean'][j]:.2f} | {_fmt(dm[j])} ± {_fmt(ds[j])} | "
+            f"{_fmt(f['median'][j])} | {_fmt(rn['median'][j])} | {_fmt(f['crlb'][j])} | "
+            f"{_fmt(rn['crlb'][j])} | "
+            f"{int(f['nonconverged'][j])}/{int(rn['nonconverged'][j])} |"
+        )
+    return [*lines, ""]
+
+
+def _example3_tables(r: dict[str, Any], label: str) -> list[str]:
     m = r["methods"]
     dm, ds = paired_difference(m["independent"]["errors"], m["cooperative"]["errors"])
-    lines += [
-        "### Fig. 7 (example3): mean ± s.e. (median) position error (m), K per agent",
+    solo = [paired_difference(m[a]["errors"], m["independent"]["errors"]) for a in EX3_METHODS[:2]]
+    lines = [
+        f"### Fig. 7 ({label}): mean ± s.e. (median) position error (m), K per agent",
         "",
-        "| K | agent 1 only | agent 2 only | independent | cooperative | indep./coop. | "
-        "indep. − coop., paired (m) |",
-        "|---:|---:|---:|---:|---:|---:|---:|",
+        "| K | agent 1 only | agent 2 only | independent | cooperative | "
+        "a1 − indep., a2 − indep., paired (m) | indep./coop. | indep. − coop., paired (m) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for j, K in enumerate(r["ks"]):
         cells = [
             f"{_fmt(m[n]['mean'][j])} ± {_fmt(m[n]['se'][j])} ({_fmt(m[n]['median'][j])})"
             for n in EX3_METHODS
         ]
+        alone = ", ".join(f"{_fmt(d[0][j], 3)} ± {_fmt(d[1][j], 3)}" for d in solo)
         ratio = m["independent"]["mean"][j] / m["cooperative"]["mean"][j]
-        lines.append(f"| {K} | {' | '.join(cells)} | {ratio:.2f} | {_fmt(dm[j])} ± {_fmt(ds[j])} |")
+        lines.append(
+            f"| {K} | {' | '.join(cells)} | {alone} | {ratio:.2f} | "
+            f"{_fmt(dm[j], 3)} ± {_fmt(ds[j], 3)} |"
+        )
     lines += [
         "",
-        "### Fig. 7 (example3): bounds at the prior mean, K per agent",
+        f"### Fig. 7 ({label}): bounds at the prior mean, K per agent",
         "",
         "| K | position CRLB a1 / a2 / indep. / coop. (m) | f(S) indep. (nats) | "
         "f(S) coop. (nats) | non-conv. (a1/a2/ind/coop) |",
@@ -466,6 +658,53 @@ def format_tables(results: dict[str, Any]) -> str:
         lines.append(
             f"| {K} | {crlbs} | {_fmt(m['independent']['logdet'][j])} | "
             f"{_fmt(m['cooperative']['logdet'][j])} | {nc} |"
+        )
+    return [*lines, ""]
+
+
+def format_tables(results: dict[str, Any]) -> str:
+    """Markdown tables of every figure's numbers, paper's reading first, then the variant."""
+    lines: list[str] = []
+    for ex, fig in (
+        ("example1", "Fig. 3, paper's reading (stationary target)"),
+        ("example1_moving", "Fig. 3 variant, moving target"),
+        ("example2", "Fig. 5a, paper's reading (stationary target)"),
+        ("example2_moving", "Fig. 5a variant, moving target"),
+    ):
+        params = ", ".join(results[ex]["param_names"])
+        lines += _single_agent_table(results[ex], f"### {fig} ({ex}; estimated: {params})")
+    mixes = {name: results[f"{name}_sensor_mix"] for name in ("example2", "example2_moving")}
+    lines += [
+        "### Fig. 5b: sensor mix of the FIM greedy selection (camera + RF, camera fraction)",
+        "",
+        "| K | example2 (stationary) | example2_moving |",
+        "|---:|---:|---:|",
+    ]
+    for K in results["example2"]["ks"]:
+        cells = []
+        for mix in mixes.values():
+            if K <= len(mix["ks"]):
+                c, d = int(mix["n_camera"][K - 1]), int(mix["n_doppler"][K - 1])
+                cells.append(f"{c} + {d} ({c / K:.2f})")
+        if cells:
+            lines.append(f"| {K} | {' | '.join(cells)} |")
+    lines.append("")
+    lines += _example3_tables(results["example3"], "example3, paper's reading")
+    lines += _example3_tables(results["example3_moving"], "example3_moving, variant")
+    sweep = results["altitude_sweep"]
+    lines += [
+        f"### Fig. 2: example1 picks (K = {sweep['K']}) vs camera altitude",
+        "",
+        "| altitude (m) | pick times (s) | viewing directions | bearing spread (deg) | "
+        "picks away from closest approach | horizontal range of the picks (m) |",
+        "|---:|---|---:|---:|---:|---:|",
+    ]
+    for row in sweep["rows"]:
+        times = ", ".join(f"{t:.1f}" for t in row["times"])
+        lines.append(
+            f"| {row['altitude_m']:g} | {times} | {row['n_directions']} | "
+            f"{row['spread_deg']:.0f} | {row['n_away']} | "
+            f"{row['ranges'].min():.0f}-{row['ranges'].max():.0f} |"
         )
     return "\n".join(lines)
 
@@ -487,34 +726,36 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    """Run every experiment, write the four figures, print the tables; return the numbers."""
+    """Run every experiment, write the five figures, print the tables; return the numbers."""
     args = parse_args(argv)
     ks = QUICK_KS if args.quick else FULL_KS
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    ss1, ss2, ss3, ss4 = np.random.SeedSequence(args.seed).spawn(4)
+    streams = dict(
+        zip(RUN_ORDER, np.random.SeedSequence(args.seed).spawn(len(RUN_ORDER)), strict=True)
+    )
     n = args.trials
-    runs: list[tuple[str, Callable[[], dict[str, Any]]]] = [
-        ("example1", lambda: run_single_agent("example1", ks, n, ss1)),
-        ("example2", lambda: run_single_agent("example2", ks, n, ss2)),
-        ("example3", lambda: run_example3(ks, n, ss3)),
-        (
-            "example1_moving",
-            lambda: run_single_agent(
-                "example1", ks, n, ss4, desc="example1 (moving target)", **MOVING_VARIANT
-            ),
-        ),
-    ]
-    results: dict[str, Any] = {name: fn() for name, fn in runs}
-    results["example2_sensor_mix"] = sensor_mix("example2", max(ks), args.seed)
+
+    def runner(preset: str) -> Callable[[], dict[str, Any]]:
+        if preset.startswith("example3"):
+            return lambda: run_example3(preset, ks, n, streams[preset])
+        return lambda: run_single_agent(preset, ks, n, streams[preset])
+
+    results: dict[str, Any] = {preset: runner(preset)() for preset in RUN_ORDER}
+    for preset in ("example2", "example2_moving"):
+        results[f"{preset}_sensor_mix"] = sensor_mix(preset, max(ks), args.seed)
+    results["altitude_sweep"] = altitude_sweep(ALTITUDES_M, GEOMETRY_K, args.seed)
     paths = {name: out / f"{name}.png" for name in FIGURE_NAMES}
     plot_fig3(results["example1"], results["example1_moving"], n, paths["kirchner_fig3"])
-    plot_fig5(
-        results["example2"], results["example2_sensor_mix"], args.trials, paths["kirchner_fig5"]
-    )
-    plot_fig7(results["example3"], args.trials, paths["kirchner_fig7"])
+    mixes = {
+        "paper": results["example2_sensor_mix"],
+        "moving": results["example2_moving_sensor_mix"],
+    }
+    plot_fig5(results["example2"], results["example2_moving"], mixes, n, paths["kirchner_fig5"])
+    plot_fig7(results["example3"], results["example3_moving"], n, paths["kirchner_fig7"])
     results["geometry_selections"] = plot_geometry(args.seed, paths["kirchner_geometry"])
+    plot_altitude(results["altitude_sweep"], paths["kirchner_altitude"])
     wall = time.perf_counter() - t0
     results["figures"] = {k: str(v) for k, v in paths.items()}
     results["config"] = {

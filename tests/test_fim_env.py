@@ -39,7 +39,10 @@ def test_gymnasium_and_sb3_checkers():
     sb3_check_env(gym.make(ENV_ID, n_candidates=15, budget=1).unwrapped, warn=False)
 
 
-@pytest.mark.parametrize("preset", ["example1", "example2", "example3"])
+@pytest.mark.parametrize(
+    "preset",
+    ["example1", "example2", "example3", "example1_moving", "example2_moving", "example3_moving"],
+)
 def test_presets_build_and_terminate_at_budget(preset):
     env = gym.make(ENV_ID, preset=preset, n_candidates=10, budget=3)
     obs, info = env.reset(seed=1)
@@ -139,7 +142,7 @@ def test_bad_actions_raise_clear_errors():
 
 def test_bad_constructor_arguments():
     with pytest.raises(ValueError, match="budget"):
-        gym.make(ENV_ID, n_candidates=3, budget=7)  # example2: pool of 6
+        gym.make(ENV_ID, n_candidates=3, budget=7)  # example2_moving: pool of 6
     with pytest.raises(ValueError, match="sensor"):
         gym.make(ENV_ID, sensors=("camera", "lidar"))
     with pytest.raises(ValueError, match="preset"):

@@ -163,7 +163,7 @@ def test_spiral_path_velocity_is_derivative() -> None:
 
 
 # -- the scenario -------------------------------------------------------------------------------
-def small(preset: str = "example2", **kw) -> FIMProblem:
+def small(preset: str = "example2_moving", **kw) -> FIMProblem:
     kw.setdefault("n_candidates", 25)
     seed = kw.pop("seed", 0)
     return make_problem(config_from(preset, **kw), np.random.default_rng(seed))
@@ -196,7 +196,7 @@ def test_problem_jacobian_matches_fd_with_nuisance(preset: str, randomize: bool)
 
 
 def test_Qk_from_G_equals_inverse_formula() -> None:
-    P = small("example3", sensors=ALL_SENSORS, randomize=True)
+    P = small("example3_moving", sensors=ALL_SENSORS, randomize=True)
     Q_white = np.einsum("kmi,kmj->kij", P.G, P.G)
     Q_inv = np.stack([P.H[k].T @ np.linalg.inv(P.R[k]) @ P.H[k] for k in range(P.N)])
     np.testing.assert_allclose(Q_white, Q_inv, rtol=1e-9, atol=1e-12 * np.abs(Q_inv).max())
@@ -204,7 +204,7 @@ def test_Qk_from_G_equals_inverse_formula() -> None:
 
 
 def test_padding_and_noise() -> None:
-    cfg = config_from("example2", sensors=ALL_SENSORS, n_candidates=10)
+    cfg = config_from("example2_moving", sensors=ALL_SENSORS, n_candidates=10)
     P = make_problem(cfg, np.random.default_rng(0))
     cam, toa, dop = (P.sensor == c for c in range(3))
     assert P.m == 2
@@ -216,13 +216,13 @@ def test_padding_and_noise() -> None:
     np.testing.assert_allclose(P.R[toa, 0, 0], 3.0**2)
     np.testing.assert_allclose(P.R[dop, 0, 0], (33e-9 * 299_792_458) ** 2)
     scalar = make_problem(
-        config_from("example2", sensors=("toa",), n_candidates=5), np.random.default_rng(0)
+        config_from("example2_moving", sensors=("toa",), n_candidates=5), np.random.default_rng(0)
     )
     assert scalar.H.shape == (5, 1, 8) and scalar.m == 1
 
 
 def test_same_seed_same_problem_and_seeds_differ() -> None:
-    cfg = config_from("example3", sensors=ALL_SENSORS, n_candidates=40, randomize=True)
+    cfg = config_from("example3_moving", sensors=ALL_SENSORS, n_candidates=40, randomize=True)
     a, b = (make_problem(cfg, np.random.default_rng(7)) for _ in range(2))
     for name in ("H", "G", "R", "theta_true", "times", "positions", "Q0"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
@@ -238,13 +238,19 @@ def test_same_seed_same_problem_and_seeds_differ() -> None:
 
 
 def test_presets() -> None:
-    assert set(PRESETS) == {"example1", "example2", "example3"}
-    expect = {"example1": (1, ("camera",), 2), "example2": (1, ("camera", "doppler"), 7),
-              "example3": (2, ("camera", "doppler"), 8)}  # fmt: skip
-    for name, (n_agents, sensors, d) in expect.items():
+    moving = ("example1_moving", "example2_moving", "example3_moving")
+    assert set(PRESETS) == {"example1", "example2", "example3", *moving}
+    cd = ("camera", "doppler")
+    # name: (agents, sensors, stationary, d); d = motion parameters + one lambdaDf per Doppler
+    expect = {"example1": (1, ("camera",), True, 2), "example2": (1, cd, True, 3),
+              "example3": (2, cd, True, 4), "example1_moving": (1, ("camera",), False, 6),
+              "example2_moving": (1, cd, False, 7),
+              "example3_moving": (2, cd, False, 8)}  # fmt: skip
+    for name, (n_agents, sensors, stationary, d) in expect.items():
         cfg = PRESETS[name]
         assert cfg.n_candidates == 1000 and cfg.preset == name
         assert cfg.n_agents == n_agents and cfg.sensors == sensors
+        assert cfg.stationary is stationary
         P = make_problem(cfg, np.random.default_rng(0))
         assert P.d == d and len(P.param_names) == d
         assert P.N == 1000 * len(sensors) * n_agents
@@ -253,20 +259,123 @@ def test_presets() -> None:
         for arr in (P.agent, P.sensor, P.rows, P.times):
             assert arr.shape == (P.N,)
         assert P.positions.shape == (P.N, 3)
-    assert PRESETS["example1"].stationary
     P1 = make_problem(PRESETS["example1"], np.random.default_rng(3))
     assert P1.param_names == ("x", "y")  # stationary: theta_2 = theta_3 = 0, not estimated
     np.testing.assert_array_equal(P1.full_theta(P1.theta_true)[2:6], 0.0)
-    assert small("example3").param_names == (
+    assert small("example3_moving").param_names == (
         "x", "y", "vx", "vy", "ax", "ay", "lambdaDf[0]", "lambdaDf[1]"
     )  # fmt: skip
-    assert small("example3", sensors=ALL_SENSORS).param_names[6:] == (
+    assert small("example3_moving", sensors=ALL_SENSORS).param_names[6:] == (
         "cT[0]", "cT0[0]", "lambdaDf[0]", "cT[1]", "cT0[1]", "lambdaDf[1]"
     )  # fmt: skip
 
 
+@pytest.mark.parametrize("preset", ["example1", "example2", "example3"])
+def test_paper_presets_estimate_a_stationary_position(preset: str) -> None:
+    """Examples 1-3 as in the paper: one stationary vehicle, theta_2 = theta_3 = 0 known."""
+    n = PRESETS[preset].n_agents
+    P = small(preset, seed=4)
+    nuisance = ("lambdaDf[0]", "lambdaDf[1]")[: n if preset != "example1" else 0]
+    assert P.param_names == ("x", "y", *nuisance)  # d = 2 position-only motion parameters
+    np.testing.assert_array_equal(P.free[:2], [0, 1])
+    assert not set(P.free.tolist()) & {2, 3, 4, 5}  # velocity, curvature not estimated
+    full = P.full_theta(P.theta_true)
+    np.testing.assert_array_equal(full[2:6], 0.0)
+    # the target does not move: its trajectory (eq. 18) is the start position at every time
+    q, qdot = km.target_state(full, P.times)
+    np.testing.assert_array_equal(q, np.broadcast_to(P.theta_true[:2], q.shape))
+    np.testing.assert_array_equal(qdot, 0.0)
+    # the moving variant of the same pool estimates velocity and curvature as well
+    M = small(f"{preset}_moving", seed=4)
+    assert M.param_names[:6] == ("x", "y", "vx", "vy", "ax", "ay")
+    assert M.param_names[6:] == P.param_names[2:]
+    assert np.any(M.full_theta(M.theta_true)[2:6] != 0.0)
+
+
+@pytest.mark.parametrize(("preset", "n_agents"), [("example2_moving", 1), ("example3_moving", 2)])
+def test_moving_presets_are_the_v0_presets(preset: str, n_agents: int) -> None:
+    """``example2/3_moving`` = the pre-issue-18 ``example2/3`` (written out field by field)."""
+    old = FIMScenarioConfig(preset=preset, n_agents=n_agents, sensors=("camera", "doppler"),
+                            n_candidates=40, randomize=True)  # fmt: skip
+    assert not old.stationary
+    a = make_problem(config_from(preset, n_candidates=40, randomize=True), np.random.default_rng(5))
+    b = make_problem(old, np.random.default_rng(5))
+    assert a.config == old and a.param_names == b.param_names
+    for f in dataclasses.fields(FIMProblem):
+        if f.name not in ("config", "param_names"):
+            np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name), err_msg=f.name)
+
+
+def _rollout(env, seed: int, steps: int) -> list:
+    """Observations and rewards of ``steps`` picks drawn from a seeded generator (masked)."""
+    rng = np.random.default_rng(seed)
+    obs, info = env.reset(seed=seed)
+    out = [obs]
+    for _ in range(steps):
+        action = int(rng.choice(np.flatnonzero(info["action_mask"])))
+        obs, reward, *_, info = env.step(action)
+        out += [obs, reward, info["objective"]]
+    return out
+
+
+def _assert_same(a: list, b: list) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        if isinstance(x, dict):
+            assert x.keys() == y.keys()
+            for key in x:
+                np.testing.assert_array_equal(x[key], y[key], err_msg=key)
+        else:
+            assert x == y  # bit-identical floats
+
+
+def test_env_defaults_keep_the_v0_moving_presets() -> None:
+    """FIMSelection-v0 defaults to example2_moving, fim_selection_v0 to example3_moving."""
+    import gymnasium as gym
+
+    import selenv  # noqa: F401  (registers the ids)
+    from selenv.multiagent import fim_selection_v0
+
+    env_id = "selenv/FIMSelection-v0"
+    default, moving = gym.make(env_id), gym.make(env_id, preset="example2_moving")
+    assert default.unwrapped.config == moving.unwrapped.config  # type: ignore[attr-defined]
+    for seed in (0, 1):
+        _assert_same(_rollout(default, seed, 6), _rollout(moving, seed, 6))
+    paper = gym.make(env_id, preset="example2")
+    assert paper.unwrapped.config.stationary  # type: ignore[attr-defined]
+    obs, _ = paper.reset(seed=0)
+    assert paper.unwrapped.problem.param_names == ("x", "y", "lambdaDf[0]")  # type: ignore[attr-defined]
+    assert obs["whitened"].shape[-1] != default.reset(seed=0)[0]["whitened"].shape[-1]
+
+    ma_default = fim_selection_v0.parallel_env()
+    ma_moving = fim_selection_v0.parallel_env(preset="example3_moving")
+    assert ma_default.config == ma_moving.config and not ma_default.config.stationary
+    for seed in (0, 1):
+        runs = []
+        for env in (ma_default, ma_moving):
+            rng = np.random.default_rng(seed)
+            obs, _ = env.reset(seed=seed)
+            trace = [obs]
+            while env.agents:
+                acts = {
+                    ag: int(rng.choice(np.flatnonzero(obs[ag]["action_mask"]))) for ag in env.agents
+                }
+                obs, rew, *_ = env.step(acts)
+                trace += [obs, rew]
+            runs.append(trace)
+        assert len(runs[0]) == len(runs[1]) > 2
+        for x, y in zip(*runs, strict=True):
+            assert x.keys() == y.keys()
+            for ag in x:
+                if isinstance(x[ag], dict):
+                    for key in x[ag]:
+                        np.testing.assert_array_equal(x[ag][key], y[ag][key], err_msg=key)
+                else:
+                    assert x[ag] == y[ag]
+
+
 def test_candidate_order_and_pools() -> None:
-    P = small("example3", sensors=("doppler", "camera", "toa"), randomize=True)
+    P = small("example3_moving", sensors=("doppler", "camera", "toa"), randomize=True)
     assert P.config.sensors == ALL_SENSORS  # canonical order
     key = np.lexsort((P.times, P.sensor, P.agent))
     np.testing.assert_array_equal(key, np.arange(P.N))  # agent-major, sensor, time
@@ -280,7 +389,7 @@ def test_candidate_order_and_pools() -> None:
 
 
 def test_agents_approach_target_from_different_sides() -> None:
-    P = small("example3")
+    P = small("example3_moving")
     q, _ = km.target_state(P.theta_prior_mean, P.times)
     dist = np.linalg.norm(P.positions[:, :2] - q, axis=1)
     ends = []
@@ -304,7 +413,7 @@ def test_camera_points_in_front(preset: str, randomize: bool) -> None:
 
 
 def test_truth_redrawn_until_in_front_of_cameras() -> None:
-    cfg = config_from("example2", n_candidates=50, prior_position_m=150.0)
+    cfg = config_from("example2_moving", n_candidates=50, prior_position_m=150.0)
     behind = 0
     for seed in range(20):
         P = make_problem(cfg, np.random.default_rng(seed))
@@ -326,7 +435,7 @@ def test_truth_redrawn_until_in_front_of_cameras() -> None:
 
 
 def test_sample_measurements_statistics() -> None:
-    P = small("example2", sensors=ALL_SENSORS, randomize=True)
+    P = small("example2_moving", sensors=ALL_SENSORS, randomize=True)
     rng = np.random.default_rng(99)
     n = 20000
     for code in range(3):
@@ -361,7 +470,7 @@ def test_problem_arrays_read_only() -> None:
 
 
 def test_information_grows_with_measurements() -> None:
-    P = small("example2", n_candidates=200)
+    P = small("example2_moving", n_candidates=200)
     f_all = logdet_objective(P.Q0, P.G, np.arange(P.N))
     f_half = logdet_objective(P.Q0, P.G, np.arange(0, P.N, 2))
     assert f_all > f_half > 0
@@ -401,7 +510,7 @@ def test_config_from_errors_list_valid_names() -> None:
     with pytest.raises(ValueError, match=r"example1.*example2.*example3"):
         config_from("example9")
     with pytest.raises(ValueError, match="n_candidates"):
-        config_from("example2", n_candidate=5)
+        config_from("example2_moving", n_candidate=5)
     cfg = config_from("example1", n_candidates=7, sensors=["doppler", "camera"])
     assert cfg.sensors == ("camera", "doppler") and cfg.n_candidates == 7
     assert cfg.preset == "example1" and PRESETS["example1"].n_candidates == 1000
@@ -418,7 +527,7 @@ def test_bad_indices_and_theta() -> None:
 
 
 def test_build_is_fast() -> None:
-    cfg = config_from("example2", sensors=ALL_SENSORS, randomize=True)
+    cfg = config_from("example2_moving", sensors=ALL_SENSORS, randomize=True)
     rng = np.random.default_rng(0)
     best = np.inf
     for _ in range(5):

@@ -155,9 +155,10 @@ COMMON = {
 
 # ------------------------------------------------------------ FIMSelection-v0 / fim_selection_v0
 FIM_SENSORS = ("camera", "toa", "doppler")
-FIM_BASE = {"preset": "example2", "n_candidates": 6, "budget": 2}  # pools hold >= 2 here
+FIM_PRESETS = [f"example{i}{v}" for v in ("", "_moving") for i in (1, 2, 3)]  # every preset
+FIM_BASE = {"preset": "example2_moving", "n_candidates": 6, "budget": 2}  # pools hold >= 2 here
 FIM_SCENARIO = {
-    "preset": K(st.sampled_from(["example1", "example2", "example3"]), bad_choice(("example1",))),
+    "preset": K(st.sampled_from(FIM_PRESETS), bad_choice(("example1",))),
     "n_candidates": K(st.integers(2, 10), bad_int(1, 5000)),
     "sensors": K(
         st.one_of(st.none(), st.lists(st.sampled_from(FIM_SENSORS), min_size=1, unique=True)),
@@ -174,7 +175,7 @@ FIM_KEYWORDS = {
     "toa_sigma_m": K(st.one_of(st.none(), log_uniform(1e-3, 1e5)), bad_real(1e-3, 1e5, True)),
     "doppler_sigma_mps": K(st.one_of(st.none(), log_uniform(1e-3, 1e5)), bad_real(1e-3, 1e5, True)),
 }
-MA_FIM_BASE = {"preset": "example3", "n_candidates": 5, "budgets": 2}
+MA_FIM_BASE = {"preset": "example3_moving", "n_candidates": 5, "budgets": 2}
 MA_FIM_KEYWORDS = {
     **FIM_SCENARIO,
     "budgets": K(
@@ -396,7 +397,8 @@ def _rc_conflict(kw: dict[str, Any]) -> bool:
 
 
 def _ma_fim_conflict(kw: dict[str, Any]) -> bool:
-    agents = kw.get("n_agents") or (2 if kw.get("preset", "example3") == "example3" else 1)
+    preset = kw.get("preset", "example3_moving")
+    agents = kw.get("n_agents") or (2 if preset.startswith("example3") else 1)
     budgets = kw["budgets"]
     return isinstance(budgets, list) and len(budgets) != agents
 

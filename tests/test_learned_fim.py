@@ -77,7 +77,7 @@ def test_short_training_writes_zip_and_metadata(tmp_path: Path) -> None:
     out = tmp_path / "ckpt" / "tiny.zip"
     meta = train_fim_ppo.main(
         [
-            '--env-kwargs={"preset": "example2", "n_candidates": 10, "budget": 3}',
+            '--env-kwargs={"preset": "example2_moving", "n_candidates": 10, "budget": 3}',
             "--total-timesteps=256",
             "--n-envs=2",
             "--n-steps=64",
@@ -94,7 +94,7 @@ def test_short_training_writes_zip_and_metadata(tmp_path: Path) -> None:
     assert on_disk == meta
     assert META_KEYS <= set(meta)
     assert meta["env_id"] == ENV_ID
-    assert meta["env_kwargs"] == {"preset": "example2", "n_candidates": 10, "budget": 3}
+    assert meta["env_kwargs"] == {"preset": "example2_moving", "n_candidates": 10, "budget": 3}
     assert meta["obs_layout"] == {
         "m": 2,
         "d": 7,
@@ -212,7 +212,7 @@ def test_registered_as_ppo() -> None:
 
 # -- mismatches are ValueErrors ---------------------------------------------------------------
 def test_env_with_another_whitened_width_is_rejected() -> None:
-    env = gym.make(ENV_ID, preset="example3", n_candidates=10, budget=3)  # d = 8
+    env = gym.make(ENV_ID, preset="example3_moving", n_candidates=10, budget=3)  # d = 8
     agent = SB3PolicyAgent()
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"fim_selection_ppo\.zip.*d=7.*this env has m=2, d=8"):

@@ -112,7 +112,7 @@ def test_ellipse_label_flags_off_scale():
 
 
 # -- one frame per env ----------------------------------------------------------------------------
-@pytest.mark.parametrize("preset", ["example1", "example2", "example3"])
+@pytest.mark.parametrize("preset", ["example1", "example2", "example3", "example2_moving"])
 def test_fim_selection_frames(renderer, preset):
     env = gym.make("selenv/FIMSelection-v0", preset=preset).unwrapped
     _, info = env.reset(seed=0)

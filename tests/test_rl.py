@@ -236,7 +236,7 @@ def test_marl_training_script(tmp_path: Path) -> None:
         [
             *TINY,
             "--total-timesteps=128",
-            '--env-kwargs={"preset": "example3", "n_candidates": 8, "budgets": 2}',
+            '--env-kwargs={"preset": "example3_moving", "n_candidates": 8, "budgets": 2}',
             "--eval-episodes=2",
             f"--out={out}",
             "--tensorboard-dir=",

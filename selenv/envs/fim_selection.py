@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from selenv.core.information import LogDetGainState
+from selenv.core.objectives import OBJECTIVES, GainState, make_gain_state
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer, draw_fim_selection
@@ -18,7 +18,7 @@ from selenv.scenarios.fim_selection import (
     config_from,
     make_problem,
 )
-from selenv.scenarios.validation import ArgumentTypeError, check_integer, describe
+from selenv.scenarios.validation import ArgumentTypeError, check_choice, check_integer, describe
 
 __all__ = [
     "FIMSelectionEnv",
@@ -122,7 +122,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
 
     | key | shape | meaning |
     |---|---|---|
-    | ``gain`` | ``(N,)`` | current marginal gain ``log det(I + S_k)`` (0 once selected) |
+    | ``gain`` | ``(N,)`` | current marginal gain in ``objective`` (0 once selected) |
     | ``whitened`` | ``(N, m d)`` | ``G_k L^-T``: candidate whitened in the current FIM ``L L^T`` |
     | ``features`` | ``(N, 4)`` | one-hot sensor (camera, toa, doppler), time in window [0, 1] |
     | ``selected`` | ``(N,)`` | 1 if selected |
@@ -131,10 +131,20 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
 
     ``gain`` alone lets a policy reproduce greedy (its argmax); ``whitened`` holds every
     cross term (``Z_k Z_l^T``), so a policy can also anticipate redundancy between candidates.
+    ``gain`` by ``objective``: ``"logdet"`` ``log det(I + S_k)`` (nats); ``"trace"`` the
+    decrease of the target-position MSE bound ``tr(E P E^T)`` (m^2) if ``k`` were added;
+    ``"max_eig"`` the decrease of ``lambda_max(E P E^T)`` (m^2). ``whitened`` does not depend on
+    ``objective``.
 
     ## Rewards
     The gain of the pick in ``log det FIM`` (nats), so the undiscounted return is ``f(F)``.
-    ``info["objective"]`` is ``f`` after the step.
+    ``info["objective"]`` is ``f`` after the step, ``info["objective_name"]`` its name.
+    ``objective="trace"`` (A-optimal, eq. 6) or ``"max_eig"`` (E-optimal, eq. 7) score the
+    target position ``(x, y)`` instead (``E`` selects them; :mod:`selenv.core.objectives`):
+    ``f(F) = tr(E P0 E^T) - tr(E P_F E^T)`` (the decrease of the position MSE bound, m^2) or
+    ``lambda_max(E P0 E^T) - lambda_max(E P_F E^T)``, ``P_F`` the CRLB; the reward is the
+    step's increase of ``f``, so the return is again ``f(F)``. Neither is submodular: greedy has
+    no guarantee there and the ``lazy_greedy`` agent refuses them.
 
     ## Starting State
     A new scenario per ``reset``: the truth is drawn from the prior ``p(theta)`` and, when
@@ -151,20 +161,25 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     position under the current information.
 
     ## Arguments
-    ``gymnasium.make("selenv/FIMSelection-v0", preset="example2", n_candidates=100,
+    ``gymnasium.make("selenv/FIMSelection-v0", preset="example2_moving", n_candidates=100,
     budget=10, sensors=None, n_agents=None, camera_sigma_px=None, toa_sigma_m=None,
     doppler_sigma_mps=None, randomize=True, invalid_action="noop", invalid_action_penalty=0.0,
     render_mode=None)``; ``None`` keeps the preset's value. Presets: ``example1`` (one
-    camera), ``example2`` (camera + Doppler), ``example3`` (two agents). Ranges (an error
+    camera), ``example2`` (camera + Doppler), ``example3`` (two agents), each with the paper's
+    stationary target, and ``example1_moving``, ``example2_moving``, ``example3_moving`` (same
+    pools, moving target: velocity and curvature estimated too). The default
+    ``example2_moving`` is the v0 benchmark (what ``example2`` was before the paper's
+    stationary reading; kept so v0 trajectories do not change). Ranges (an error
     naming the keyword and its range outside them): ``n_candidates`` an int in ``[1, 5000]``,
     ``n_agents`` in ``[1, 8]``, ``budget`` in ``[1, N]``, ``camera_sigma_px`` in
     ``[1e-3, 1e3]`` px, ``toa_sigma_m`` in ``[1e-3, 1e5]`` m, ``doppler_sigma_mps`` in
     ``[1e-3, 1e5]`` m/s, ``invalid_action_penalty`` in ``[-1e6, 1e6]``
     (:class:`~selenv.scenarios.fim_selection.FIMScenarioConfig` lists all fields).
+    ``objective="logdet"`` (default), ``"trace"`` or ``"max_eig"`` chooses ``f`` (see Rewards).
 
     ## Version History
-    * v0: initial version (``invalid_action`` modes and rendering added without changing
-      valid trajectories).
+    * v0: initial version (``invalid_action`` modes, rendering and ``objective`` added without
+      changing valid trajectories of the default).
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 4}  # noqa: RUF012
@@ -172,7 +187,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     def __init__(
         self,
         *,
-        preset: str = "example2",
+        preset: str = "example2_moving",
         n_candidates: int = 100,
         budget: int = 10,
         sensors: tuple[str, ...] | list[str] | None = None,
@@ -183,9 +198,11 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         randomize: bool = True,
         invalid_action: str = "noop",
         invalid_action_penalty: float = 0.0,
+        objective: str = "logdet",
         render_mode: str | None = None,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.objective = check_choice(objective, "objective", OBJECTIVES)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
         check_integer(budget, "budget", 1)  # the type first; the pool size bounds it below
@@ -201,23 +218,34 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.config = config_from(preset, **overrides)
         probe = make_problem(self.config, np.random.default_rng(0))  # shapes only
         self.n, self.m, self.d = probe.G.shape
+        #: ``(x, y)`` indices scored by trace / max_eig; ``None`` for log det (all parameters)
+        self.interest: tuple[int, ...] | None = (
+            None
+            if self.objective == "logdet"
+            else tuple(probe.param_names.index(name) for name in ("x", "y"))
+        )
         self.budget = check_integer(budget, f"budget (at most the pool size {self.n})", 1, self.n)
         self.max_episode_steps = self.budget
         self.action_space = spaces.Discrete(self.n)
         self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment, unused-ignore]
         self.problem: FIMProblem | None = None
-        self._state: LogDetGainState | None = None
+        self._state: GainState | None = None
         self._steps = 0
         self._done = False
         self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- oracle view used by heuristic agents ---------------------------------------------
     @property
-    def state(self) -> LogDetGainState:
+    def state(self) -> GainState:
         """The live gain state (information, gains, selection); requires :meth:`reset`."""
         if self._state is None:
             raise RuntimeError("call reset() before using the env")
         return self._state
+
+    @property
+    def solver_objective(self) -> str:
+        """The objective the oracle agents optimise (``objective``; ``interest`` its indices)."""
+        return self.objective
 
     @property
     def budget_left(self) -> int:
@@ -235,15 +263,20 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         """Draw a new scenario from ``np_random`` and clear the selection."""
         super().reset(seed=seed)
         self.problem = make_problem(self.config, self.np_random)
-        self._state = LogDetGainState(
-            self.problem.Q0, self.problem.G, track_gains=True, track_whitened=True
+        self._state = make_gain_state(
+            self.problem.Q0,
+            self.problem.G,
+            self.objective,
+            interest=self.interest,
+            track_gains=True,
+            track_whitened=True,
         )
         self._features = candidate_features(self.problem)
         self._steps, self._done = 0, False
         return self._obs(), self._info()
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        """Select candidate ``action``; reward is its log-det gain (nats)."""
+        """Select candidate ``action``; reward is its gain in ``objective`` (log det: nats)."""
         state = self.state
         if self._done:
             raise RuntimeError("episode is over: call reset()")
@@ -280,6 +313,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         s = self.state
         return {
             "objective": float(s.objective),
+            "objective_name": self.objective,
             "action_mask": ~s.selected,
             "n_selected": len(s.order),
             **self.invalid_rule.info(reason),

@@ -11,7 +11,7 @@ own pool; all picks go to the fusion centre, whose information is
 | Import | ``from selenv.multiagent import fim_selection_v0`` |
 | API | ``parallel_env(...)`` (native ``ParallelEnv``), ``env(...)`` (AEC with the standard |
 | | wrappers), ``raw_env(...)`` (unwrapped AEC), as in PettingZoo's own parallel modules |
-| Agents | ``agent_0 ... agent_{n-1}`` (``n`` from the preset, 2 for ``example3``), all live |
+| Agents | ``agent_0 ... agent_{n-1}`` (``n`` from the preset, 2 for ``example3*``), all live |
 | | from ``reset`` until the episode ends |
 | Action | ``Discrete(N_i)``: index into the agent's own pool (masked once selected) |
 | Observation | ``Dict`` as in ``selenv/FIMSelection-v0`` over the agent's own pool, plus |
@@ -87,7 +87,11 @@ class FIMSelectionParallelEnv(ParallelEnv):
     """Parallel multi-agent FIM selection; see the module docstring for the manual.
 
     Args:
-        preset: scenario preset (``"example3"``: two agents with camera + Doppler).
+        preset: scenario preset, a key of
+            :data:`~selenv.scenarios.fim_selection.PRESETS`. Default ``"example3_moving"``:
+            two agents with camera + Doppler and a moving target, the v0 benchmark (the
+            pre-issue-18 ``example3``, kept so v0 trajectories do not change); ``"example3"``
+            is the paper's Example 3 (stationary target).
         n_candidates: candidates per sensor per agent.
         budgets: ``B_i``, one int for all agents or one per agent.
         mode: ``"independent"`` or ``"cooperative"``.
@@ -109,7 +113,7 @@ class FIMSelectionParallelEnv(ParallelEnv):
     def __init__(
         self,
         *,
-        preset: str = "example3",
+        preset: str = "example3_moving",
         n_candidates: int = 50,
         budgets: int | Sequence[int] = 5,
         mode: str = "cooperative",

@@ -6,6 +6,11 @@ eq. (9), ``log det(Q0 + sum_{k in F} Q_k) - log det Q0`` (see :mod:`selenv.core.
 Parameters ``theta``: ``[x, y, vx, vy, ax, ay]`` (eq. 18, at the window start), then per agent
 ``cT[i], cT0[i]`` (TOA receiver) and ``lambdaDf[i]`` (Doppler receiver).
 
+Presets (:data:`PRESETS`): ``example1`` (one camera), ``example2`` (camera + Doppler) and
+``example3`` (two agents, camera + Doppler each) follow the paper with a stationary target
+(``x, y`` estimated); ``example1_moving``, ``example2_moving``, ``example3_moving`` are the same
+pools with a moving target (the defaults of the v0 RL envs).
+
 Modelling choices (documented defaults of :class:`FIMScenarioConfig`):
 
 * Prior ``p(theta)``: Gaussian, diagonal, centred on the nominal target (position (0, 0),
@@ -114,7 +119,9 @@ class FIMScenarioConfig:
         prior_*: prior standard deviations (see the module docstring and :data:`RANGES`).
         start_radius_m, end_radius_m, altitude_m: agent path geometry (m), in ``[1, 1e5]``;
             ``sweep_deg`` in ``[-3600, 3600]``.
-        stationary: target velocity and curvature are 0 and not estimated (Example 1, d = 2).
+        stationary: target velocity and curvature are 0 and not estimated (Examples 1-3 as
+            in the paper: presets ``example1..3``; only ``x, y`` and the nuisance parameters
+            are estimated, e.g. d = 2 in Example 1, d = 3 with one Doppler receiver).
         randomize: draw a new geometry per problem.
     """
 
@@ -162,15 +169,28 @@ class FIMScenarioConfig:
             put(self, name, check_bool(getattr(self, name), name))
 
 
+_CD = ("camera", "doppler")
+
+#: Scenario presets. ``example1..3`` are Examples 1-3 of Sec. 6 as the paper states them: one
+#: stationary vehicle (Example 1: "a stationary vehicle"; Example 2 reuses Example 1's
+#: trajectories; every figure marks a single ground-truth location), so ``theta_2 = theta_3 = 0``
+#: are known (after eq. 18) and only the position (plus the sensors' nuisance parameters) is
+#: estimated. ``*_moving`` are the same pools with a moving target (velocity and curvature
+#: estimated too); ``example2_moving`` / ``example3_moving`` are the pre-issue-18 ``example2`` /
+#: ``example3``, kept as the defaults of ``FIMSelection-v0`` / ``fim_selection_v0`` so that
+#: their v0 trajectories do not change.
 PRESETS: dict[str, FIMScenarioConfig] = {
     "example1": FIMScenarioConfig(preset="example1", sensors=("camera",), stationary=True),
-    "example2": FIMScenarioConfig(preset="example2", sensors=("camera", "doppler")),
-    "example3": FIMScenarioConfig(preset="example3", n_agents=2, sensors=("camera", "doppler")),
+    "example2": FIMScenarioConfig(preset="example2", sensors=_CD, stationary=True),
+    "example3": FIMScenarioConfig(preset="example3", n_agents=2, sensors=_CD, stationary=True),
+    "example1_moving": FIMScenarioConfig(preset="example1_moving", sensors=("camera",)),
+    "example2_moving": FIMScenarioConfig(preset="example2_moving", sensors=_CD),
+    "example3_moving": FIMScenarioConfig(preset="example3_moving", n_agents=2, sensors=_CD),
 }
 
 
 def config_from(preset: str = "example2", **overrides: Any) -> FIMScenarioConfig:
-    """A preset with fields overridden, validated.
+    """A preset (a key of :data:`PRESETS`) with fields overridden, validated.
 
     Raises:
         ValueError: unknown preset or override key (lists the valid ones), or a bad value.
@@ -210,8 +230,9 @@ class FIMProblem:
         intrinsics: ``(3, 3)`` camera matrix ``A``.
         param_names: ``d`` names.
         free: ``(d,)`` indices of the estimated parameters in the full vector
-            ``[x, y, vx, vy, ax, ay, nuisance...]``; a stationary target (Example 1) estimates
-            only the position, ``theta_2 = theta_3 = 0`` (paper, after eq. 18).
+            ``[x, y, vx, vy, ax, ay, nuisance...]``; a stationary target (``example1..3``)
+            estimates only the position of the motion parameters, ``theta_2 = theta_3 = 0``
+            (paper, after eq. 18), plus the nuisance parameters.
         theta_fixed: full vector holding the values of the parameters not estimated.
 
     Candidates are ordered agent-major, then by sensor code, then by time.

@@ -41,7 +41,7 @@ SCRIPT = "selenv.train.train_fim_marl"
 class Config(PPOConfig):
     """Defaults of the shipped run, written under ``runs/``."""
 
-    env_kwargs: str = json.dumps({"preset": "example3", "n_candidates": 50, "budgets": 5})
+    env_kwargs: str = json.dumps({"preset": "example3_moving", "n_candidates": 50, "budgets": 5})
     mode: str = arg(
         "cooperative",
         "mode the shared policy is trained in: cooperative (turns, shared FIM) or independent",

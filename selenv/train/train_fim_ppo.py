@@ -30,7 +30,7 @@ SCRIPT = "selenv.train.train_fim_ppo"
 class Config(PPOConfig):
     """Defaults of the shipped run (140k steps, ~6 min on 2 cores), written under ``runs/``."""
 
-    env_kwargs: str = json.dumps({"preset": "example2", "n_candidates": 100, "budget": 10})
+    env_kwargs: str = json.dumps({"preset": "example2_moving", "n_candidates": 100, "budget": 10})
     total_timesteps: int = 140_000
     out: str = "runs/train_fim_ppo/policy.zip"
     eval_episodes: int = 100
