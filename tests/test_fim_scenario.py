@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import numpy as np
 import pytest
@@ -526,13 +525,8 @@ def test_bad_indices_and_theta() -> None:
         P.measurement_mean(np.zeros(3), [0])
 
 
-def test_build_is_fast() -> None:
+def test_build_with_every_sensor_has_the_full_pool() -> None:
+    """Timing of this build lives in benchmarks/, not here (no timed tests)."""
     cfg = config_from("example2_moving", sensors=ALL_SENSORS, randomize=True)
-    rng = np.random.default_rng(0)
-    best = np.inf
-    for _ in range(5):
-        t0 = time.perf_counter()
-        P = make_problem(cfg, rng)
-        best = min(best, time.perf_counter() - t0)
-    assert P.N == 3000
-    assert best < 0.05, f"building 3 x 1000 candidates took {best * 1e3:.1f} ms"
+    P = make_problem(cfg, np.random.default_rng(0))
+    assert P.N == 3000 and P.G.shape[0] == 3000

@@ -405,13 +405,9 @@ def test_smoke_training_exports_a_playable_module(
     ray_local, module, env, kwargs, bench_kwargs, tmp_path
 ) -> None:
     out = tmp_path / "run" / "policy"
-    t0 = time.perf_counter()
     meta = train_rllib_marl.main(
         [*TINY, "--env", env, "--env-kwargs", json.dumps(kwargs), "--out", str(out), "--seed", "3"]
     )
-    seconds = time.perf_counter() - t0
-    print(f"smoke {env}: {seconds:.1f} s")
-    assert seconds < 60, f"1-iteration smoke training took {seconds:.0f} s"
     assert meta["env_id"] == module and meta["iterations"] == 1
     assert meta["ray_version"] == ray.__version__
     records = json.loads(out.with_suffix(".metrics.json").read_text())
