@@ -294,13 +294,26 @@ def altitude_sweep(altitudes: Sequence[float], K: int, seed: int) -> dict[str, A
 
 
 # -- example 3 ----------------------------------------------------------------------------------
-def ex3_selections(problem: FIMProblem, K: int) -> dict[str, np.ndarray]:
-    """Global candidate indices of each example-3 method for ``K`` picks per agent."""
+def position_interest(problem: FIMProblem) -> list[int]:
+    """Indices of the target position ``(x, y)`` among the estimated parameters."""
+    names = list(problem.param_names)
+    return [names.index("x"), names.index("y")]
+
+
+def ex3_selections(problem: FIMProblem, K: int, objective: str = "logdet") -> dict[str, np.ndarray]:
+    """Global candidate indices of each example-3 method for ``K`` picks per agent.
+
+    ``objective``: the criterion of every agent's greedy, ``"logdet"`` (eq. 5/9, the paper's)
+    or ``"trace"`` (eq. 6 on the target position ``(x, y)``: the A-optimal position MSE).
+    """
     pools = [problem.pool(i) for i in range(problem.config.n_agents)]
     pairs = [(problem.H[p], problem.R[p]) for p in pools]
+    crit: dict[str, Any] = {}
+    if objective != "logdet":
+        crit = {"objective": objective, "interest": position_interest(problem)}
     out: dict[str, np.ndarray] = {}
     for mode in ("independent", "cooperative"):
-        coop = cooperative_greedy(problem.Q0, pairs, [K] * len(pools), mode=mode)
+        coop = cooperative_greedy(problem.Q0, pairs, [K] * len(pools), mode=mode, **crit)
         per_agent = [p[list(s.indices)] for p, s in zip(pools, coop.selections, strict=True)]
         out[mode] = np.concatenate(per_agent).astype(np.intp)
         if mode == "independent":  # each agent alone = its own Algorithm-1 selection on Q0
@@ -309,12 +322,20 @@ def ex3_selections(problem: FIMProblem, K: int) -> dict[str, np.ndarray]:
 
 
 def run_example3(
-    preset: str, ks: Sequence[int], trials: int, ss: np.random.SeedSequence
+    preset: str,
+    ks: Sequence[int],
+    trials: int,
+    ss: np.random.SeedSequence,
+    objective: str = "logdet",
 ) -> dict[str, Any]:
-    """Agent 1 alone, agent 2 alone, both independent, cooperative (``K`` picks per agent)."""
+    """Agent 1 alone, agent 2 alone, both independent, cooperative (``K`` picks per agent).
+
+    ``objective``: the selection criterion (:func:`ex3_selections`); trials depend on ``ss``
+    only, so two runs from equal seed sequences see the same truths and noise (paired).
+    """
     cfg = config_from(preset, randomize=False)
     recs = {name: _new_record(trials, len(ks)) for name in EX3_METHODS}
-    select = SelectionCache(ex3_selections)
+    select = SelectionCache(lambda problem, K: ex3_selections(problem, K, objective))
     for t, tss in enumerate(tqdm(ss.spawn(trials), desc=preset, unit="trial")):
         rng_problem, rng_noise, _ = _trial_rngs(tss)
         problem = make_problem(cfg, rng_problem)
@@ -325,6 +346,7 @@ def run_example3(
                 _evaluate(recs[name], t, j, problem, Y, sels[name])
     return {
         "preset": preset,
+        "objective": objective,
         "param_names": list(problem.param_names),
         "ks": list(ks),
         "methods": {name: summarize(rec) for name, rec in recs.items()},
@@ -691,6 +713,23 @@ def format_tables(results: dict[str, Any]) -> str:
     lines.append("")
     lines += _example3_tables(results["example3"], "example3, paper's reading")
     lines += _example3_tables(results["example3_moving"], "example3_moving, variant")
+    lines += _example3_tables(
+        results["example3_trace"], "example3, paper's reading, trace objective on (x, y)"
+    )
+    lt, tr = results["example3"]["methods"], results["example3_trace"]["methods"]
+    lines += [
+        "### Fig. 7: trace vs log-det selection on the same trials (example3), position error",
+        "",
+        "| K | independent: logdet − trace, paired (m) | cooperative: logdet − trace, paired (m) |",
+        "|---:|---:|---:|",
+    ]
+    for j, K in enumerate(results["example3"]["ks"]):
+        cells = []
+        for mode in ("independent", "cooperative"):
+            d, se = paired_difference(lt[mode]["errors"], tr[mode]["errors"])
+            cells.append(f"{_fmt(d[j], 3)} ± {_fmt(se[j], 3)}")
+        lines.append(f"| {K} | {' | '.join(cells)} |")
+    lines.append("")
     sweep = results["altitude_sweep"]
     lines += [
         f"### Fig. 2: example1 picks (K = {sweep['K']}) vs camera altitude",
@@ -743,6 +782,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         return lambda: run_single_agent(preset, ks, n, streams[preset])
 
     results: dict[str, Any] = {preset: runner(preset)() for preset in RUN_ORDER}
+    ex3 = streams["example3"]  # the same trials again (a fresh copy of the stream): paired
+    same = np.random.SeedSequence(ex3.entropy, spawn_key=ex3.spawn_key)
+    results["example3_trace"] = run_example3("example3", ks, n, same, objective="trace")
     for preset in ("example2", "example2_moving"):
         results[f"{preset}_sensor_mix"] = sensor_mix(preset, max(ks), args.seed)
     results["altitude_sweep"] = altitude_sweep(ALTITUDES_M, GEOMETRY_K, args.seed)
