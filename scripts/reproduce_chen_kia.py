@@ -11,6 +11,12 @@ Usage::
 
     python scripts/reproduce_chen_kia.py [--runs 50] [--steps 600] [--workers 2] [--quick]
                                          [--executor local|process|ray] [--address ADDR]
+                                         [--bearing-sigma-deg 2] [--methods dmv,pecmv,...]
+
+``--bearing-sigma-deg``: relative range + bearing (m = 2, the exact PECMV is then an
+optimisation); the learned methods use the m = 2 checkpoints (trained at 2 deg), and
+``lpecmv_full`` and ``lpecmv_objective`` (no m = 2 checkpoints) are left out unless named in
+``--methods``.
 
 Writes ``chen_kia_fig8.png`` and ``chen_kia_rmse.png`` into ``--out`` and prints Markdown
 tables; ``main(argv)`` returns the numbers. Results: ``docs/REPRODUCTION.md``.
@@ -35,7 +41,12 @@ from scipy.stats import chi2
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 
-METHODS = ("dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv", "lpecmv_full")
+METHODS = (
+    "dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv", "lpecmv_full",
+    "lpecmv_objective",
+)  # fmt: skip
+#: methods without an m = 2 (range + bearing) checkpoint, left out with --bearing-sigma-deg
+RANGE_ONLY = ("lpecmv_full", "lpecmv_objective")
 LABELS = {
     "dead_reckoning": "dead reckoning (ZUPT-only)",
     "naive": "naive EKF",
@@ -45,6 +56,7 @@ LABELS = {
     "ldmv": "LDMV (learned)",
     "lpecmv": "LPECMV (learned, method 3)",
     "lpecmv_full": "LPECMV (learned, method 1)",
+    "lpecmv_objective": "LPECMV (learned, method 3, objective loss)",
 }
 #: the paper's Table III (real experiment, 10 runs): method -> (agent 1, agent 2) RMSE (m)
 PAPER_TABLE_III = {
@@ -56,11 +68,15 @@ PAPER_TABLE_III = {
 }
 
 
-def run_one(task: tuple[int, int, str]) -> dict[str, Any]:
-    """One Monte Carlo run of one method: errors, NEES and relative-update time per step."""
-    seed, steps, method = task
+def run_one(task: tuple[Any, ...]) -> dict[str, Any]:
+    """One Monte Carlo run of one method: errors, NEES and relative-update time per step.
+
+    ``task``: ``(seed, steps, method)`` or ``(seed, steps, method, bearing_sigma_deg)``.
+    """
+    seed, steps, method = task[:3]
+    bearing = task[3] if len(task) > 3 else None
     t_run = time.perf_counter()
-    cfg = CLConfig(horizon=steps)
+    cfg = CLConfig(horizon=steps, bearing_sigma_deg=bearing)
     sim = CLSimulation(make_cl_problem(cfg, np.random.default_rng(seed)), method)
     err, nees = np.empty((steps, cfg.n_agents)), np.empty((steps, cfg.n_agents))
     t_rel, n_rel = 0.0, 0
@@ -79,12 +95,22 @@ def run_one(task: tuple[int, int, str]) -> dict[str, Any]:
     return {"err": err, "nees": nees, "t_rel": t_rel, "n_rel": n_rel, "t_run": t_run}
 
 
-def run_all(runs: int, steps: int, pool: Executor) -> dict[str, dict[str, Any]]:
-    """Every method on seeds ``0 .. runs - 1`` (paired), on ``pool`` (local, processes, Ray)."""
-    tasks = [(seed, steps, m) for m in METHODS for seed in range(runs)]
+def run_all(
+    runs: int,
+    steps: int,
+    pool: Executor,
+    methods: Sequence[str] = METHODS,
+    bearing_sigma_deg: float | None = None,
+) -> dict[str, dict[str, Any]]:
+    """Every method on seeds ``0 .. runs - 1`` (paired), on ``pool`` (local, processes, Ray).
+
+    Per method: ``err``, ``nees`` (runs, steps, A), ``rmse`` and ``mean_nees`` (A,), the time
+    per relative update and per run.
+    """
+    tasks = [(seed, steps, m, bearing_sigma_deg) for m in methods for seed in range(runs)]
     out = pool.map(run_one, tasks, desc="CL runs", unit="run")
     res: dict[str, dict[str, Any]] = {}
-    for i, m in enumerate(METHODS):
+    for i, m in enumerate(methods):
         chunk = out[i * runs : (i + 1) * runs]
         err = np.stack([c["err"] for c in chunk])  # (runs, steps, A)
         nees = np.stack([c["nees"] for c in chunk])
@@ -114,7 +140,7 @@ def plot_nees(res: dict[str, dict[str, Any]], runs: int, dt: float, path: Path) 
     fig = Figure(figsize=(12, 4.5), constrained_layout=True)
     axes = fig.subplots(1, 2, sharey=True)
     for a, ax in enumerate(axes):
-        for m in METHODS:
+        for m in res:
             nees = res[m]["nees"][:, :, a].mean(axis=0)
             ax.plot(np.arange(nees.size) * dt, nees, lw=1, label=LABELS[m])
         ax.axhspan(lo, hi, color="grey", alpha=0.25, label=f"95 % band [{lo:.2f}, {hi:.2f}]")
@@ -130,7 +156,7 @@ def plot_rmse(res: dict[str, dict[str, Any]], dt: float, path: Path) -> None:
     fig = Figure(figsize=(12, 4.5), constrained_layout=True)
     axes = fig.subplots(1, 2, sharey=True)
     for a, ax in enumerate(axes):
-        for m in METHODS:
+        for m in res:
             rmse = np.sqrt(np.mean(res[m]["err"][:, :, a] ** 2, axis=0))
             ax.plot(np.arange(rmse.size) * dt, rmse, lw=1, label=LABELS[m])
         ax.set(yscale="log", xlabel="time (s)", title=f"agent {a + 1}: position RMSE")
@@ -148,7 +174,7 @@ def format_tables(res: dict[str, dict[str, Any]], runs: int) -> str:
         " | mean NEES agent 1 | mean NEES agent 2 | ms per relative update | s per run |",
         "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|",
     ]
-    for m in METHODS:
+    for m in res:
         r = res[m]
         p = PAPER_TABLE_III.get(m, ("", ""))
         lines.append(
@@ -168,9 +194,21 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     add_executor_arguments(ap, default="process", workers_alias=True)
     ap.add_argument("--out", type=Path, default=Path("docs/figures"))
     ap.add_argument("--quick", action="store_true", help="4 runs of 150 steps (for tests)")
+    ap.add_argument("--bearing-sigma-deg", type=float, default=None,
+                    help="relative bearing noise (deg): range + bearing, m = 2 (default: range "
+                         "only)")  # fmt: skip
+    ap.add_argument("--methods", default="",
+                    help="comma-separated subset of " + ",".join(METHODS) + " (default: all; "
+                         "without " + ", ".join(RANGE_ONLY) + " with bearings)")  # fmt: skip
     args = ap.parse_args(argv)
     if args.quick:
         args.runs, args.steps = 4, 150
+    methods = tuple(x for x in args.methods.split(",") if x) or tuple(
+        m for m in METHODS if args.bearing_sigma_deg is None or m not in RANGE_ONLY
+    )
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        raise SystemExit(f"reproduce_chen_kia: error: unknown --methods {unknown}")
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
@@ -178,9 +216,13 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with pool:
-        res = run_all(args.runs, args.steps, pool)
+        res = run_all(args.runs, args.steps, pool, methods, args.bearing_sigma_deg)
     dt = CLConfig().dt
-    paths = {"fig8": args.out / "chen_kia_fig8.png", "rmse": args.out / "chen_kia_rmse.png"}
+    tag = "" if args.bearing_sigma_deg is None else "_m2"
+    paths = {
+        "fig8": args.out / f"chen_kia_fig8{tag}.png",
+        "rmse": args.out / f"chen_kia_rmse{tag}.png",
+    }
     plot_nees(res, args.runs, dt, paths["fig8"])
     plot_rmse(res, dt, paths["rmse"])
     wall = time.perf_counter() - t0

@@ -14,9 +14,20 @@ exact solvers, :func:`selenv.learned.surrogate_data.generate_dataset`):
 * **Table IV** -- time of one update call (exact vs learned, median of ``--calls`` calls on
   test rows), the prediction alone, and batched predictions per second.
 
+* **Filter accuracy** (``--filter-runs``, default 30) -- the two-pedestrian simulation of
+  ``scripts/reproduce_chen_kia.py`` with exact DMV / PECMV and with LDMV / LPECMV on the same
+  seeds: position RMSE and horizontal-position NEES per agent, the share of time steps whose
+  mean NEES over the runs is inside the 95 % chi-square band, and per-seed paired differences
+  (learned - exact) with 95 % t confidence intervals.
+
+``--m 2``: the same with relative range + bearing (``bearing_sigma_deg = 2``, the noise the
+m = 2 checkpoints ``checkpoints/ldmv_m2.pt`` / ``lpecmv_m2.pt`` are trained for). There the
+exact PECMV is an optimisation and the surrogates pay (Table IV); only method 3 is shipped.
+
 Usage::
 
     python scripts/reproduce_chen_kia_surrogates.py [--samples 5000] [--seed 2022] [--quick]
+                                                    [--m 1|2] [--filter-runs 30]
 
 Methods 1 and 2 are read from ``checkpoints/lpecmv_method1.pt`` / ``lpecmv_method2.pt``
 (trained with the same data and budget as the shipped method 3, see ``docs/REPRODUCTION.md``).
@@ -32,6 +43,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: threads only contend
 
 import argparse
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -39,11 +51,15 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from scipy.stats import t as student_t
 
 from selenv import fusion
-from selenv.learned.surrogate_data import SurrogateDataset, generate_dataset
+from selenv.learned.surrogate_data import GenerationConfig, SurrogateDataset, generate_dataset
 from selenv.learned.surrogates import C_SCALE, Surrogate
-from selenv.parallel import ExecutorError, add_executor_arguments, executor_from_args
+from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # spawned workers inherit sys.path
+import reproduce_chen_kia as rck  # the CL simulation runs of Table III / Fig. 8
 
 ROOT = Path(__file__).resolve().parents[1]
 CHECKPOINTS = {
@@ -52,6 +68,14 @@ CHECKPOINTS = {
     2: ROOT / "checkpoints" / "lpecmv_method2.pt",
     3: ROOT / "checkpoints" / "lpecmv.pt",
 }
+#: range + bearing (m = 2): the shipped method-3 LPECMV and LDMV, trained at BEARING_DEG
+CHECKPOINTS_M2 = {
+    "ldmv": ROOT / "checkpoints" / "ldmv_m2.pt",
+    3: ROOT / "checkpoints" / "lpecmv_m2.pt",
+}
+BEARING_DEG = 2.0
+#: the filter study: learned method -> the exact method it replaces (paired on seeds)
+PAIRS = {"ldmv": "dmv", "lpecmv": "pecmv", "lpecmv_full": "pecmv", "lpecmv_objective": "pecmv"}
 METHOD_LABELS = {1: "method 1 (tanh, barrier)", 2: "method 2 (tanh / D)", 3: "method 3 (diag)"}
 #: the paper's Table IV (Intel i5-1135G7): algorithm -> (full run s, single execution ms)
 PAPER_TABLE_IV = {
@@ -72,6 +96,19 @@ def pecmv_values(ds: SurrogateDataset, C: np.ndarray) -> np.ndarray:
             for k in range(len(ds))
         ]
     )
+
+
+def dmv_values(ds: SurrogateDataset, omega: np.ndarray) -> np.ndarray:
+    """Objective eq. (6), ``log det Pbar(omega)``, per row; omega (B,)."""
+    return np.array(
+        [
+            fusion.dmv_update(
+                ds.P_i[k], ds.P_j[k], ds.H_i[k], ds.H_j[k], ds.R, omega=float(omega[k]),
+                validate=False,
+            ).log_det
+            for k in range(len(ds))
+        ]
+    )  # fmt: skip
 
 
 def fig2(ds: SurrogateDataset, lpecmv: dict[int, Surrogate]) -> dict[str, np.ndarray]:
@@ -182,6 +219,109 @@ def table_iv(
     return out
 
 
+def best_diagonal_gaps(ds: SurrogateDataset, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gap to the optimum of eq. (8a) of ``diag(C*)`` and of the best diagonal ``C`` per row.
+
+    The best diagonal maximises eq. (8a) over ``C = diag(c)``, ``|c_k| < 1`` (L-BFGS-B from
+    ``diag(C*)``; the objective is concave in ``X = L_i C L_j^T``, hence in ``c``), on the
+    first ``rows`` rows: what a method-3 network trained on the objective could reach.
+    """
+    from scipy.optimize import minimize
+
+    diag_gap, best_gap = [], []
+    for k in range(min(rows, len(ds))):
+        args = (ds.P_i[k], ds.P_j[k], ds.H_i[k], ds.H_j[k], ds.R)
+
+        def neg(c: np.ndarray, args: tuple[np.ndarray, ...] = args) -> float:
+            return -fusion.pecmv_update(*args, C=np.diag(c), validate=False).log_det
+
+        c0 = ds.C_diag[k] * C_SCALE
+        res = minimize(neg, c0, method="L-BFGS-B", bounds=[(-1 + 1e-9, 1 - 1e-9)] * c0.size)
+        diag_gap.append(-neg(c0) - ds.log_det_pecmv[k])
+        best_gap.append(-min(float(res.fun), neg(c0)) - ds.log_det_pecmv[k])
+    return np.asarray(diag_gap), np.asarray(best_gap)
+
+
+def mean_ci(d: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean of paired differences ``d`` (runs,) and its two-sided t confidence interval."""
+    d = np.asarray(d, dtype=float)
+    mean = float(d.mean())
+    if d.size < 2:
+        return mean, float("nan"), float("nan")
+    half = float(student_t.ppf(0.5 + level / 2, d.size - 1) * d.std(ddof=1) / np.sqrt(d.size))
+    return mean, mean - half, mean + half
+
+
+def filter_study(
+    runs: int, steps: int, pool: Executor, bearing: float | None, methods: Sequence[str]
+) -> dict[str, Any]:
+    """Exact vs learned fusion in the CL simulation on seeds ``0 .. runs - 1`` (paired).
+
+    Per method and agent: RMSE over runs and steps, per-seed RMSE ``sqrt(mean_t err^2)`` and
+    mean NEES, the mean NEES over all runs and steps, and the share of steps whose NEES
+    averaged over the runs lies inside (above) the 95 % band of ``runs`` runs, 2 dof. Per
+    learned method: paired differences learned - exact of the per-seed RMSE and mean NEES.
+    """
+    res = rck.run_all(runs, steps, pool, tuple(methods), bearing)
+    lo, hi = rck.nees_band(runs)
+    out: dict[str, Any] = {"band": (lo, hi), "runs": runs, "steps": steps, "methods": {}}
+    for m, r in res.items():
+        per_t = r["nees"].mean(axis=0)  # (steps, A): Fig. 8's curve
+        out["methods"][m] = {
+            "rmse": r["rmse"],
+            "seed_rmse": np.sqrt(np.mean(r["err"] ** 2, axis=1)),  # (runs, A)
+            "seed_nees": r["nees"].mean(axis=1),  # (runs, A)
+            "mean_nees": r["mean_nees"],
+            "in_band": np.mean((per_t >= lo) & (per_t <= hi), axis=0),
+            "above_band": np.mean(per_t > hi, axis=0),
+            "ms_per_update": r["ms_per_update"],
+        }
+    diffs = {}
+    for m, ref in PAIRS.items():
+        if m in out["methods"] and ref in out["methods"]:
+            a, b = out["methods"][m], out["methods"][ref]
+            diffs[f"{m} - {ref}"] = {
+                key: [mean_ci(a[key][:, k] - b[key][:, k]) for k in range(a[key].shape[1])]
+                for key in ("seed_rmse", "seed_nees")
+            }
+    out["diffs"] = diffs
+    return out
+
+
+def format_filter(study: dict[str, Any]) -> str:
+    """Markdown: RMSE and NEES per method and agent, then the paired differences."""
+    lo, hi = study["band"]
+    lines = [
+        "| method | RMSE agent 1 (m) | RMSE agent 2 (m) | mean NEES agent 1 | mean NEES agent 2 "
+        "| steps in band agent 1 | agent 2 | above band agent 1 | agent 2 | ms / rel. update |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for m, r in study["methods"].items():
+        lines.append(
+            f"| {rck.LABELS[m]} | {r['rmse'][0]:.4f} | {r['rmse'][1]:.4f} | "
+            f"{r['mean_nees'][0]:.2f} | {r['mean_nees'][1]:.2f} | {r['in_band'][0]:.0%} | "
+            f"{r['in_band'][1]:.0%} | {r['above_band'][0]:.0%} | {r['above_band'][1]:.0%} | "
+            f"{r['ms_per_update']:.3f} |"
+        )
+    lines.append(
+        f"\n95 % band of the mean NEES over {study['runs']} runs (2 dof): [{lo:.2f}, {hi:.2f}]; "
+        f"{study['steps']} steps of 0.1 s\n"
+    )
+    lines.append(
+        "| paired difference (per seed) | RMSE agent 1 (m) [95 % CI] | RMSE agent 2 (m) "
+        "[95 % CI] | mean NEES agent 1 [95 % CI] | mean NEES agent 2 [95 % CI] |"
+    )
+    lines.append("|---|---:|---:|---:|---:|")
+
+    def f(c: tuple[float, float, float], digits: int) -> str:
+        return f"{c[0]:+.{digits}f} [{c[1]:+.{digits}f}, {c[2]:+.{digits}f}]"
+
+    for name, d in study["diffs"].items():
+        r, n = d["seed_rmse"], d["seed_nees"]
+        lines.append(f"| {name} | {f(r[0], 4)} | {f(r[1], 4)} | {f(n[0], 2)} | {f(n[1], 2)} |")
+    return "\n".join(lines)
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Generate the test set, evaluate, plot, print; return the numbers."""
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
@@ -190,32 +330,59 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--calls", type=int, default=2000, help="timed single calls per algorithm")
     add_executor_arguments(ap, default="process", workers_alias=True)
     ap.add_argument("--out", type=Path, default=Path("docs/figures"))
-    ap.add_argument("--quick", action="store_true", help="300 rows, 200 calls (for tests)")
+    ap.add_argument("--quick", action="store_true",
+                    help="300 rows, 200 calls, 3 filter runs of 100 steps (for tests)")  # fmt: skip
+    ap.add_argument("--m", type=int, choices=(1, 2), default=1,
+                    help="1: relative range (default); 2: range + bearing at 2 deg")  # fmt: skip
+    ap.add_argument("--filter-runs", type=int, default=30,
+                    help="seeds of the exact-vs-learned filter study (0: skip it)")  # fmt: skip
+    ap.add_argument("--filter-steps", type=int, default=600, help="steps of 0.1 s per run")
+    ap.add_argument("--best-diagonal", type=int, default=0,
+                    help="best diagonal C per row on this many test rows (0: none)")  # fmt: skip
     args = ap.parse_args(argv)
     if args.quick:
         args.samples, args.calls = 300, 200
+        args.filter_runs, args.filter_steps = min(args.filter_runs, 3), 100
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    missing = [str(p) for p in CHECKPOINTS.values() if not p.is_file()]
+    paths_in = CHECKPOINTS if args.m == 1 else CHECKPOINTS_M2
+    missing = [str(p) for p in paths_in.values() if not p.is_file()]
     if missing:
         raise SystemExit(
             f"missing checkpoints {missing}: see docs/REPRODUCTION.md for the commands"
         )
-    ldmv = Surrogate.load(CHECKPOINTS["ldmv"])
-    lpecmv = {m: Surrogate.load(CHECKPOINTS[m]) for m in (1, 2, 3)}
+    ldmv = Surrogate.load(paths_in["ldmv"])
+    lpecmv = {m: Surrogate.load(p) for m, p in paths_in.items() if m != "ldmv"}
+    bearing = None if args.m == 1 else BEARING_DEG
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
         raise SystemExit(f"reproduce_chen_kia_surrogates: error: {exc}") from None
+    study = None
     with pool:
-        ds = generate_dataset(args.samples, seed=args.seed, executor=pool)
+        gen = GenerationConfig(bearing_sigma_deg=bearing)
+        ds = generate_dataset(args.samples, seed=args.seed, executor=pool, gen=gen)
+        if args.filter_runs > 0:
+            learned = (
+                ("ldmv", "lpecmv", "lpecmv_full", "lpecmv_objective")
+                if args.m == 1
+                else ("ldmv", "lpecmv")
+            )
+            study = filter_study(
+                args.filter_runs, args.filter_steps, pool, bearing, ("dmv", "pecmv", *learned)
+            )
 
     values = fig2(ds, lpecmv)
     omega_hat = ldmv.predict_omega(ds.P_i, ds.P_j, ds.H_i, ds.H_j)
     r = float(np.corrcoef(omega_hat, ds.omega)[0, 1])
     C3 = lpecmv[3].predict_C(ds.P_i, ds.P_j, ds.H_i, ds.H_j)
     c_err = np.diagonal(C3, axis1=1, axis2=2) - ds.C_diag
-    paths = {"fig2": args.out / "chen_kia_fig2.png", "fig6": args.out / "chen_kia_fig6.png"}
+    dmv_gap = dmv_values(ds, omega_hat) - dmv_values(ds, ds.omega)  # >= 0: w* minimises (6)
+    tag = "" if args.m == 1 else "_m2"
+    paths = {
+        "fig2": args.out / f"chen_kia_fig2{tag}.png",
+        "fig6": args.out / f"chen_kia_fig6{tag}.png",
+    }
     plot_fig2(values, paths["fig2"])
     plot_fig6(ds.omega, omega_hat, c_err, r, paths["fig6"])
     times = table_iv(ds, ldmv, lpecmv[3], args.calls)
@@ -236,6 +403,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
           f"{np.mean(np.abs(omega_hat - ds.omega)):.2e}; LPECMV C_diag error: mean "
           f"{c_err.mean():.2e}, std {c_err.std():.2e}, 99th pct |err| "
           f"{np.percentile(np.abs(c_err), 99):.3f}")  # fmt: skip
+    print(f"\nLDMV -- DMV objective gap log det Pbar(omega_hat) - log det Pbar(omega*) (nats, "
+          f">= 0): mean {dmv_gap.mean():.2e}, median {np.median(dmv_gap):.2e}, 99th pct "
+          f"{np.percentile(dmv_gap, 99):.2e}, max {dmv_gap.max():.2e}")  # fmt: skip
     print("\nTable IV -- single call (median, us) and batched predictions per second\n")
     print(
         "| algorithm | update call (us) | prediction alone (us) | batched /s | paper single (ms) |"
@@ -245,9 +415,22 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         pred = f"{t['predict_us']:.1f}" if "predict_us" in t else ""
         print(f"| {name} | {t['update_us']:.1f} | {pred} | {t['batched_per_s']:,.0f} | "
               f"{PAPER_TABLE_IV[name][1]} |")  # fmt: skip
-    print(f"\nsamples={len(ds)} seed={args.seed} wall time {wall:.1f} s")
+    best = None
+    if args.best_diagonal > 0:
+        best = best_diagonal_gaps(ds, args.best_diagonal)
+        print(f"\nBest diagonal C per row ({best[0].size} rows): gap to the optimum of eq. (8a), "
+              f"diag(C*) {best[0].mean():.4f} nats, optimised diagonal {best[1].mean():.4f} "
+              f"nats")  # fmt: skip
+    if study is not None:
+        print(f"\nFilter accuracy, m = {args.m} -- exact vs learned fusion, paired seeds\n")
+        print(format_filter(study))
+    print(f"\nm={args.m} samples={len(ds)} seed={args.seed} wall time {wall:.1f} s")
     return {
+        "m": args.m,
+        "filter": study,
+        "best_diagonal": best,
         "gaps": gaps,
+        "dmv_gap": dmv_gap,
         "R": r,
         "c_err": c_err,
         "times": times,

@@ -194,10 +194,16 @@ def test_learned_surrogates_as_fusion_methods() -> None:
         assert np.all(np.isfinite(nees)) and np.mean(np.array(nees)[:, 1]) < 4.0
     env = gym.make(ENV_ID, fusion="lpecmv", horizon=5)
     assert np.isfinite(_play(env, make("greedy", ENV_ID), 0)[0])
-    other_R = CLSimulation(make_cl_problem(CLConfig(horizon=20, range_sigma=0.3), None), "ldmv")
-    with pytest.raises(ValueError, match="trained with R"):
-        for _ in range(20):
-            other_R.step()
+    # a noise no shipped surrogate is trained for: refused when the simulation is built
+    # (before, the first relative update raised), naming fusion and the noise
+    other = make_cl_problem(CLConfig(horizon=20, range_sigma=0.3), np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"fusion='ldmv'.*range_sigma=0\.3.*ldmv\.pt"):
+        CLSimulation(other, "ldmv")
+    sim = CLSimulation(other, "dmv")  # per call, the fusion layer still checks R
+    for _ in range(5):
+        sim.step()
+    with pytest.raises(ValueError, match="no shipped 'ldmv' surrogate"):
+        sim.relative_update(0, "ldmv")
 
 
 def test_presets_and_topology() -> None:

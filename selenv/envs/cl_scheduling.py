@@ -25,6 +25,7 @@ from selenv.scenarios.cooperative import (
     CLConfig,
     CLProblem,
     CLSimulation,
+    check_learned_fusion,
     make_cl_problem,
 )
 from selenv.scenarios.validation import check_choice, check_integer
@@ -92,7 +93,10 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     :mod:`selenv.scenarios.cooperative`); agent 0 ranges to beacons. Every step each directed
     pair ``(i, j)`` can yield a relative range that agent ``i`` would process with agent ``j``'s
     belief using the ``fusion`` method (``naive``, ``ci``, ``dmv``, ``pecmv``, or the learned
-    ``ldmv``, ``lpecmv``, ``lpecmv_full``) without the cross-covariance. A processing budget
+    ``ldmv``, ``lpecmv``, ``lpecmv_full``, ``lpecmv_objective``: the shipped surrogate
+    trained for the scenario's noise, range only or range + bearing at
+    ``bearing_sigma_deg=2``, else a ``ValueError`` naming ``fusion`` and
+    ``bearing_sigma_deg``) without the cross-covariance. A processing budget
     allows only ``budget`` of them per step: the agent picks them one at a time, or stops early.
 
     ## Presets
@@ -218,6 +222,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
             merged["relative_pairs"] = relative_pairs(n_agents, topology)
         self.topology: str | None = None if "relative_pairs" in config else topology
         self.config = CLConfig(n_agents=n_agents, horizon=horizon, **merged)
+        check_learned_fusion(self.config, fusion)  # ldmv / lpecmv: a surrogate for this noise
         self.pairs: tuple[tuple[int, int], ...] = self.config.relative_pairs
         self.n_pairs = len(self.pairs)
         if self.n_pairs == 0:

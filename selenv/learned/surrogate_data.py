@@ -76,19 +76,21 @@ def n_features(n: int, m: int) -> int:
 
 
 @lru_cache(maxsize=8)
-def _triu(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Row-major upper-triangle indices of an n x n matrix and the positions of its diagonal."""
+def _triu(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major upper triangle of an n x n matrix as flat indices, and where its diagonal is."""
     iu, ju = np.triu_indices(n)
-    return iu, ju, np.flatnonzero(iu == ju)
+    return iu * n + ju, np.flatnonzero(iu == ju)
 
 
 def _triangle(P: FloatArray) -> FloatArray:
     """(..., n(n+1)/2): ``log P_kk`` on the diagonal, correlations above it (row-major)."""
-    iu, ju, diag = _triu(P.shape[-1])
+    n = P.shape[-1]
+    flat, diag = _triu(n)
     d = np.maximum(np.diagonal(P, axis1=-2, axis2=-1), _TINY)
     s = np.sqrt(d)  # divide by s_k and s_l in turn: s_k s_l could overflow or underflow
     with np.errstate(over="ignore"):
-        out = P[..., iu, ju] / s[..., iu] / s[..., ju]  # finite: s >= 1e-150
+        full = P / s[..., :, None] / s[..., None, :]  # finite off the diagonal: s >= 1e-150
+    out = full.reshape(*P.shape[:-2], n * n)[..., flat]
     np.clip(out, -1.0, 1.0, out=out)
     out[..., diag] = np.log(d)
     return out
@@ -130,9 +132,12 @@ def features(P_i: Any, P_j: Any, H_i: Any, H_j: Any) -> FloatArray:
     for name, shape in (("P_j", (Bn, n, n)), ("H_j", (Bn, m, n))):
         if arrs[name].shape != shape:
             raise ValueError(f"{name} must have shape {shape}, got {arrs[name].shape}")
-    for name, a in arrs.items():
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{name} must be finite (no NaN/inf)")
+    with np.errstate(over="ignore", invalid="ignore"):  # one test first: finite sums are common
+        total = sum(float(a.sum()) for a in arrs.values())
+    if not np.isfinite(total):  # a NaN / inf entry, or finite entries whose sum overflows
+        for name, a in arrs.items():
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"{name} must be finite (no NaN/inf)")
     tri = _triangle(np.stack((Pi, arrs["P_j"]), axis=1)).reshape(Bn, -1)  # both in one pass
     H = np.concatenate((Hi.reshape(Bn, -1), arrs["H_j"].reshape(Bn, -1)), axis=1)
     return np.concatenate((tri, _symlog(H)), axis=1)
@@ -151,6 +156,10 @@ class GenerationConfig:
         scale_range: ``P_i``, ``P_j`` are scaled by log-uniform factors in [1/s, s].
         keep_raw: fraction of rows left unperturbed (the simulator's own beliefs).
         fusions: fusion rules the scenarios are run with (drawn uniformly per task).
+        bearing_sigma_deg: ``None`` (default): relative range only (m = 1, ``R = [[0.1^2]]``);
+            a value (deg): range + bearing (m = 2,
+            ``R = diag(0.1^2, (bearing_sigma_deg pi / 180)^2)``), i.e. the scenarios are
+            ``CLConfig(model="ins", bearing_sigma_deg=...)``.
     """
 
     per_task: int = 256
@@ -159,6 +168,7 @@ class GenerationConfig:
     scale_range: float = 100.0
     keep_raw: float = 0.2
     fusions: tuple[str, ...] = ("dmv", "pecmv", "naive")
+    bearing_sigma_deg: float | None = None
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -223,7 +233,7 @@ def _task(seed: np.random.SeedSequence, n_rows: int, gen: GenerationConfig) -> d
     """One scenario: simulate, record the beliefs after every predict, subsample, perturb, label."""
     rng = np.random.default_rng(seed)
     steps = int(rng.integers(gen.min_steps, gen.max_steps + 1))
-    cfg = CLConfig(horizon=steps + 1)
+    cfg = CLConfig(horizon=steps + 1, bearing_sigma_deg=gen.bearing_sigma_deg)
     sim = CLSimulation(make_cl_problem(cfg, rng), fusion=str(rng.choice(gen.fusions)))
     rec: dict[str, list[FloatArray]] = {k: [] for k in _NAMES}
     for _ in range(steps):
@@ -320,7 +330,7 @@ def generate_dataset(
         "count": int(n_samples),
         "seed": int(seed),
         "R": R.tolist(),
-        "generation": {"scenario": "CLConfig(model='ins') defaults", **_gen_dict(gen)},
+        "generation": {"scenario": _scenario_doc(gen), **_gen_dict(gen)},
         "label_stats": {
             "omega_mean": float(om.mean()),
             "omega_eq_1": float(np.mean(om >= 1.0)),
@@ -332,8 +342,19 @@ def generate_dataset(
     return SurrogateDataset(R=R, header=header, **arrays)
 
 
+def _scenario_doc(gen: GenerationConfig) -> str:
+    """The header's ``generation.scenario``: unchanged for m = 1, the bearing noise for m = 2."""
+    if gen.bearing_sigma_deg is None:
+        return "CLConfig(model='ins') defaults"
+    return f"CLConfig(model='ins', bearing_sigma_deg={gen.bearing_sigma_deg!r}), else defaults"
+
+
 def _gen_dict(gen: GenerationConfig) -> dict[str, Any]:
-    return {
+    """The header's ``generation`` fields.
+
+    ``bearing_sigma_deg`` only when set: m = 1 headers are those from before the option.
+    """
+    out: dict[str, Any] = {
         "per_task": gen.per_task,
         "min_steps": gen.min_steps,
         "max_steps": gen.max_steps,
@@ -341,6 +362,9 @@ def _gen_dict(gen: GenerationConfig) -> dict[str, Any]:
         "keep_raw": gen.keep_raw,
         "fusions": list(gen.fusions),
     }
+    if gen.bearing_sigma_deg is not None:
+        out["bearing_sigma_deg"] = gen.bearing_sigma_deg
+    return out
 
 
 def save_dataset(ds: SurrogateDataset, path: str | Path) -> Path:

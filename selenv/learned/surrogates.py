@@ -60,6 +60,9 @@ __all__ = [
     "Surrogate",
     "SurrogateNet",
     "barrier_loss",
+    "describe_shipped",
+    "shipped",
+    "shipped_catalogue",
 ]
 
 FORMAT = "selenv-surrogate-v1"
@@ -306,11 +309,16 @@ class Surrogate:
         cache = self.__dict__.get("_np_cache")
         if cache is not None:
             owner, tensors, arrays = cache
+            # the modules' own dicts, not Module.__getattr__: ~10x cheaper per lookup
+            buffers = net._buffers
             if (
                 owner is net
-                and net.mean is tensors[0]
-                and net.std is tensors[1]
-                and all(m.weight is w and m.bias is b for m, w, b in tensors[2:])
+                and buffers["mean"] is tensors[0]
+                and buffers["std"] is tensors[1]
+                and all(
+                    m._parameters["weight"] is w and m._parameters["bias"] is b
+                    for m, w, b in tensors[2:]
+                )
             ):
                 return arrays
         mods = list(net.body)
@@ -585,31 +593,103 @@ def _output_doc(kind: str, method: int) -> str:
     }[method]
 
 
-#: the shipped checkpoints, loaded on first use by :func:`shipped`
-SHIPPED = {
-    "ldmv": checkpoint_path("ldmv.pt"),
-    "lpecmv": checkpoint_path("lpecmv.pt"),
-    "lpecmv_full": checkpoint_path("lpecmv_method1.pt"),
+#: the shipped checkpoints of each fusion name, loaded on first use by :func:`shipped`, which
+#: picks the one trained for the problem's ``n`` and ``R`` (the first is the default, ``R=None``)
+SHIPPED: dict[str, tuple[Path, ...]] = {
+    "ldmv": (checkpoint_path("ldmv.pt"), checkpoint_path("ldmv_m2.pt")),
+    "lpecmv": (checkpoint_path("lpecmv.pt"), checkpoint_path("lpecmv_m2.pt")),
+    "lpecmv_full": (checkpoint_path("lpecmv_method1.pt"),),
+    "lpecmv_objective": (checkpoint_path("lpecmv_objective.pt"),),
 }
-_LOADED: dict[str, Surrogate] = {}
+_LOADED: dict[Path, Surrogate] = {}
+_CATALOGUE: dict[Path, dict[str, Any]] = {}
 
 
-def shipped(kind: str) -> Surrogate:
+def shipped_catalogue(kind: str) -> list[dict[str, Any]]:
+    """What the shipped checkpoints of ``kind`` are trained for, from their JSONs (no torch).
+
+    Returns:
+        one dict per file of ``SHIPPED[kind]`` that exists: ``path``, ``n``, ``m``, ``R``
+        ((m, m) list), ``bearing_sigma_deg`` (``None`` for range only) and ``range_sigma``
+        (``sqrt(R[0][0])``, m).
+
+    Raises:
+        ValueError: unknown ``kind`` or an unreadable JSON (names the file).
+    """
+    if kind not in SHIPPED:
+        raise ValueError(f"kind must be one of {sorted(SHIPPED)}, got {kind!r}")
+    out = []
+    for pt in SHIPPED[kind]:
+        if pt not in _CATALOGUE:
+            js = pt.with_suffix(".json")
+            if not (pt.is_file() and js.is_file()):
+                continue
+            try:
+                meta = json.loads(js.read_text())
+                R = np.asarray(meta["R"], dtype=np.float64)
+                entry = {"path": pt, "n": int(meta["n"]), "m": int(meta["m"]), "R": R.tolist(),
+                         "bearing_sigma_deg": meta.get("bearing_sigma_deg"),
+                         "range_sigma": float(np.sqrt(R[0, 0]))}  # fmt: skip
+            except (OSError, KeyError, TypeError, ValueError, IndexError) as exc:
+                raise ValueError(f"surrogate metadata {js} is invalid: {exc!s}") from None
+            if R.shape != (entry["m"], entry["m"]):
+                raise ValueError(f"surrogate metadata {js}: R is not {entry['m']} x {entry['m']}")
+            _CATALOGUE[pt] = entry
+        out.append(_CATALOGUE[pt])
+    return out
+
+
+def describe_shipped(kind: str) -> str:
+    """One line per shipped checkpoint of ``kind``: file, n, m, noise (for error messages)."""
+    parts = []
+    for e in shipped_catalogue(kind):
+        noise = f"range_sigma {e['range_sigma']:.4g} m"
+        if e["m"] == 2 and e["bearing_sigma_deg"] is not None:
+            noise += f", bearing_sigma_deg {e['bearing_sigma_deg']:.4g}"
+        parts.append(f"{e['path'].name} (n = {e['n']}, m = {e['m']}, {noise}, R = {e['R']})")
+    return "; ".join(parts) or "none"
+
+
+def shipped(kind: str, *, R: Any = None, n: int | None = None) -> Surrogate:
     """A shipped surrogate (``checkpoints/``), loaded once per process.
 
-    ``kind``: ``"ldmv"``, ``"lpecmv"`` (method 3) or ``"lpecmv_full"`` (method 1).
+    ``kind``: ``"ldmv"``, ``"lpecmv"`` (method 3), ``"lpecmv_full"`` (method 1) or
+    ``"lpecmv_objective"`` (method 3 trained on the objective eq. 8a, the calibrated one).
+    ``R`` (m, m): the measurement noise of the problem; the checkpoint of ``kind`` whose ``m``
+    and training ``R`` match it (:func:`selenv.core.fusion.surrogate.same_R`) and, when ``n``
+    is given, whose ``n`` matches, is returned. ``R=None``: the range-only (m = 1) checkpoint,
+    as before the m = 2 ones existed.
 
     This is the hook ``selenv.scenarios.cooperative`` calls for ``fusion="ldmv"`` /
     ``"lpecmv"`` (through a lazy ``"module:attr"`` reference, so ``selenv`` never imports
     ``learned`` at import time).
 
     Raises:
-        ValueError: unknown ``kind`` or a missing / invalid checkpoint (names the file).
+        ValueError: unknown ``kind``, a missing / invalid checkpoint (names the file), or no
+            shipped checkpoint trained for ``(n, R)`` (lists the shipped ones).
     """
+    from selenv.core.fusion.surrogate import same_R  # core has no torch: imports stay downward
+
     if kind not in SHIPPED:
         raise ValueError(f"kind must be one of {sorted(SHIPPED)}, got {kind!r}")
-    if kind not in _LOADED:
-        if not SHIPPED[kind].is_file():
-            raise ValueError(f"shipped checkpoint {SHIPPED[kind]} not found")
-        _LOADED[kind] = Surrogate.load(SHIPPED[kind])
-    return _LOADED[kind]
+    if R is None and n is None:
+        pt = SHIPPED[kind][0]
+    else:
+        R_arr = None if R is None else np.atleast_2d(as_float_array(R, "R"))
+        match = [
+            e["path"]
+            for e in shipped_catalogue(kind)
+            if (n is None or e["n"] == n) and (R_arr is None or same_R(e["R"], R_arr))
+        ]
+        if not match:
+            got = "" if R_arr is None else f", m = {R_arr.shape[0]}, R = {R_arr.tolist()}"
+            raise ValueError(
+                f"no shipped {kind!r} surrogate is trained for n = {n}{got}; shipped: "
+                f"{describe_shipped(kind)}"
+            )
+        pt = match[0]
+    if pt not in _LOADED:
+        if not pt.is_file():
+            raise ValueError(f"shipped checkpoint {pt} not found")
+        _LOADED[pt] = Surrogate.load(pt)
+    return _LOADED[pt]

@@ -15,6 +15,15 @@ belief, *without* the cross-covariance, by one of the fusion methods:
 | ``pecmv`` | PECMV, eqs. (7)-(9) (:func:`selenv.core.fusion.pecmv_update`) |
 | ``ldmv`` / ``lpecmv`` | the DMV / PECMV update with omega / C predicted by the shipped surrogate |
 | ``lpecmv_full`` | PECMV with the full-``C`` surrogate (method 1) instead of the diagonal one |
+| ``lpecmv_objective`` | PECMV with a diagonal-``C`` surrogate trained on the objective eq. (8a) |
+
+The learned rules use the shipped checkpoint trained for the scenario's ``n``, ``m`` and
+relative noise ``R`` (:func:`check_learned_fusion`): range only (``bearing_sigma_deg=None``,
+m = 1) -> ``checkpoints/ldmv.pt`` / ``lpecmv.pt``; range + bearing at the trained 2 deg
+(m = 2) -> ``ldmv_m2.pt`` / ``lpecmv_m2.pt``. Any other noise (another ``range_sigma`` or
+``bearing_sigma_deg``, the unicycle model) is a ``ValueError`` at construction naming
+``fusion`` and ``bearing_sigma_deg`` and listing the shipped checkpoints: the features of
+eq. (13) do not contain ``R``, so a network trained for another noise would be silently wrong.
 
 with ``A = H_i P_i H_i^T``, ``B = H_j P_j H_j^T``. ``dead_reckoning`` processes nothing (the
 paper's "ZUPT-only" column; ins agents still get their velocity pseudo-measurements, see
@@ -61,13 +70,18 @@ __all__ = [
     "CLConfig",
     "CLProblem",
     "CLSimulation",
+    "check_learned_fusion",
     "fuse_relative",
     "make_cl_problem",
+    "relative_noise_cov",
 ]
 
 FUSION_METHODS = (
     "dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv", "lpecmv_full",
+    "lpecmv_objective",
 )  # fmt: skip
+#: the fusion methods that need a shipped learned surrogate
+LEARNED_FUSIONS = ("ldmv", "lpecmv", "lpecmv_full", "lpecmv_objective")
 TRACKS = ("rectangle", "circle", "lemniscate")
 _DEG = np.pi / 180.0
 
@@ -384,6 +398,49 @@ def make_cl_problem(
     )
 
 
+def relative_noise_cov(config: CLConfig) -> FloatArray:
+    """``R`` (m, m) of a relative measurement: ``diag(range_sigma^2[, (bearing_sigma rad)^2])``."""
+    m = 1 if config.bearing_sigma_deg is None else 2
+    return np.diag([config.range_sigma**2, (float(config.bearing_sigma_deg or 0) * _DEG) ** 2][:m])
+
+
+def check_learned_fusion(config: CLConfig, fusion: str) -> Any:
+    """The shipped surrogate a learned ``fusion`` uses on scenarios ``config`` (else ``None``).
+
+    ``fusion``: one of :data:`LEARNED_FUSIONS`; the surrogate is the one trained for
+    the scenario's ``n`` (model), ``m`` and ``R`` (:func:`relative_noise_cov`).
+
+    Raises:
+        ValueError: no shipped surrogate matches (names ``fusion``, ``bearing_sigma_deg``,
+            ``range_sigma``, ``model`` and lists the shipped checkpoints).
+    """
+    if fusion not in LEARNED_FUSIONS:
+        return None
+    from selenv.core import fusion as core_fusion  # deferred: keeps scenarios importable
+
+    R = relative_noise_cov(config)
+    try:
+        return core_fusion.load_surrogate(fusion, R=R, n=config.agent_model.n)
+    except ValueError as exc:
+        bearing = config.bearing_sigma_deg
+        raise ValueError(
+            f"fusion={fusion!r} needs a shipped surrogate trained for this scenario "
+            f"(model={config.model!r}: n = {config.agent_model.n}; bearing_sigma_deg={bearing!r}"
+            f", range_sigma={config.range_sigma!r}: m = {R.shape[0]}, R = {R.tolist()}), and "
+            f"there is none: {exc}. Use the noise of a shipped one (bearing_sigma_deg=None for "
+            f"range only, or the trained bearing_sigma_deg), an exact fusion ('dmv', 'pecmv') "
+            + (
+                f"or train one: python -m selenv.train.train_surrogate --kind "
+                f"{'ldmv' if fusion == 'ldmv' else 'lpecmv'}"
+                + (" --method 1" if fusion == "lpecmv_full" else "")
+                + (" --objective-loss" if fusion == "lpecmv_objective" else "")
+                + (f" --bearing-sigma-deg {bearing}" if bearing is not None else "")
+                if config.model == "ins"
+                else "(the training script generates model='ins' scenarios only)"
+            )
+        ) from None
+
+
 def fuse_relative(
     method: str,
     x_i: FloatArray,
@@ -430,7 +487,7 @@ def fuse_relative(
     if method == "ldmv":
         ld = fusion.ldmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
         return np.asarray(ld.x), np.asarray(ld.P)
-    if method in ("lpecmv", "lpecmv_full"):
+    if method in ("lpecmv", "lpecmv_full", "lpecmv_objective"):
         lp = fusion.lpecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, variant=method)
         return np.asarray(lp.x), np.asarray(lp.P)
     raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
@@ -441,7 +498,11 @@ class CLSimulation:
 
     Args:
         problem: the realisation.
-        fusion: one of :data:`FUSION_METHODS`.
+        fusion: one of :data:`FUSION_METHODS`; a learned one needs a shipped surrogate trained
+            for the scenario's noise (:func:`check_learned_fusion`).
+
+    Raises:
+        ValueError: unknown ``fusion``, or a learned ``fusion`` without a matching surrogate.
 
     Attributes:
         x: (A, n) estimates; P: (A, n, n) covariances; k: steps done.
@@ -456,10 +517,8 @@ class CLSimulation:
         self.x = problem.x0_hat.copy()
         self.P = np.repeat(cfg.P0()[None], cfg.n_agents, axis=0)
         self.k = 0
-        m = 1 if cfg.bearing_sigma_deg is None else 2
-        self.R_rel = np.diag(
-            [cfg.range_sigma**2, (float(cfg.bearing_sigma_deg or 0) * _DEG) ** 2][:m]
-        )
+        self.R_rel = relative_noise_cov(cfg)
+        check_learned_fusion(cfg, fusion)  # a learned fusion without a matching network: now
 
     @property
     def truth(self) -> FloatArray:

@@ -15,13 +15,16 @@ then test metrics and the checkpoint ``<out>.pt`` with its metadata ``<out>.json
 
     python -m selenv.train.train_surrogate --kind ldmv       # -> runs/surrogates/ldmv.pt + .json
     python -m selenv.train.train_surrogate --kind lpecmv --method 1   # -> lpecmv_method1.pt there
+    python -m selenv.train.train_surrogate --kind lpecmv --bearing-sigma-deg 2  # lpecmv_m2.pt
+                              # range + bearing (m = 2), R = diag(0.1^2, (2 deg)^2)
     python -m selenv.train.train_surrogate --config configs/ldmv.toml \
         --out checkpoints/ldmv.pt --force                      # the shipped checkpoint, again
     tensorboard --logdir runs
 
 An existing output (``<out>.pt``, ``<out>.json``, ``--save-data``) is refused before any data is
 generated, unless ``--force``; the shipped surrogates' runs are ``configs/ldmv.toml``,
-``configs/lpecmv*.toml``.
+``configs/lpecmv*.toml``; with range + bearing (m = 2) ``configs/ldmv_m2.toml``,
+``configs/lpecmv_m2.toml``.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from tqdm.auto import tqdm
 from selenv.core.fusion import dmv_update, pecmv_update
 from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.surrogate_data import (
+    GenerationConfig,
     SurrogateDataset,
     generate_dataset,
     load_dataset,
@@ -69,6 +73,11 @@ class Config:
     method: int = arg(3, "LPECMV output method of Table I (1, 2, 3); ldmv ignores it")
     # data
     samples: int = arg(50_000, "dataset rows to generate (ignored with --data)")
+    bearing_sigma_deg: float | None = arg(
+        None,
+        "relative bearing noise (deg) of the generated scenarios: range + bearing, m = 2 "
+        "(unset: range only, m = 1; ignored with --data)",
+    )
     data: str = arg("", "load this .npz dataset instead of generating one")
     save_data: str = arg("", "also write the generated dataset to this .npz")
     workers: int = arg(0, "generation processes / Ray tasks in flight (0: all cores)")
@@ -88,6 +97,11 @@ class Config:
     momentum: float = arg(0.0, "SGD momentum (--optimizer sgd only)")
     lr_schedule: str = arg("constant", "constant | onecycle (cosine one-cycle peaking at --lr)")
     barrier_lambda: float = arg(1e-3, "weight of the barrier term of eq. 14 (method 1 only)")
+    objective_loss: bool = arg(
+        False,
+        "lpecmv method 3 only: train on the PECMV objective eq. 8a itself (mean gap "
+        "log det P_i+(C*) - log det P_i+(C_hat)) instead of the MSE to diag(C*)",
+    )
     patience: int = arg(20, "epochs without a better validation loss before stopping")
     seed: int = arg(0, "seed of the data generation, the split, the initialisation and batches")
     # outputs
@@ -108,9 +122,10 @@ def parse_args(argv: list[str] | None = None) -> Config:
 
 
 def checkpoint_name(cfg: Config) -> str:
-    """``ldmv``, ``lpecmv`` (method 3) or ``lpecmv_method<m>``."""
+    """``ldmv``, ``lpecmv`` (method 3) or ``lpecmv_method<m>``; ``_m2`` appended with bearings."""
     method = cfg.method if cfg.kind == "lpecmv" else 3
-    return cfg.kind if cfg.kind == "ldmv" or method == 3 else f"lpecmv_method{method}"
+    name = cfg.kind if cfg.kind == "ldmv" or method == 3 else f"lpecmv_method{method}"
+    return name if cfg.bearing_sigma_deg is None or cfg.data else f"{name}_m2"
 
 
 def output_path(cfg: Config) -> Path:
@@ -133,6 +148,39 @@ def targets(ds: SurrogateDataset, kind: str, method: int) -> np.ndarray:
     if kind == "ldmv":
         return ds.omega
     return ds.C_diag if method == 3 else ds.C.reshape(len(ds), -1)
+
+
+def objective_terms(ds: SurrogateDataset) -> dict[str, torch.Tensor]:
+    """float64 tensors of every row for :func:`pecmv_log_det` (and the optimum ``opt``)."""
+    P_i, P_j = torch.from_numpy(ds.P_i), torch.from_numpy(ds.P_j)
+    return {
+        "P_i": P_i,
+        "P_j": P_j,
+        "L_i": torch.linalg.cholesky(P_i),
+        "L_j": torch.linalg.cholesky(P_j),
+        "H_i": torch.from_numpy(ds.H_i),
+        "H_j": torch.from_numpy(ds.H_j),
+        "R": torch.from_numpy(np.asarray(ds.R, dtype=np.float64)),
+        "opt": torch.from_numpy(ds.log_det_pecmv),
+    }
+
+
+def pecmv_log_det(c: torch.Tensor, t: dict[str, torch.Tensor], rows: torch.Tensor) -> torch.Tensor:
+    """Eq. (8a) per row, differentiable in the diagonal ``c`` (B, n) of ``C``.
+
+    ``X = L_i diag(c) L_j^T`` (eq. 11), ``U = P_i H_i^T + X H_j^T``,
+    ``S = H_i U + H_j (X^T H_i^T + P_j H_j^T) + R``, ``P_i+ = P_i - U S^-1 U^T`` (eq. 9): the
+    update of :func:`selenv.core.fusion.pecmv_update` with a given ``C``; returns
+    ``log det P_i+`` (B,) in float64.
+    """
+    P_i, P_j, L_i, L_j = (t[k][rows] for k in ("P_i", "P_j", "L_i", "L_j"))
+    H_i, H_j = t["H_i"][rows], t["H_j"][rows]
+    X = (L_i * c.to(torch.float64)[:, None, :]) @ L_j.transpose(1, 2)
+    U = P_i @ H_i.transpose(1, 2) + X @ H_j.transpose(1, 2)
+    V = X.transpose(1, 2) @ H_i.transpose(1, 2) + P_j @ H_j.transpose(1, 2)
+    S = H_i @ U + H_j @ V + t["R"]
+    P = P_i - U @ torch.linalg.solve(0.5 * (S + S.transpose(1, 2)), U.transpose(1, 2))
+    return torch.linalg.slogdet(0.5 * (P + P.transpose(1, 2)))[1]
 
 
 def evaluate(sur: Surrogate, ds: SurrogateDataset) -> dict[str, float]:
@@ -197,6 +245,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise ValueError(f"--kind must be one of {KINDS}, got {cfg.kind!r}")
     if cfg.method not in METHODS:
         raise ValueError(f"--method must be one of {METHODS}, got {cfg.method}")
+    if cfg.objective_loss and (cfg.kind, cfg.method) != ("lpecmv", 3):
+        raise ValueError("--objective-loss needs --kind lpecmv --method 3")
+    if cfg.bearing_sigma_deg is not None and not 1e-3 <= cfg.bearing_sigma_deg <= 90.0:
+        raise ValueError(
+            "--bearing-sigma-deg must be in [0.001, 90] deg (or unset), got "
+            f"{cfg.bearing_sigma_deg}"
+        )
     if not (
         0 < cfg.val_fraction and 0 < cfg.test_fraction and cfg.val_fraction + cfg.test_fraction < 1
     ):
@@ -228,6 +283,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 cfg.samples,
                 seed=cfg.seed,
                 workers=cfg.workers,
+                gen=GenerationConfig(bearing_sigma_deg=cfg.bearing_sigma_deg),
                 progress=cfg.progress,
                 executor=executor,
             )
@@ -244,6 +300,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     Y = targets(ds, cfg.kind, method).astype(np.float32)
     Xt, Yt = torch.from_numpy(X[train]), torch.from_numpy(Y[train])
     Xv, Yv = torch.from_numpy(X[val]), torch.from_numpy(Y[val])
+    terms = objective_terms(ds) if cfg.objective_loss else {}
+    if cfg.objective_loss:  # the "labels" are row numbers into the problems of `terms`
+        Yt, Yv = torch.from_numpy(train), torch.from_numpy(val)
 
     # 2. model (input standardisation from the training split only)
     n, m = int(ds.header["n"]), int(ds.header["m"])
@@ -273,6 +332,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise ValueError(f"--lr-schedule must be constant or onecycle, got {cfg.lr_schedule!r}")
 
     def loss_fn(pred: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        if cfg.objective_loss:  # mean gap to the optimum of eq. (8a), >= 0
+            return torch.mean(terms["opt"][y] - pecmv_log_det(pred, terms, y))
         if method == 1 and cfg.kind == "lpecmv":
             return barrier_loss(pred, y, cfg.barrier_lambda)
         return torch.mean((pred - y) ** 2)  # MSE (Table II)
@@ -338,7 +399,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 "momentum": cfg.momentum if opt_name == "sgd" else None,
                 "lr": lr,
                 "batch_size": batch_size,
-                "loss": "barrier eq. 14" if method == 1 and cfg.kind == "lpecmv" else "mse",
+                "loss": (
+                    "objective eq. 8a"
+                    if cfg.objective_loss
+                    else "barrier eq. 14"
+                    if method == 1 and cfg.kind == "lpecmv"
+                    else "mse"
+                ),
                 "barrier_lambda": cfg.barrier_lambda if method == 1 else None,
                 "epochs_max": cfg.epochs,
                 "epochs_run": epoch + 1 if cfg.epochs else 0,
@@ -352,6 +419,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "metrics": {"test": metrics},
         }
     )
+    bearing = (ds.header.get("generation") or {}).get("bearing_sigma_deg")
+    if bearing is not None:  # m = 2: the bearing noise of R[1, 1], in the scenario's unit
+        sur.meta["bearing_sigma_deg"] = bearing
     sur.save(out)
     meta = json.loads(out.with_suffix(".json").read_text())
     print(json.dumps({"checkpoint": str(out), "metrics": metrics}, indent=2))
