@@ -15,13 +15,29 @@ Workload of the paper's Sec. IV-A: n = 30 receivers, N_max = 14, N_S = 20, tau =
 Then a full 500-step episode of ``selenv/ReceiverClustering-v0`` with the ``ga`` agent running a
 generation every step (N_T = 1).
 
+``--compare`` (issue 19): the GA generation of the code before issue 19
+(``benchmarks/clustering_ga_reference.py``, with the ``ClusterFilterBank.evaluate`` of that time)
+against the current one, both variants, in one process with interleaved rounds (old, new, old,
+new, ...): each side has its own fork of the same steady-state bank, runs a generation, then
+re-clusters and steps its bank as the env does; the populations are checked equal every round.
+Prints the median per-generation times and their ratio.
+
     .venv/bin/python benchmarks/bench_clustering.py [--generations 100] [--naive 5]
+    .venv/bin/python benchmarks/bench_clustering.py --compare [--rounds 300] [--seed 0]
+
+``--env-step``: one ``ReceiverClustering-v0`` step (preset ``paper``, ``gym.make``, the action
+keeps the clustering) against one ``CartPole-v1`` step, interleaved rounds of 100 / 2000 steps;
+prints the median per-step times and their ratio (issue 19 target: <= 50x).
+
+    .venv/bin/python benchmarks/bench_clustering.py --env-step [--rounds 300]
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -96,12 +112,95 @@ def naive_axis(problem: ClusteringProblem, bank: ClusterFilterBank, cands: np.nd
     return out
 
 
+def compare_generation(rounds: int, seed: int, variant: str) -> tuple[float, float]:
+    """Median seconds of one GA generation, (before issue 19, now), interleaved; checks equality.
+
+    n = 30, N_max = 14 (at most 3 receivers per cluster), N_S = 20, tau = 20, fixed noise; both
+    sides start from forks of one bank after 60 filter steps, with equally seeded GAs.
+    """
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import clustering_ga_reference as ref  # the pre-issue-19 code
+
+    rng = np.random.default_rng(seed)
+    problem = make_clustering_problem(ClusteringConfig(), rng)
+    base = ClusterFilterBank(problem, random_feasible_clustering(30, 3, rng))
+    for _ in range(60):
+        base.step()
+    bank_old, bank_new = base.fork(), base.fork()
+    ga_old = ref.GeneticClustering(
+        lambda c: ref.old_evaluate(bank_old, c),
+        base.labels,
+        3,
+        ref.GAConfig(variant=variant),
+        rng=seed + 1,
+    )
+    ga_new = GeneticClustering(
+        bank_new.evaluate, base.labels, 3, GAConfig(variant=variant), rng=seed + 1
+    )
+    times: dict[str, list[float]] = {"old": [], "new": []}
+    for _ in range(rounds):
+        for side, ga, bank in (("old", ga_old, bank_old), ("new", ga_new, bank_new)):
+            t0 = time.perf_counter()
+            best, _ = ga.generation()
+            times[side].append(time.perf_counter() - t0)
+            bank.recluster(best)
+            bank.step()
+        if not (
+            np.array_equal(ga_old.population, ga_new.population)
+            and np.array_equal(ga_old.costs, ga_new.costs)
+        ):
+            raise AssertionError("the old and new GA generations differ")
+    return float(np.median(times["old"])), float(np.median(times["new"]))
+
+
+def compare_env_step(rounds: int, seed: int) -> tuple[float, float]:
+    """Median seconds per step of (ReceiverClustering-v0, CartPole-v1), interleaved rounds."""
+    rc = gym.make("selenv/ReceiverClustering-v0", preset="paper", horizon=100_000)
+    cp = gym.make("CartPole-v1")
+    rc.reset(seed=seed)
+    cp.reset(seed=seed)
+    bank = rc.unwrapped.bank  # type: ignore[attr-defined]
+
+    def run(env: gym.Env, action: object, n: int) -> float:
+        t0 = time.perf_counter()
+        for _ in range(n):
+            _, _, term, trunc, _ = env.step(bank.labels if action is None else action)
+            if term or trunc:
+                env.reset(seed=seed)
+        return (time.perf_counter() - t0) / n
+
+    times: dict[str, list[float]] = {"rc": [], "cp": []}
+    for _ in range(rounds):
+        times["rc"].append(run(rc, None, 100))
+        times["cp"].append(run(cp, 0, 2000))
+    return float(np.median(times["rc"])), float(np.median(times["cp"]))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--generations", type=int, default=100)
     ap.add_argument("--naive", type=int, default=5, help="generations timed with the naive ways")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--compare", action="store_true", help="old vs new GA generation only")
+    ap.add_argument("--rounds", type=int, default=300, help="interleaved rounds of --compare")
+    ap.add_argument("--env-step", action="store_true", help="env step vs CartPole-v1 only")
     a = ap.parse_args()
+    if a.env_step:
+        t_rc, t_cp = compare_env_step(a.rounds, a.seed)
+        print(
+            f"env step ({a.rounds} rounds, median): ReceiverClustering-v0 {1e6 * t_rc:7.1f} us,"
+            f" CartPole-v1 {1e6 * t_cp:6.2f} us, ratio {t_rc / t_cp:5.1f}x"
+        )
+        return
+    if a.compare:
+        print(f"GA generation, n = 30, N_max = 14, N_S = 20, tau = 20 ({a.rounds} rounds, median)")
+        for variant in ("improved", "literal"):
+            t_old, t_new = compare_generation(a.rounds, a.seed, variant)
+            print(
+                f"  {variant:<9} before issue 19 {1e3 * t_old:7.2f} ms   now {1e3 * t_new:7.2f} ms"
+                f"   speed-up {t_old / t_new:5.2f}x   (populations identical every round)"
+            )
+        return
     rng = np.random.default_rng(a.seed)
     problem = make_clustering_problem(ClusteringConfig(), rng)
     bank = ClusterFilterBank(problem, random_feasible_clustering(30, 3, rng))

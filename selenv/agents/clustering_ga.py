@@ -41,6 +41,7 @@ from selenv.scenarios.clustering_labels import (
     IntArray,
     as_labels,
     canonical_labels,
+    canonicalize_rows,
     check_int,
     cluster_sizes,
     is_feasible,
@@ -118,6 +119,8 @@ def _label_counts(x: IntArray) -> tuple[IntArray, IntArray, IntArray]:
 
 def _fits(labels: IntArray, max_size: int) -> bool:
     """Every cluster of ``labels`` has at most ``max_size`` members (any label values)."""
+    if int(labels.max()) < 4 * labels.size + 64:  # compact: unused labels count 0
+        return bool(np.bincount(labels).max() <= max_size)
     return bool(_label_counts(labels)[2].max() <= max_size)
 
 
@@ -130,18 +133,32 @@ def align_labels(a: ArrayLike, b: ArrayLike) -> IntArray:
     a relabelling of ``a`` it equals ``a``. Our addition to Greiff et al. 2022 (Table I crosses
     raw label vectors): it makes crossover meaningful despite label-permutation symmetry.
     """
+    return _align(*_check_pair(a, b))
+
+
+def _check_pair(a: ArrayLike, b: ArrayLike) -> tuple[IntArray, IntArray]:
+    """Two label vectors ``a``, ``b`` of the same shape, validated (errors name them)."""
     x, y = as_labels(a, "a"), as_labels(b, "b")
     if x.shape != y.shape:
         raise ValueError(f"a and b must have the same shape, got {x.shape} and {y.shape}")
-    ua, ia = np.unique(x, return_inverse=True)
-    ub, ib = np.unique(y, return_inverse=True)
-    ia, ib = ia.reshape(-1), ib.reshape(-1)
+    return x, y
+
+
+def _align(x: IntArray, y: IntArray) -> IntArray:
+    """:func:`align_labels` of validated ``x``, ``y`` (int64, same shape)."""
+    ua, ia, _ = _label_counts(x)  # sorted labels and inverse, as np.unique(return_inverse)
+    ub, ib, _ = _label_counts(y)
     T = np.bincount(ia * ub.size + ib, minlength=ua.size * ub.size).reshape(ua.size, ub.size)
     rows, cols = linear_sum_assignment(T, maximize=True)
     mapping = np.empty(ub.size, dtype=np.int64)
     mapping[cols] = ua[rows]
-    unmatched = np.setdiff1d(np.arange(ub.size), cols)
-    mapping[unmatched] = np.setdiff1d(np.arange(x.size + ub.size), ua)[: unmatched.size]
+    if cols.size < ub.size:  # unmatched clusters of b: the smallest labels unused by a
+        unmatched = np.ones(ub.size, dtype=bool)
+        unmatched[cols] = False
+        free = np.ones(x.size + ub.size, dtype=bool)
+        free[ua[ua < free.size]] = False
+        idx = np.flatnonzero(unmatched)
+        mapping[idx] = np.flatnonzero(free)[: idx.size]
     return mapping[ib]
 
 
@@ -178,12 +195,17 @@ def o1c(
     y = align_labels(x, b)
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
+    return _o1c(x, y, rng, max_size, max_tries)
+
+
+def _o1c(x: IntArray, y: IntArray, rng: np.random.Generator, max_size: int, tries: int) -> IntArray:
+    """:func:`o1c` of validated arguments, ``y`` already aligned to ``x``."""
 
     def draw() -> IntArray:
         j = int(rng.integers(1, x.size)) if x.size > 1 else 1  # cut point
         return np.concatenate([x[:j], y[j:]])
 
-    return _retry(draw, x, max_size, max_tries)
+    return _retry(draw, x, max_size, tries)
 
 
 def o2c(
@@ -197,7 +219,12 @@ def o2c(
     y = align_labels(x, b)
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
-    return _retry(lambda: np.where(rng.random(x.size) < 0.5, x, y), x, max_size, max_tries)
+    return _o2c(x, y, rng, max_size, max_tries)
+
+
+def _o2c(x: IntArray, y: IntArray, rng: np.random.Generator, max_size: int, tries: int) -> IntArray:
+    """Uniform crossover of validated ``x``, ``y`` (aligned or raw): :func:`o2c`'s draws."""
+    return _retry(lambda: np.where(rng.random(x.size) < 0.5, x, y), x, max_size, tries)
 
 
 def o1m(
@@ -216,14 +243,24 @@ def o1m(
     n_labels = check_int(n_labels, "n_labels", 1)
     check_generator(rng)
     max_size, _ = _check_caps(max_size, max_tries)
+    return _o1m(x, n_labels, rng, max_size)
+
+
+def _o1m(x: IntArray, n_labels: int, rng: np.random.Generator, max_size: int) -> IntArray:
+    """:func:`o1m` of validated arguments."""
     # cluster sizes from the labels in use (no array of length n_labels or max(a) + 1)
     uniq, inverse, counts = _label_counts(x)
     size_x = counts[inverse]  # (n,) size of each agent's cluster
-    used = uniq[uniq < n_labels]
-    # the smallest label in [0, n_labels) not in use is at most len(uniq)
-    unused = np.setdiff1d(np.arange(min(n_labels, uniq.size + 1)), uniq)[:1]
+    in_range = uniq < n_labels
+    used = uniq[in_range]
+    # the smallest label in [0, n_labels) not in use is at most len(uniq): the first i with
+    # uniq[i] != i (uniq is sorted, distinct, >= 0), else len(uniq)
+    gaps = np.flatnonzero(uniq != np.arange(uniq.size))
+    first = int(gaps[0]) if gaps.size else uniq.size
+    n_unused = int(first < min(n_labels, uniq.size + 1))
+    unused = np.full(n_unused, first, dtype=np.int64)
     targets = np.append(used, unused)  # (L,)
-    size_t = np.append(counts[uniq < n_labels], np.zeros(unused.size, np.int64))
+    size_t = np.append(counts[in_range], np.zeros(n_unused, np.int64))
     over = counts > max_size
     over_x = over[inverse]
     # the source cluster of agent i shrinks by one: fine unless another cluster is over the cap
@@ -248,6 +285,11 @@ def o2m(a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 
     x = as_labels(a, "a")
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
+    return _o2m(x, rng, max_size, max_tries)
+
+
+def _o2m(x: IntArray, rng: np.random.Generator, max_size: int, max_tries: int) -> IntArray:
+    """:func:`o2m` of validated arguments."""
     i, j = np.nonzero(np.triu(x[:, None] != x[None, :]))
     if i.size == 0:
         return x.copy()
@@ -270,7 +312,12 @@ def o3m(a: ArrayLike, rng: np.random.Generator, max_size: int, max_tries: int = 
     x = as_labels(a, "a")
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
-    clusters = np.unique(x)
+    return _o3m(x, rng, max_size, max_tries)
+
+
+def _o3m(x: IntArray, rng: np.random.Generator, max_size: int, max_tries: int) -> IntArray:
+    """:func:`o3m` of validated arguments."""
+    clusters = _label_counts(x)[0]  # sorted labels in use, as np.unique
     if clusters.size < 2:
         return x.copy()
 
@@ -297,11 +344,16 @@ def o1c_literal(
     of ``a``; :func:`o1c` draws ``j`` from ``{1..n-1}``). Arguments, retries and result as
     :func:`o1c`.
     """
-    x, y = as_labels(a, "a"), as_labels(b, "b")
-    if x.shape != y.shape:
-        raise ValueError(f"a and b must have the same shape, got {x.shape} and {y.shape}")
+    x, y = _check_pair(a, b)
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
+    return _o1c_literal(x, y, rng, max_size, max_tries)
+
+
+def _o1c_literal(
+    x: IntArray, y: IntArray, rng: np.random.Generator, max_size: int, max_tries: int
+) -> IntArray:
+    """:func:`o1c_literal` of validated arguments."""
 
     def draw() -> IntArray:
         j = int(rng.integers(1, x.size + 1))  # cut point, j in {1..n}
@@ -317,12 +369,10 @@ def o2c_literal(
 
     The same draws as :func:`o2c` (one ``rng.random(n)`` per try); arguments as :func:`o1c`.
     """
-    x, y = as_labels(a, "a"), as_labels(b, "b")
-    if x.shape != y.shape:
-        raise ValueError(f"a and b must have the same shape, got {x.shape} and {y.shape}")
+    x, y = _check_pair(a, b)
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
-    return _retry(lambda: np.where(rng.random(x.size) < 0.5, x, y), x, max_size, max_tries)
+    return _o2c(x, y, rng, max_size, max_tries)
 
 
 def o1m_literal(
@@ -341,6 +391,11 @@ def o1m_literal(
     x = as_labels(a, "a")
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
+    return _o1m_literal(x, rng, max_size, max_tries)
+
+
+def _o1m_literal(x: IntArray, rng: np.random.Generator, max_size: int, max_tries: int) -> IntArray:
+    """:func:`o1m_literal` of validated arguments."""
     present = _label_counts(x)[0]  # (|C|,) labels in use, sorted
 
     def draw() -> IntArray:
@@ -364,6 +419,11 @@ def o2m_literal(
     x = as_labels(a, "a")
     check_generator(rng)
     max_size, max_tries = _check_caps(max_size, max_tries)
+    return _o2m_literal(x, rng, max_size, max_tries)
+
+
+def _o2m_literal(x: IntArray, rng: np.random.Generator, max_size: int, max_tries: int) -> IntArray:
+    """:func:`o2m_literal` of validated arguments."""
     if x.size < 2:
         return x.copy()
 
@@ -541,19 +601,23 @@ class GeneticClustering:
         self.n_generations += 1
         return self.best, self.best_cost
 
+    # The operators' cores are called on the GA's own (validated, int64) labels: the public
+    # operators validate their arguments, which the GA checked once in __init__.
     def _crossover(self, r: int) -> IntArray:
-        ops = (o1c_literal, o2c_literal) if self.config.variant == "literal" else (o1c, o2c)
-        op = ops[self._crossovers[int(self._rng.integers(len(self._crossovers)))]]
-        a, b = self.population[0], self.population[r]
-        return op(a, b, self._rng, self.max_size, self.config.max_tries)
+        k = self._crossovers[int(self._rng.integers(len(self._crossovers)))]
+        x, y = self.population[0], self.population[r]
+        rng, s, t = self._rng, self.max_size, self.config.max_tries
+        if self.config.variant == "literal":
+            return (_o1c_literal, _o2c)[k](x, y, rng, s, t)
+        return (_o1c, _o2c)[k](x, _align(x, y), rng, s, t)
 
     def _mutate(self, members: list[IntArray]) -> IntArray:
         k = self._mutations[int(self._rng.integers(len(self._mutations)))]
         a = members[int(self._rng.integers(len(members)))]
         rng, s, t = self._rng, self.max_size, self.config.max_tries
         if self.config.variant == "literal":
-            return (o1m_literal, o2m_literal, o3m)[k](a, rng, s, t)
-        return o1m(a, self.n_labels, rng, s, t) if k == 0 else (o2m, o3m)[k - 1](a, rng, s, t)
+            return (_o1m_literal, _o2m_literal, _o3m)[k](a, rng, s, t)
+        return _o1m(a, self.n_labels, rng, s) if k == 0 else (_o2m, _o3m)[k - 1](a, rng, s, t)
 
     def _initialize(self, x: IntArray, name: str) -> None:
         if x.size != self.n:
@@ -577,7 +641,7 @@ class GeneticClustering:
 
     def _accept(self, candidates: IntArray) -> None:
         """Evaluate ``candidates`` ``(B, n)`` in one batch and store them sorted by cost."""
-        candidates = np.stack([canonical_labels(c) for c in candidates])
+        candidates = canonicalize_rows(candidates)  # the GA's own (valid) labels
         B = candidates.shape[0]
         raw = self._evaluate(candidates)
         try:

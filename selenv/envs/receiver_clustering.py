@@ -18,7 +18,7 @@ from selenv.scenarios.clustering import (
     make_clustering_problem,
 )
 from selenv.scenarios.clustering_filters import ClusterFilterBank
-from selenv.scenarios.clustering_labels import random_feasible_clustering
+from selenv.scenarios.clustering_labels import canonicalize, random_feasible_clustering
 from selenv.scenarios.validation import (
     ArgumentTypeError,
     check_choice,
@@ -527,7 +527,9 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
             raise RuntimeError("episode is over: call reset()")
         labels, reason = self._parse(action)
         rule = self.invalid_rule
-        if rule.check(f"action {self._describe(action)}", reason) and rule.terminates:
+        # the action is described (an array2string) only for an invalid action's message
+        invalid = reason is not None and rule.check(f"action {self._describe(action)}", reason)
+        if invalid and rule.terminates:
             self._done = True
             return self._obs(), rule.penalty, True, False, self._info(False, reason)
         changed = False if labels is None else bank.recluster(labels)
@@ -557,10 +559,10 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
             problem = self.problem
             assert problem is not None  # reset() ran: the bank exists
             arr = problem.check_labels(check_int_labels(action, self.n), "action")
-            reason = problem.violation(arr)
-            return (
-                (None, f"infeasible: {reason}") if reason else (problem.check_clustering(arr), None)
-            )
+            canon = canonicalize(arr)  # what check_clustering returns for a feasible arr
+            if np.bincount(canon).max() > problem.max_cluster_size:
+                return None, f"infeasible: {problem.violation(arr)}"
+            return canon, None
         k = check_discrete(action, edit_action_count(self.n))
         if not edit_mask(bank.labels, self.max_size)[k]:
             return None, f"masked: {self.describe_edit(k)} is not allowed now"

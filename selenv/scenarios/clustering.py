@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from selenv.core.linalg import FloatArray
-from selenv.scenarios.clustering_labels import as_labels, canonical_labels
+from selenv.scenarios.clustering_labels import as_labels, canonical_labels, canonicalize
 from selenv.scenarios.clustering_regimes import MultipathRegimes
 from selenv.scenarios.validation import (
     ArgumentTypeError,
@@ -270,16 +270,31 @@ def clustering_cost(
         posteriors: one (2 s_j + 1, 2 s_j + 1) per-axis covariance per cluster.
         weights: ``(alpha_G, alpha_C, alpha_L)``.
     """
+    # per-cluster statistics computed per size (stacked), then accumulated in cluster order
+    # exactly as a loop over the clusters would (each row reduces alone: same bits)
+    by_size: dict[int, list[int]] = {}
+    for j, P in enumerate(posteriors):
+        by_size.setdefault(P.shape[0], []).append(j)
+    stats: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * len(posteriors)
+    for d, idx in by_size.items():
+        Ps = np.stack([posteriors[j] for j in idx])  # (B, d, d)
+        pos = np.diagonal(Ps, axis1=1, axis2=2)[:, 0 : d - 1 : 2]  # (B, s)
+        rows = zip(
+            np.trace(Ps, axis1=1, axis2=2).tolist(),
+            pos.mean(axis=1).tolist(),
+            pos.max(axis=1).tolist(),
+            strict=True,
+        )
+        for j, row in zip(idx, rows, strict=True):
+            stats[j] = row
     total_mse = 0.0
     total_states = 0
     J_C = J_L = -np.inf
-    for P in posteriors:
-        s = (P.shape[0] - 1) // 2
-        pos = np.diagonal(P)[0 : 2 * s : 2]
-        total_mse += 2.0 * float(np.trace(P))
-        total_states += n_states(s)
-        J_C = max(J_C, float(pos.mean()))
-        J_L = max(J_L, float(pos.max()))
+    for P, (trace, mean, worst) in zip(posteriors, stats, strict=True):
+        total_mse += 2.0 * trace
+        total_states += n_states((P.shape[0] - 1) // 2)
+        J_C = max(J_C, mean)
+        J_L = max(J_L, worst)
     J_G = total_mse / total_states
     a_G, a_C, a_L = (float(w) for w in weights)
     return CostBreakdown(a_G * J_G + a_C * J_C + a_L * J_L, J_G, J_C, J_L)
@@ -374,10 +389,10 @@ class ClusteringProblem:
                 cluster and its receivers).
         """
         arr = self.check_labels(labels, name)
-        reason = self.violation(arr)
-        if reason is not None:
-            raise ValueError(f"{name}: {reason}")
-        return canonical_labels(arr)
+        canon = canonicalize(arr)
+        if np.bincount(canon).max() > self.max_cluster_size:
+            raise ValueError(f"{name}: {self.violation(arr)}")
+        return canon
 
     def check_labels(self, labels: Any, name: str = "clustering") -> np.ndarray:
         """Validate the form of a labelling (integers, shape ``(n,)``, values in ``[0, n)``).

@@ -20,8 +20,11 @@ the noise is fixed (it is keyed by the members alone).
 
 Speed: clusters are keyed by their member tuple and cached for the current time step, so a
 cluster shared by several candidates (or re-proposed by the GA) is filtered once; all new
-clusters of one size are stacked and filtered together by :func:`selenv.core.riccati.riccati_pass`
-(one batched solve per step instead of one Python loop per candidate).
+clusters of one size are stacked and filtered together by :func:`window_pass` (the arithmetic of
+:func:`selenv.core.riccati.riccati_pass`, bit for bit, without its per-call validation: one
+batched solve per step instead of one Python loop per candidate). Candidate label vectors are
+validated as one batch; their cluster keys are cached across steps and their costs within a
+step (the GA re-proposes its population every generation).
 :meth:`ClusterFilterBank.evaluate_changes` costs local edits (a few clusters replaced) without
 building label vectors. Re-clustering (Algorithm 2, lines 17-19) re-initialises the filters with
 the moments computed for the evaluation.
@@ -30,25 +33,104 @@ the moments computed for the evaluation.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from selenv.core.linalg import FloatArray
-from selenv.core.riccati import riccati_pass, riccati_step
+from selenv.core.linalg import MAX_ABS, FloatArray
+from selenv.core.riccati import riccati_step
 from selenv.scenarios.clustering import ClusteringProblem, CostBreakdown, clustering_cost, n_states
+from selenv.scenarios.clustering_labels import canonicalize
 
-__all__ = ["ClusterFilterBank", "cluster_keys"]
+__all__ = ["ClusterFilterBank", "cluster_keys", "window_pass"]
 
 Key = tuple[int, ...]
 
 
+def _find_solve_gufunc() -> Callable[..., FloatArray] | None:
+    """The gufunc behind ``np.linalg.solve`` (same kernel, same bits, without its wrapper)."""
+    try:
+        from numpy.linalg import _umath_linalg
+    except ImportError:  # pragma: no cover - a numpy without it: the public function
+        return None
+    gufunc: Callable[..., FloatArray] | None = getattr(_umath_linalg, "solve", None)
+    return gufunc
+
+
+_solve_gufunc = _find_solve_gufunc()
+
+
+def _raise_singular(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+def _solve(S: FloatArray, HP: FloatArray) -> FloatArray:
+    """``np.linalg.solve(S, HP)`` for float64 stacks ``(B, p, p)``, ``(B, p, n)``: same bits.
+
+    Call it inside ``np.errstate(call=_raise_singular, invalid="call", ...)`` (as
+    ``np.linalg.solve`` sets it) so that a singular ``S`` raises ``LinAlgError``.
+    """
+    if _solve_gufunc is None:  # pragma: no cover
+        return np.asarray(np.linalg.solve(S, HP), dtype=np.float64)
+    out: FloatArray = _solve_gufunc(S, HP, signature="dd->d")
+    return out
+
+
+def window_pass(
+    P0: FloatArray, F: FloatArray, Q: FloatArray, H: FloatArray, R: FloatArray, steps: int
+) -> FloatArray:
+    """:func:`~selenv.core.riccati.riccati_pass` for the bank's own (valid, float64) arrays.
+
+    The same operations in the same order (bit-identical, tested), without the per-call input
+    validation and with the solve's wrapper trimmed: Algorithm 1's hot path runs it for every
+    group of new clusters. ``R`` is ``(B, p, p)`` or, per step, ``(B, steps, p, p)``; returns
+    ``(B, steps + 1, n, n)``. Singular ``S`` and overflow raise riccati_pass's ``ValueError``.
+    """
+    B, n = P0.shape[0], P0.shape[1]
+    per_step = R.ndim == 4
+    out = np.empty((B, steps + 1, n, n))
+    out[:, 0] = P0
+    P, Ft, Ht = P0, F.T, H.T
+    # np.linalg.solve's error state, set once per pass (an invalid result anywhere in a step
+    # is then reported as singular; riccati_pass would report it as an overflow at the end)
+    errstate = np.errstate(
+        call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"
+    )
+    t = 0
+    try:
+        with errstate:
+            for t in range(1, steps + 1):
+                R_t = R[:, t - 1] if per_step else R
+                Pm = F @ P @ Ft + Q  # (11b)
+                HP = H @ Pm
+                S = HP @ Ht + R_t
+                Pp = Pm - np.swapaxes(HP, -1, -2) @ _solve(S, HP)  # (12a) + (12c)
+                P = 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
+                out[:, t] = P
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            f"riccati_pass: S = H P H^T + R is singular at step {t}; R must be positive "
+            "definite (or H P H^T must be)"
+        ) from None
+    if not np.all(np.isfinite(out)):
+        raise ValueError(
+            "riccati_pass: the covariance history is not representable in float64 (overflow); "
+            f"keep |entry| <= {MAX_ABS:g} and the model stable enough over {steps} steps "
+            "(rescale the problem)"
+        )
+    return out
+
+
 def cluster_keys(canon: np.ndarray) -> list[Key]:
-    """Member tuples of the clusters of a canonical labelling, in label order."""
-    order = np.argsort(canon, kind="stable")
-    bounds = np.flatnonzero(np.diff(canon[order])) + 1
-    return [tuple(int(i) for i in part) for part in np.split(order, bounds)]
+    """Member tuples of the clusters of a canonical labelling, in label order.
+
+    Members in increasing index order (one Python pass; equal to splitting a stable argsort).
+    """
+    groups: dict[int, list[int]] = {}
+    for i, label in enumerate(np.asarray(canon).tolist()):
+        groups.setdefault(label, []).append(i)
+    return [tuple(groups[label]) for label in sorted(groups)]
 
 
 class ClusterFilterBank:
@@ -69,6 +151,7 @@ class ClusterFilterBank:
     # per-time-step caches (reset by _new_time_step)
     _window: dict[Key, FloatArray]
     _stats: dict[Key, tuple[float, int, float, float]]
+    _costs: dict[Key, float]  # labels (as a tuple) -> eq. (10) at this step
     _prior_parts: tuple[FloatArray, float] | None
     _cost: CostBreakdown | None
 
@@ -79,6 +162,7 @@ class ClusterFilterBank:
         self.labels = problem.check_clustering(labels, "labels")
         self.k = 0
         self._R: dict[Key, FloatArray] = {}
+        self._key_cache: dict[Key, list[Key]] = {}  # labels (as a tuple) -> cluster keys
         self._keys = cluster_keys(self.labels)
         self._hist: dict[Key, FloatArray] = {
             key: problem.axis_prior(len(key))[None] for key in self._keys
@@ -99,6 +183,7 @@ class ClusterFilterBank:
         new.tau, new.weights, new.k = self.tau, self.weights, self.k
         new.labels = self.labels.copy()
         new._R = self._R if problem is None else {}
+        new._key_cache = self._key_cache if problem is None else {}
         new._keys = list(self._keys)
         new._hist = dict(self._hist)  # arrays are never written in place
         new.n_cost_evaluations = new.n_cluster_passes = 0
@@ -134,9 +219,10 @@ class ClusterFilterBank:
     def receiver_position_variance(self) -> FloatArray:
         """(n,) per-axis position variance of each receiver in its cluster's posterior."""
         out = np.empty(self.problem.n)
-        for key in self._keys:
-            P = self._hist[key][-1]
-            out[list(key)] = np.diagonal(P)[0 : 2 * len(key) : 2]
+        members = [i for key in self._keys for i in key]
+        out[members] = np.concatenate(
+            [np.diagonal(self._hist[key][-1])[0 : 2 * len(key) : 2] for key in self._keys]
+        )
         return out
 
     # -- time update ------------------------------------------------------------------------
@@ -176,14 +262,51 @@ class ClusterFilterBank:
                 f"candidates must have shape (B, {self.problem.n}) or ({self.problem.n},), "
                 f"got {np.shape(candidates)}"
             )
-        keysets = [
-            cluster_keys(self.problem.check_clustering(row, f"candidates[{b}]"))
-            for b, row in enumerate(arr)
-        ]
+        keysets = self._keysets(arr)
         self._ensure({key for keys in keysets for key in keys})
-        out = np.array([self._cost_from_stats(keys) for keys in keysets])
+        costs = self._costs
+        out = np.empty(len(keysets))
+        for b, (row, keys) in enumerate(zip(arr.tolist(), keysets, strict=True)):
+            tag = tuple(row)
+            J = costs.get(tag)
+            if J is None:
+                J = costs[tag] = self._cost_from_stats(keys)
+            out[b] = J
         self.n_cost_evaluations += len(keysets)
         return out[0:1] if single else out
+
+    def _keysets(self, arr: np.ndarray) -> list[list[Key]]:
+        """Validated cluster keys of each row of ``arr`` (B, n), via a cache of known rows.
+
+        The whole batch is checked at once (integers, values in ``[0, n)``); rows seen before
+        (the GA re-proposes its population) are looked up by their labels; any row failing a
+        check is re-validated by ``problem.check_clustering``, whose error names it.
+        """
+        problem = self.problem
+        n = problem.n
+        if arr.dtype.kind == "f":
+            ok = bool(np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)))
+        else:
+            ok = arr.dtype.kind in "iu"
+        if ok and arr.size:
+            ok = bool(arr.min() >= 0 and arr.max() < n)
+        if not ok:  # the slow path names the first bad row
+            for b, row in enumerate(arr):
+                problem.check_clustering(row, f"candidates[{b}]")
+        cache, cap = self._key_cache, problem.max_cluster_size
+        keysets = []
+        for b, row in enumerate(arr.astype(np.int64, copy=False).tolist()):
+            tag = tuple(row)
+            keys = cache.get(tag)
+            if keys is None:
+                keys = cluster_keys(canonicalize(np.array(row, dtype=np.int64)))
+                if max(len(key) for key in keys) > cap:
+                    problem.check_clustering(arr[b], f"candidates[{b}]")  # raises
+                if len(cache) > 100_000:
+                    cache.clear()
+                cache[tag] = keys
+            keysets.append(keys)
+        return keysets
 
     def evaluate_changes(
         self, removed: Any, added: Sequence[Sequence[Key]]
@@ -279,6 +402,7 @@ class ClusterFilterBank:
         """Reset the per-step caches: current clusters are known, the rest is computed lazily."""
         self._window = dict(self._hist)
         self._stats = {}
+        self._costs = {}
         self._prior_parts = None
         self._cost = None
 
@@ -320,7 +444,7 @@ class ClusterFilterBank:
                 F, Q, H = self.problem.axis_model(group[0])
                 P0 = self._composed_priors(group)
                 R = self._noise(group, self.k - steps + 1, self.k + 1)  # R_{l+1} .. R_k
-                hist = riccati_pass(P0, F, Q, H, R, steps)
+                hist = window_pass(P0, F, Q, H, R, steps)
                 self._store(group, hist)
             self.n_cluster_passes += len(missing)
         for key in keys:

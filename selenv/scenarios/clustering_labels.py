@@ -21,6 +21,8 @@ __all__ = [
     "IntArray",
     "as_labels",
     "canonical_labels",
+    "canonicalize",
+    "canonicalize_rows",
     "check_int",
     "cluster_sizes",
     "is_feasible",
@@ -81,11 +83,30 @@ def canonical_labels(labels: ArrayLike) -> IntArray:
     Equal partitions give equal ``(n,)`` int64 arrays. Raises ``ValueError`` naming ``labels``
     unless it is a non-empty 1-D array of finite integers >= 0.
     """
-    x = as_labels(labels, "labels")
-    _, first, inverse = np.unique(x, return_index=True, return_inverse=True)
-    rank = np.empty(first.size, dtype=np.int64)
-    rank[np.argsort(first)] = np.arange(first.size)
-    return rank[inverse.reshape(-1)]
+    return canonicalize(as_labels(labels, "labels"))
+
+
+def canonicalize(x: IntArray) -> IntArray:
+    """:func:`canonical_labels` of an already validated 1-D int64 ``x`` (no checks).
+
+    A first-occurrence map in one Python pass (for the ``n <= ~100`` of the envs this is ~10x
+    faster than ``np.unique(return_index, return_inverse)``; integer-exact, same result).
+    """
+    first: dict[int, int] = {}
+    return np.array([first.setdefault(v, len(first)) for v in x.tolist()], dtype=np.int64)
+
+
+def canonicalize_rows(x: IntArray) -> IntArray:
+    """:func:`canonicalize` of every row of a validated ``(B, n)`` int array, at once.
+
+    Vectorised: each element's first occurrence in its row (``argmax`` of the equality
+    table, ``(B, n, n)``), then the rank of that first occurrence among the row's first
+    occurrences. For the GA's batches (``n`` ~ 30); integer-exact, equal to the row loop.
+    """
+    n = x.shape[1]
+    first = np.argmax(x[:, :, None] == x[:, None, :], axis=2)  # (B, n) first index of x[b, i]
+    rank = np.cumsum(first == np.arange(n), axis=1) - 1  # (B, n) rank of each first occurrence
+    return np.take_along_axis(rank, first, axis=1).astype(np.int64, copy=False)
 
 
 def cluster_sizes(labels: ArrayLike) -> IntArray:
