@@ -16,6 +16,12 @@ Targets for n = 9: DMV <= 50 us (m = 1) and <= 0.5 ms (m = 2); PECMV <= 1 ms (m 
 <= 20 ms (m = 2).
 
     .venv/bin/python benchmarks/bench_fusion.py [--cases 40] [--sdp-cases 6] [--batch 20000]
+
+Issue 19 (``--scaling``, alone): :func:`dmv_omega_batch` time per item at B = 1, 64 and 4096
+(m = 2, range + bearing; and random SPD problems) against one :func:`dmv_update`, in
+interleaved rounds (every column once per round, median over ``--rounds``).
+
+    .venv/bin/python benchmarks/bench_fusion.py --scaling [--rounds 31]
 """
 
 from __future__ import annotations
@@ -131,12 +137,76 @@ def fmt(seconds: float) -> str:
     return f"{seconds * 1e6:9.1f} us" if seconds < 1e-3 else f"{seconds * 1e3:9.2f} ms"
 
 
+def random_spd_cases(rng: np.random.Generator, k: int, m: int) -> list[Case]:
+    """Random SPD problems (n_i = 4, n_j = 5) with random Jacobians and R."""
+    cases: list[Case] = []
+    for _ in range(k):
+        Ai, Aj, Ar = rng.normal(size=(4, 4)), rng.normal(size=(5, 5)), rng.normal(size=(m, m))
+        P_i, P_j = Ai @ Ai.T + 0.1 * np.eye(4), Aj @ Aj.T + 0.1 * np.eye(5)
+        R = 0.3 * (Ar @ Ar.T + 0.1 * np.eye(m))
+        cases.append((P_i, P_j, rng.normal(size=(m, 4)), rng.normal(size=(m, 5)), R))
+    return cases
+
+
+def scaling(rounds: int) -> None:
+    """Issue 19: per-item time of dmv_omega_batch at B = 1, 64, 4096 vs one dmv_update."""
+    import statistics
+
+    rng = np.random.default_rng(19)
+    for label, cases in (
+        ("range + bearing (n = 9, m = 2)", make_cases(rng, 256, 2)),
+        ("random SPD (n = 4, m = 2)", random_spd_cases(rng, 256, 2)),
+    ):
+        stacks = {
+            B: [
+                np.concatenate([np.stack([c[k] for c in cases])] * -(-B // 256))[:B]
+                for k in range(5)
+            ]
+            for B in (64, 4096)
+        }
+        cols: dict[str, tuple[Callable[[], Any], int]] = {
+            f"B = {B}": (partial(dmv_omega_batch, *st), B) for B, st in stacks.items()
+        }
+        for j, c in enumerate(cases[:12]):  # B = 1 against dmv_update, problem by problem
+            cols[f"B = 1 #{j}"] = (partial(dmv_omega_batch, *[x[None] for x in c]), 1)
+            cols[f"dmv_update #{j}"] = (partial(dmv_update, *c), 1)
+        times: dict[str, list[float]] = {k: [] for k in cols}
+        for fn, _ in cols.values():
+            fn()
+        for _ in range(rounds):  # interleaved: every column once per round
+            for k, (fn, items) in cols.items():
+                reps = max(1, 4096 // (items * 64)) if items < 4096 else 1
+                t = time.perf_counter()
+                for _ in range(reps):
+                    fn()
+                times[k].append((time.perf_counter() - t) / (reps * items))
+        med = {k: statistics.median(v) for k, v in times.items()}
+        ratios = [med[f"B = 1 #{j}"] / med[f"dmv_update #{j}"] for j in range(12)]
+        t1 = statistics.median(med[f"B = 1 #{j}"] for j in range(12))
+        tu = statistics.median(med[f"dmv_update #{j}"] for j in range(12))
+        print(f"\n{label}: median over {rounds} interleaved rounds, time per item")
+        for B in (64, 4096):
+            print(f"  dmv_omega_batch B = {B:<5} {fmt(med[f'B = {B}'])}")
+        print(f"  dmv_omega_batch B = 1     {fmt(t1)}  (median over 12 problems)")
+        print(f"  dmv_update                {fmt(tu)}  (median over the same 12)")
+        print(f"  per item B = 64 / B = 4096: {med['B = 64'] / med['B = 4096']:.2f}x")
+        print(
+            f"  B = 1 / dmv_update, per problem: median {statistics.median(ratios):.2f}x, "
+            f"max {max(ratios):.2f}x"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--cases", type=int, default=40)
     ap.add_argument("--sdp-cases", type=int, default=6)
     ap.add_argument("--batch", type=int, default=20000)
+    ap.add_argument("--scaling", action="store_true", help="issue 19 rows only")
+    ap.add_argument("--rounds", type=int, default=31)
     a = ap.parse_args()
+    if a.scaling:
+        scaling(a.rounds)
+        return
     rng = np.random.default_rng(0)
     warm = make_cases(rng, 20, 1) + make_cases(rng, 20, 2)
     t0 = time.perf_counter()

@@ -22,10 +22,13 @@ overflows float64 raises ``ValueError`` instead of being returned as inf/NaN.
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 from numpy.typing import ArrayLike
 from scipy.linalg import cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
@@ -56,6 +59,9 @@ __all__ = [
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
+_MAX_ABS2 = MAX_ABS * MAX_ABS
+#: the gufunc behind ``np.linalg.cholesky`` (same LAPACK call, without its ~5 us wrapper)
+_cholesky_lo = _umath_linalg.cholesky_lo
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,6 +158,55 @@ def _spd(
     return check_magnitude(A, name, definite=not semidefinite)
 
 
+def _spd_exact_prechecks(A: FloatArray) -> bool:
+    """Cheap part of :func:`_fast_valid_single`'s SPD test: exactly symmetric, diagonal in range.
+
+    Byte-wise symmetry means ``symmetrize(A)`` is ``A`` itself (``0.5 * (a + a) == a``); the
+    diagonal bound is that of ``check_magnitude(definite=True)``.
+    """
+    return A.tobytes() == A.T.tobytes() and min(A.diagonal().tolist()) >= MIN_PD_DIAG
+
+
+def _chol_ok(A: FloatArray) -> bool:
+    """Whether the gufunc behind ``np.linalg.cholesky`` factors ``A`` (call under errstate)."""
+    L = _cholesky_lo(A, signature="d->d")  # NaN-filled when the factorisation fails
+    return bool(L[-1, -1] == L[-1, -1])
+
+
+def _fast_valid_single(
+    x: ArrayLike, P: ArrayLike, z: ArrayLike, H: ArrayLike, R: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """Unbatched ``kf_update`` inputs that certainly pass its validation, else ``None``.
+
+    One finiteness/range test on all entries at once (``sum a^2 <= MAX_ABS^2``, which NaN and
+    inf fail; it implies ``check_finite`` and ``check_magnitude`` of every argument), the
+    shapes by attribute comparison and, for ``P`` and ``R``, exact symmetry, the diagonal
+    bound and the Cholesky factorisation that ``validate_spd`` runs. Anything
+    else (batched input, conversions that fail, borderline values) returns ``None`` and the
+    caller runs the canonical checks, which raise the documented errors. The arrays returned
+    are exactly those the canonical checks return (``symmetrize`` of an exactly symmetric
+    matrix is the matrix itself: ``0.5 * (a + a) == a``).
+    """
+    try:  # a bad type is reported by the canonical checks, in their order of arguments
+        xa, Pa = as_float_array(x, "x"), as_float_array(P, "P")
+        za, Ha, Ra = as_float_array(z, "z"), as_float_array(H, "H"), as_float_array(R, "R")
+    except TypeError:
+        return None
+    if xa.ndim != 1 or za.ndim != 1:
+        return None
+    n, m = xa.shape[0], za.shape[0]
+    if n == 0 or m == 0 or Pa.shape != (n, n) or Ha.shape != (m, n) or Ra.shape != (m, m):
+        return None
+    total = float(np.vdot(xa, xa) + np.vdot(Pa, Pa) + np.vdot(za, za))
+    total += float(np.vdot(Ha, Ha) + np.vdot(Ra, Ra))
+    if not (total <= _MAX_ABS2 and _spd_exact_prechecks(Pa) and _spd_exact_prechecks(Ra)):
+        return None
+    with np.errstate(all="ignore"):  # a failed factorisation is NaN-filled, not raised here
+        if not (_chol_ok(Pa) and _chol_ok(Ra)):  # the same test as validate_spd's
+            return None
+    return xa, Pa, za, Ha, Ra
+
+
 def _state(x: ArrayLike, P: ArrayLike) -> tuple[FloatArray, FloatArray, int | None]:
     """Validate ``x`` (n,) | (B, n) and a matching SPD ``P`` (n, n) | (B, n, n)."""
     x, B = _state_vector(x, "x")
@@ -218,6 +273,14 @@ def _update(
     return KalmanUpdate(x_post, P_post, y, S, K, float(ll) if np.ndim(ll) == 0 else ll)
 
 
+@functools.cache
+def _eye(n: int) -> FloatArray:
+    """Read-only identity ``np.eye(n)``, cached per size (saves ~1 us per small update)."""
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
+
+
 def _update_single(
     x: FloatArray, P: FloatArray, y: FloatArray, H: FloatArray, R: FloatArray
 ) -> KalmanUpdate:
@@ -227,18 +290,18 @@ def _update_single(
     S = HP @ H.T + R
     S = 0.5 * (S + S.T)  # S = H P H^T + R
     L, info = dpotrf(S, lower=1, clean=1)  # S = L L^T
-    if info != 0 or not np.isfinite(L[-1, -1]):
+    if info != 0 or not math.isfinite(L[-1, -1]):
         if not np.all(np.isfinite(S)):
             raise _overflow("the Kalman update (S = H P H^T + R)")
         raise ValueError("S = H P H^T + R is not positive definite (Cholesky failed)")
     KT, _ = dpotrs(L, HP, lower=1)  # S K^T = H P  ->  K^T = S^-1 H P
     K = KT.T
     x_post = x + K @ y  # x' = x + K y
-    I_KH = np.eye(n) - K @ H
+    I_KH = _eye(n) - K @ H
     P_post = I_KH @ P @ I_KH.T + K @ R @ KT  # Joseph form
     P_post = 0.5 * (P_post + P_post.T)
     w, _ = dtrtrs(L, y, lower=1)  # w = L^-1 y
-    logdet_S = 2.0 * float(np.sum(np.log(np.diagonal(L))))
+    logdet_S = 2.0 * float(np.log(L.diagonal()).sum())  # the same reduction as np.sum
     ll = -0.5 * (float(w @ w) + logdet_S + m * _LOG_2PI)
     return KalmanUpdate(x_post, P_post, y, S, K, ll)
 
@@ -324,6 +387,10 @@ def kf_update(
         xa, Pa = as_float_array(x, "x"), as_float_array(P, "P")
         za, Ha, Ra = as_float_array(z, "z"), as_float_array(H, "H"), as_float_array(R, "R")
         return _update(xa, Pa, za - _mv(Ha, xa), Ha, Ra)
+    fast = _fast_valid_single(x, P, z, H, R)
+    if fast is not None:  # every check below would pass and return these same arrays
+        xa, Pa, za, Ha, Ra = fast
+        return _checked_result(_update_single(xa, Pa, za - _mv(Ha, xa), Ha, Ra), "kf_update")
     try:
         xa, Pa, B = _state(x, P)
         za = _vector(z, "z", B)

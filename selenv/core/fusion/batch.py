@@ -12,20 +12,26 @@ Each function equals its single-case counterpart row by row (tested):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 from numpy.typing import ArrayLike
 
 from selenv.core.fusion.common import (
+    IntArray,
     Pair,
     finite_matrix,
     overflow_error,
     root_increasing_batch,
+    root_increasing_one,
 )
 from selenv.core.fusion.dmv import _B_NOT_PD, _W_PROBE, _check_dims, _cubic
 from selenv.core.fusion.pecmv import solve_guarded
 from selenv.core.linalg import (
+    MAX_ABS,
+    MIN_PD_DIAG,
     SYM_RTOL,
     FloatArray,
     ShapeError,
@@ -39,6 +45,12 @@ from selenv.core.linalg import (
 
 __all__ = ["PECMVBatchResult", "dmv_omega_batch", "pecmv_batch"]
 
+#: the gufuncs behind ``np.linalg.solve`` / ``np.linalg.cholesky`` (the same LAPACK calls per
+#: matrix without the ~5 us of their Python wrappers; their error state is set by the caller)
+_gesv = _umath_linalg.solve
+_cholesky_lo = _umath_linalg.cholesky_lo
+_MAX_ABS2 = MAX_ABS * MAX_ABS
+
 
 def _omega_scalar_batch(a: FloatArray, b: FloatArray, n: int) -> FloatArray:
     """Vectorised ``selenv.core.fusion.dmv._omega_scalar``: same cubic, same safeguarded Newton."""
@@ -48,17 +60,60 @@ def _omega_scalar_batch(a: FloatArray, b: FloatArray, n: int) -> FloatArray:
     if n == 1:
         c3, c2, c1, c0 = np.zeros_like(a), c3, c2, c1
 
-    def g(w: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return -(((c3 * w + c2) * w + c1) * w + c0), -((3.0 * c3 * w + 2.0 * c2) * w + c1)
+    if a.shape[0] == 1:  # one problem: the same iteration in Python floats
+        k3, k2, k1, k0 = float(c3[0]), float(c2[0]), float(c1[0]), float(c0[0])
 
-    ones = np.ones_like(a)
-    w = root_increasing_batch(g, 0.0 * ones, ones, 0.5 * ones)
+        def g1(w: float) -> tuple[float, float]:
+            return -(((k3 * w + k2) * w + k1) * w + k0), -((3.0 * k3 * w + 2.0 * k2) * w + k1)
+
+        w = np.array([root_increasing_one(g1, 0.0, 1.0, 0.5)])
+    else:
+        rows = _Rows(c3, c2, c1, c0)
+
+        def g(w: FloatArray, i: IntArray) -> tuple[FloatArray, FloatArray]:
+            d3, d2, d1, d0 = rows(i)
+            return -(((d3 * w + d2) * w + d1) * w + d0), -((3.0 * d3 * w + 2.0 * d2) * w + d1)
+
+        def one(i: int) -> Callable[[float], tuple[float, float]]:
+            k3, k2, k1, k0 = float(c3[i]), float(c2[i]), float(c1[i]), float(c0[i])
+            return lambda w: (
+                -(((k3 * w + k2) * w + k1) * w + k0),
+                -((3.0 * k3 * w + 2.0 * k2) * w + k1),
+            )
+
+        ones = np.ones_like(a)
+        w = root_increasing_batch(g, 0.0 * ones, ones, 0.5 * ones, scalar=one)
     w = np.where((n == 1) & (c0 <= 0.0), 0.0, w)
     return np.where(a <= n * b, 1.0, w)
 
 
+class _Rows:
+    """Rows ``idx`` of fixed arrays, re-indexed only when the active set of the Newton shrinks.
+
+    :func:`root_increasing_batch` passes the same ``idx`` object until it drops items, and
+    starts from all rows (``arange``), for which the full arrays are returned as they are.
+    """
+
+    def __init__(self, *arrays: FloatArray) -> None:
+        self.full = arrays
+        self.idx: IntArray | None = None
+        self.rows: tuple[FloatArray, ...] = arrays
+
+    def __call__(self, idx: IntArray) -> tuple[FloatArray, ...]:
+        if idx is not self.idx:
+            self.idx = idx
+            same = idx.shape[0] == self.full[0].shape[0]
+            self.rows = self.full if same else tuple(a[idx] for a in self.full)
+        return self.rows
+
+
 def _derivs(
-    w: FloatArray, A: FloatArray, B: FloatArray, R: FloatArray, n: int
+    w: FloatArray,
+    A: FloatArray,
+    B: FloatArray,
+    R: FloatArray,
+    n: int,
+    BmA: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """``f'(w)``, ``f''(w)`` of the cheap cost, batched: ``w`` (k,), ``A``, ``B``, ``R`` (k, m, m).
 
@@ -66,20 +121,159 @@ def _derivs(
 
         f'  = -(n-m)/w - tr(M^-1 R) - tr(Q^-1 Q')
         f'' = (n-m)/w^2 - tr((M^-1 R)^2) + tr((Q^-1 Q')^2) + 2 tr(Q^-1 R)
+
+    ``BmA``: ``B - A`` when precomputed (it does not depend on ``w``). The solves call numpy's
+    ``solve`` gufunc directly (the same LAPACK ``dgesv`` per matrix as ``np.linalg.solve``,
+    under the same floating-point state, :func:`_solve_errstate`).
     """
     m = A.shape[-1]
     wb = w[:, None, None]
-    M = B + (1.0 - wb) * R
-    Q = (1.0 - wb) * A + wb * B + wb * (1.0 - wb) * R
-    dQ = B - A + (1.0 - 2.0 * wb) * R
-    X1 = np.linalg.solve(M, R)  # M^-1 R
-    X2 = np.linalg.solve(Q, np.concatenate([dQ, R], axis=-1))  # Q^-1 [Q', R]
+    v = 1.0 - wb
+    M = B + v * R
+    Q = v * A + wb * B + wb * v * R
+    dQ = (B - A if BmA is None else BmA) + (1.0 - 2.0 * wb) * R
+    with _solve_errstate():  # as np.linalg.solve: a singular matrix raises LinAlgError
+        X1 = _gesv(M, R, signature="dd->d")  # M^-1 R
+        X2 = _gesv(Q, np.concatenate([dQ, R], axis=-1), signature="dd->d")  # Q^-1 [Q', R]
     G, H = X2[..., :m], X2[..., m:]
     tr = lambda X: np.trace(X, axis1=-2, axis2=-1)  # noqa: E731
     sq = lambda X: np.einsum("...ij,...ji->...", X, X)  # noqa: E731
     f1 = -(n - m) / w - tr(X1) - tr(G)
     f2 = (n - m) / w**2 - sq(X1) + sq(G) + 2.0 * tr(H)
     return f1, f2
+
+
+def _raise_singular(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+def _solve_errstate() -> np.errstate:
+    """The floating-point state ``np.linalg.solve`` sets: a singular matrix raises LinAlgError."""
+    return np.errstate(
+        call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"
+    )
+
+
+def _tr(X: list[list[float]], m: int) -> float:
+    """``np.trace`` of an m x m matrix (m <= 3): the same left-to-right sum."""
+    t = X[0][0]
+    for i in range(1, m):
+        t += X[i][i]
+    return t
+
+
+def _sq(X: list[list[float]], m: int) -> float:
+    """``np.einsum("ij,ji->", X, X)`` for m <= 3: row sums of ``X_ij X_ji``, then their sum.
+
+    The order of numpy's ``einsum`` kernel for these sizes (checked bit for bit on 3e5 random
+    matrices per m, with 1e-160 scales, in ``tests/test_speed_identity_core.py``).
+    """
+    total = 0.0
+    for i in range(m):
+        Xi = X[i]
+        r = Xi[0] * X[0][i]
+        for j in range(1, m):
+            r += Xi[j] * X[j][i]
+        total = r if i == 0 else total + r
+    return total
+
+
+def _g_one(
+    A: FloatArray, B: FloatArray, R: FloatArray, n: int, guard: bool
+) -> Callable[[float], tuple[float, float]]:
+    """:func:`_derivs` for one problem (``A``, ``B``, ``R`` (m, m), m <= 3) in Python floats.
+
+    The elementwise parts in the same operations and order as :func:`_derivs`, the two
+    solves by the same ``solve`` gufunc, the traces and ``einsum`` by :func:`_tr` and
+    :func:`_sq`: bit-identical to the batched evaluation at ~1/5 of its per-call overhead.
+    ``guard``: set :func:`_solve_errstate` around the solves (else the caller has set it).
+    """
+    m = A.shape[0]
+    Al, Bl, Rl = A.tolist(), B.tolist(), R.tolist()
+    BmA = [[Bl[i][j] - Al[i][j] for j in range(m)] for i in range(m)]
+    rng = range(m)
+    if m == 2:
+        return _g_two(Al, Bl, Rl, BmA, R, n, guard)
+
+    def g(w: float) -> tuple[float, float]:
+        v, u = 1.0 - w, 1.0 - 2.0 * w
+        wv = w * v
+        M = [[Bl[i][j] + v * Rl[i][j] for j in rng] for i in rng]
+        Q = [[v * Al[i][j] + w * Bl[i][j] + wv * Rl[i][j] for j in rng] for i in rng]
+        rhs = [[BmA[i][j] + u * Rl[i][j] for j in rng] + Rl[i] for i in rng]
+        if guard:
+            with _solve_errstate():
+                X1 = _gesv(np.array(M), R, signature="dd->d").tolist()
+                X2 = _gesv(np.array(Q), np.array(rhs), signature="dd->d").tolist()
+        else:
+            X1 = _gesv(np.array(M), R, signature="dd->d").tolist()
+            X2 = _gesv(np.array(Q), np.array(rhs), signature="dd->d").tolist()
+        G = [row[:m] for row in X2]
+        f1 = -(n - m) / w - _tr(X1, m) - _tr(G, m)
+        f2 = (n - m) / (w * w) - _sq(X1, m) + _sq(G, m) + 2.0 * _tr([r[m:] for r in X2], m)
+        return f1, f2
+
+    return g
+
+
+def _g_two(
+    Al: list[list[float]],
+    Bl: list[list[float]],
+    Rl: list[list[float]],
+    BmA: list[list[float]],
+    R: FloatArray,
+    n: int,
+    guard: bool,
+) -> Callable[[float], tuple[float, float]]:
+    """:func:`_g_one` for ``m = 2`` with the loops unrolled (the same operations, same order)."""
+    (a11, a12), (a21, a22) = Al
+    (b11, b12), (b21, b22) = Bl
+    (r11, r12), (r21, r22) = Rl
+    (d11, d12), (d21, d22) = BmA
+    c = -(n - 2)
+    e = n - 2
+
+    def g(w: float) -> tuple[float, float]:
+        v, u = 1.0 - w, 1.0 - 2.0 * w
+        wv = w * v
+        M = np.array([[b11 + v * r11, b12 + v * r12], [b21 + v * r21, b22 + v * r22]])
+        Q = np.array(
+            [
+                [v * a11 + w * b11 + wv * r11, v * a12 + w * b12 + wv * r12],
+                [v * a21 + w * b21 + wv * r21, v * a22 + w * b22 + wv * r22],
+            ]
+        )
+        rhs = np.array(
+            [[d11 + u * r11, d12 + u * r12, r11, r12], [d21 + u * r21, d22 + u * r22, r21, r22]]
+        )
+        if guard:
+            with _solve_errstate():
+                X1 = _gesv(M, R, signature="dd->d").tolist()
+                X2 = _gesv(Q, rhs, signature="dd->d").tolist()
+        else:
+            X1 = _gesv(M, R, signature="dd->d").tolist()
+            X2 = _gesv(Q, rhs, signature="dd->d").tolist()
+        (x11, x12), (x21, x22) = X1
+        (g11, g12, h11, _), (g21, g22, _, h22) = X2
+        f1 = c / w - (x11 + x22) - (g11 + g22)
+        sq1 = (x11 * x11 + x12 * x21) + (x21 * x12 + x22 * x22)
+        sqg = (g11 * g11 + g12 * g21) + (g21 * g12 + g22 * g22)
+        f2 = e / (w * w) - sq1 + sqg + 2.0 * (h11 + h22)
+        return f1, f2
+
+    return g
+
+
+def _omega_one(A: FloatArray, B: FloatArray, R: FloatArray, n: int, probe: bool) -> float:
+    """:func:`_dmv_omega_batch`'s Newton for one problem, bit-identical to the batched one.
+
+    ``probe``: first test the slope at ``_W_PROBE`` for ``w* = 0`` (``n == m``).
+    """
+    g = _g_one(A, B, R, n, guard=False)
+    with _solve_errstate():
+        if probe and g(_W_PROBE)[0] >= 0.0:
+            return 0.0
+        return root_increasing_one(g, 0.0, 1.0, 0.5)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -94,14 +288,52 @@ class PECMVBatchResult:
     log_det: FloatArray
 
 
+def _spd_fast(A: FloatArray, B: int | None) -> tuple[FloatArray, FloatArray] | None:
+    """What :func:`_spd_batch` returns for a stack that certainly passes it, else ``None``.
+
+    Sufficient test (``None`` only means "run the canonical checks"): non-empty ``(B, n, n)``,
+    ``sum a^2 <= MAX_ABS^2`` (finite, in range; NaN/inf fail it), diagonal ``>= MIN_PD_DIAG``,
+    symmetric (byte-wise, then the stack is its own symmetrization ``0.5 * (a + a) == a``; or
+    within the per-matrix tolerance of :func:`_spd_batch`, computed the same way, and then
+    symmetrized the same way) and every matrix factored by the gufunc behind
+    ``np.linalg.cholesky`` (a failure leaves that matrix NaN). Returns the symmetrized stack
+    and the factors ``np.linalg.cholesky`` gives.
+    """
+    if A.ndim != 3 or A.shape[1] != A.shape[2] or A.shape[0] == 0 or A.shape[1] == 0:
+        return None
+    if B is not None and A.shape[0] != B:
+        return None
+    total2 = float(np.vdot(A, A))
+    if not total2 <= _MAX_ABS2 or not A.diagonal(0, 1, 2).min() >= MIN_PD_DIAG:
+        return None
+    AT = A.transpose(0, 2, 1)
+    if A.tobytes() != AT.tobytes():
+        d = A - AT
+        tol2 = (SYM_RTOL / A.shape[1]) ** 2
+        # one matrix well inside the tolerance: the per-matrix sums below differ from these
+        # vdots by rounding only (relative 1e-15), far less than the factor 2 margin
+        if not (A.shape[0] == 1 and float(np.vdot(d, d)) <= 0.5 * tol2 * total2):
+            asym2, norm2 = np.einsum("bij,bij->b", d, d), np.einsum("bij,bij->b", A, A)
+            if not np.all(asym2 <= tol2 * norm2):
+                return None
+        A = 0.5 * (A + AT)
+    with np.errstate(all="ignore"):
+        L: FloatArray = _cholesky_lo(A, signature="d->d")
+    return None if np.isnan(L[:, -1, -1]).any() else (A, L)
+
+
 def _spd_batch(value: ArrayLike, name: str, B: int | None = None) -> tuple[FloatArray, FloatArray]:
     """Validate a (B, n, n) stack of SPD matrices; return it symmetrized with its Cholesky factors.
 
-    Fast path: per-matrix ``||A - A^T||_F <= SYM_RTOL ||A||_F / n`` (NaN-safe) and one batched
-    Cholesky; anything else goes to ``validate_spd`` for the canonical ``ValueError``. Every
-    stack is also checked against the valid range (``check_magnitude``, definite).
+    Fastest path: :func:`_spd_fast` (the same checks with fewer numpy calls). Fast path: per-matrix
+    ``||A - A^T||_F <= SYM_RTOL ||A||_F / n`` (NaN-safe) and one batched Cholesky; anything
+    else goes to ``validate_spd`` for the canonical ``ValueError``. Every stack is also
+    checked against the valid range (``check_magnitude``, definite).
     """
     A = as_float_array(value, name)
+    fast = _spd_fast(A, B)
+    if fast is not None:
+        return fast
     if A.ndim != 3 or A.shape[1] != A.shape[2] or A.shape[0] == 0 or A.shape[1] == 0:
         A = validate_spd(A, name, batch=True)
         if A.shape[0] == 0 or A.shape[1] == 0:
@@ -148,13 +380,19 @@ def _validate_batch(
             raise ShapeError("H_i must have at least one row (m >= 1)", "H_i")
         Hj = finite_matrix(H_j, "H_j", (Bn, m, Pj.shape[1]))
         Rm = as_float_array(R, "R")
-        Rm = validate_spd(Rm, "R", m, batch=Rm.ndim == 3)
-        if Rm.ndim == 3:
-            check_shape(Rm, (Bn, m, m), "R")
+        fast = None
+        if Rm.shape[-2:] == (m, m) and Rm.ndim in (2, 3):  # a shared R: a stack of one
+            fast = _spd_fast(Rm if Rm.ndim == 3 else Rm[None], Bn if Rm.ndim == 3 else 1)
+        if fast is not None:  # validate_spd would return the same symmetrized R
+            Rm = fast[0] if Rm.ndim == 3 else fast[0][0]
+        else:
+            Rm = validate_spd(Rm, "R", m, batch=Rm.ndim == 3)
+            if Rm.ndim == 3:
+                check_shape(Rm, (Bn, m, m), "R")
+            check_magnitude(Rm, "R", definite=True)
     except ShapeError as exc:
         args = {"P_i": P_i, "P_j": P_j, "H_i": H_i, "H_j": H_j, "R": R}
         raise (blame_shapes(args, _BATCH_SHAPES, error=exc) or exc) from None
-    check_magnitude(Rm, "R", definite=True)
     return Pi, Li, Pj, Lj, Hi, Hj, np.broadcast_to(Rm, (Bn, m, m))
 
 
@@ -208,11 +446,16 @@ def _dmv_omega_batch(
         if np.any(~(b > 0.0)):
             raise ValueError(_B_NOT_PD)
         return _omega_scalar_batch(a, b, n)
-    try:
-        np.linalg.cholesky(B)
-    except np.linalg.LinAlgError:
-        raise ValueError(_B_NOT_PD) from None
-    trace_ratio = np.trace(np.linalg.solve(B, A), axis1=1, axis2=2)  # tr(B^-1 A)
+    with np.errstate(all="ignore"):  # only pass / fail matters: a failure is NaN-filled
+        LB = _cholesky_lo(B, signature="d->d")  # as np.linalg.cholesky(B)
+    if np.isnan(LB[:, -1, -1]).any():
+        raise ValueError(_B_NOT_PD)
+    with _solve_errstate():
+        trace_ratio = np.trace(_gesv(B, A, signature="dd->d"), axis1=1, axis2=2)  # tr(B^-1 A)
+    if Bn == 1 and m <= 3:  # one problem: Newton in Python floats (bit-identical)
+        if not trace_ratio[0] > n:
+            return np.ones(1)
+        return np.array([_omega_one(A[0], B[0], Rm[0], n, n == m)])
     w = np.ones(Bn)
     todo = trace_ratio > n
     if n == m:
@@ -221,9 +464,18 @@ def _dmv_omega_batch(
         todo &= ~zero
     if todo.any():
         At, Bt, Rt = A[todo], B[todo], Rm[todo]
+        rows = _Rows(At, Bt, Rt, Bt - At)
         k = int(todo.sum())
+
+        def g(x: FloatArray, idx: IntArray) -> tuple[FloatArray, FloatArray]:
+            a_, b_, r_, bma = rows(idx)
+            return _derivs(x, a_, b_, r_, n, bma)
+
+        def one(i: int) -> Callable[[float], tuple[float, float]]:
+            return _g_one(At[i], Bt[i], Rt[i], n, guard=True)
+
         w[todo] = root_increasing_batch(
-            lambda x: _derivs(x, At, Bt, Rt, n), np.zeros(k), np.ones(k), np.full(k, 0.5)
+            g, np.zeros(k), np.ones(k), np.full(k, 0.5), scalar=one if m <= 3 else None
         )
     return w
 

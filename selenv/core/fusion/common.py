@@ -14,7 +14,7 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy.linalg.lapack import dpotrf, dtrtrs
 
 from selenv.core.linalg import (
@@ -45,12 +45,15 @@ __all__ = [
     "pair",
     "root_increasing",
     "root_increasing_batch",
+    "root_increasing_one",
     "spd",
     "tri_solve",
     "validate_pair",
     "vector",
 ]
 
+
+IntArray = NDArray[np.intp]
 
 #: shapes of the fusion arguments in symbols, for :func:`blame`
 FUSION_SHAPES = {
@@ -370,36 +373,131 @@ def root_increasing(
 
 
 def root_increasing_batch(
-    g: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
+    g: Callable[[FloatArray, IntArray], tuple[FloatArray, FloatArray]],
     lo: FloatArray,
     hi: FloatArray,
     x0: FloatArray,
     xtol: float = 1e-15,
     maxiter: int = 200,
+    scalar: Callable[[int], Callable[[float], tuple[float, float]]] | None = None,
+    tail: int = 4,
 ) -> FloatArray:
-    """Vectorised :func:`root_increasing` over a leading axis (same safeguards, per element)."""
+    """Vectorised :func:`root_increasing` over a leading axis (same safeguards, per element).
+
+    ``g(x, idx)`` evaluates the function for the items ``idx`` (indices into the leading axis)
+    at ``x`` (same length as ``idx``). Converged items are dropped from the active set after
+    every pass, so ``g`` only sees the items still iterating; each item's iterates are those
+    of the full-batch iteration (``g`` must act row by row, as numpy's batched kernels do), so
+    the roots are bit-identical to evaluating every item on every pass.
+
+    ``scalar(i)``: optionally, ``g`` for item ``i`` alone in Python floats, bit-identical to
+    the vectorised one; once at most ``tail`` items are left, each finishes its iteration
+    through :func:`root_increasing_one`'s loop (same operations per element), which avoids
+    paying numpy's per-call overhead for a whole pass on a handful of slow items.
+    """
     x, lo, hi = x0.astype(np.float64), lo.astype(np.float64), hi.astype(np.float64)
+    out = x.copy()
+    idx = np.arange(x.shape[0])
     dxold = hi - lo
     dx = dxold.copy()
-    active = np.ones(x.shape, dtype=bool)
-    f, df = g(x)
+    f, df = g(x, idx)
+    passes = 0
     with np.errstate(divide="ignore", invalid="ignore"):
         for _ in range(maxiter):
-            active &= f != 0.0
-            lo = np.where(active & (f < 0.0), x, lo)
-            hi = np.where(active & (f > 0.0), x, hi)
+            live = f != 0.0  # f == 0: x is the root
+            lo = np.where(f < 0.0, x, lo)  # (f < 0 and f > 0 imply live)
+            hi = np.where(f > 0.0, x, hi)
             step = f / df
-            conv = (df > 0.0) & (np.abs(step) <= xtol * np.maximum(1.0, np.abs(x)))
-            newton = (x - step > lo) & (x - step < hi) & (df > 0.0)
+            x_step = x - step
+            pos = df > 0.0
+            conv = pos & (np.abs(step) <= xtol * np.maximum(1.0, np.abs(x)))
+            newton = (x_step > lo) & (x_step < hi) & pos
             newton &= np.abs(2.0 * f) <= np.abs(dxold * df)
             newton |= conv
             dxold = dx
-            dx = np.where(newton, step, 0.5 * (hi - lo))
-            x_new = np.where(newton, x - step, lo + 0.5 * (hi - lo))
+            half = 0.5 * (hi - lo)
+            dx = np.where(newton, step, half)
+            x_new = np.where(newton, x_step, lo + half)
             done = conv | (x_new == x) | (np.abs(dx) <= xtol * np.maximum(1.0, np.abs(x_new)))
-            x = np.where(active, x_new, x)
-            active &= ~done
-            if not active.any():
-                break
-            f, df = g(x)
+            x = np.where(live, x_new, x)
+            keep = live & ~done
+            if not keep.all():  # drop the finished items
+                out[idx] = x
+                if not keep.any():
+                    return out
+                idx, x, lo, hi, dx, dxold = (v[keep] for v in (idx, x, lo, hi, dx, dxold))
+            f, df = g(x, idx)
+            passes += 1
+            if scalar is not None and idx.shape[0] <= tail:
+                for j, i in enumerate(idx.tolist()):
+                    xj, loj, hij = float(x[j]), float(lo[j]), float(hi[j])
+                    dxj, dxoldj, fj, dfj = float(dx[j]), float(dxold[j]), float(f[j]), float(df[j])
+                    out[i] = _iterate_one(
+                        scalar(i), xj, loj, hij, dxj, dxoldj, fj, dfj, xtol, maxiter - passes
+                    )
+                return out
+    out[idx] = x
+    return out
+
+
+def _max1(a: float) -> float:
+    """``np.maximum(1.0, a)`` for a float (NaN propagates, as in numpy)."""
+    return a if (a >= 1.0 or a != a) else 1.0
+
+
+def root_increasing_one(
+    g: Callable[[float], tuple[float, float]],
+    lo: float,
+    hi: float,
+    x0: float,
+    xtol: float = 1e-15,
+    maxiter: int = 200,
+) -> float:
+    """One item of :func:`root_increasing_batch` in Python floats (bit-identical to it).
+
+    The same operations in the same order as the vectorised iteration on one element (IEEE
+    ``+ - * /`` are correctly rounded in both), for batches of one where numpy's per-call
+    overhead would dominate. (:func:`root_increasing` differs in its stopping test.)
+    """
+    f, df = g(x0)
+    return _iterate_one(g, x0, lo, hi, hi - lo, hi - lo, f, df, xtol, maxiter)
+
+
+def _iterate_one(
+    g: Callable[[float], tuple[float, float]],
+    x: float,
+    lo: float,
+    hi: float,
+    dx: float,
+    dxold: float,
+    f: float,
+    df: float,
+    xtol: float,
+    maxiter: int,
+) -> float:
+    """The loop of :func:`root_increasing_one` from a given state (``f, df = g(x)``)."""
+    for _ in range(maxiter):
+        if f == 0.0:
+            return x
+        if f < 0.0:
+            lo = x
+        elif f > 0.0:
+            hi = x
+        conv = newton = False
+        step = 0.0
+        if df > 0.0:  # otherwise the step is unused (and f / df could divide by zero)
+            step = f / df
+            conv = abs(step) <= xtol * _max1(abs(x))
+            newton = lo < x - step < hi and abs(2.0 * f) <= abs(dxold * df)
+        dxold = dx
+        half = 0.5 * (hi - lo)
+        if newton or conv:
+            dx, x_new = step, x - step
+        else:
+            dx, x_new = half, lo + half
+        done = conv or x_new == x or abs(dx) <= xtol * _max1(abs(x_new))
+        x = x_new
+        if done:
+            return x
+        f, df = g(x)
     return x
