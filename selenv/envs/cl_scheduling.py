@@ -224,6 +224,8 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.config = CLConfig(n_agents=n_agents, horizon=horizon, **merged)
         check_learned_fusion(self.config, fusion)  # ldmv / lpecmv: a surrogate for this noise
         self.pairs: tuple[tuple[int, int], ...] = self.config.relative_pairs
+        self._pair_index = np.asarray(self.pairs, dtype=np.intp).reshape(-1, 2)
+        self._logdet_cache: tuple[bytes, np.ndarray] | None = None
         self.n_pairs = len(self.pairs)
         if self.n_pairs == 0:
             raise ValueError("relative_pairs must hold at least one (i, j) pair to schedule")
@@ -275,6 +277,8 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
 
     def objective_value(self) -> float:
         """Sum over agents of ``log det P`` or of the horizontal position variance."""
+        if self.objective == "logdet":  # the same agent_objective values, cached
+            return float(np.sum(self._logdets()))
         return float(np.sum(agent_objective(self.sim.P, self.objective)))
 
     # -- Gymnasium API -----------------------------------------------------------------------
@@ -303,7 +307,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         reward = rule.penalty if reason else 0.0
         if reason is None and p < self.n_pairs:
             before = self.objective_value()
-            sim.relative_update(p)
+            sim.apply_relative(p)  # relative_update without its unused log det return
             reward = before - self.objective_value()
             self._done_pairs.add(p)
         if p < self.n_pairs:
@@ -315,7 +319,14 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
             before = self.objective_value()
             self._advance()  # propagation and the uncontrolled updates: their change counts too
             reward += before - self.objective_value()
-        return self._obs(), reward, False, False, self._info(reason)
+        return self._obs_info(reward, False, reason)
+
+    def _obs_info(
+        self, reward: float, terminated: bool, reason: str | None
+    ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """The step's return tuple, with the action mask formed once for obs and info."""
+        mask = self.action_masks()
+        return self._obs(mask), reward, terminated, False, self._info(reason, mask.copy())
 
     def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the team (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
@@ -358,36 +369,52 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         drop = agent_objective(sim.P[i], self.objective) - agent_objective(P_new, self.objective)
         return float(drop)
 
-    def _pair_gains(self) -> np.ndarray:
+    def _pair_gains(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """(P,) ``log det(I + N^-1 A)`` of every open pair (0 when masked), batched.
+
+        ``A = H_i P_i H_i^T``, ``N = H_j P_j H_j^T + R``: one stacked matmul / solve / slogdet
+        over the open pairs, bit-for-bit the former per-pair loop (same BLAS / LAPACK calls
+        per matrix; tests/test_env_speed_identity.py keeps that loop as the reference).
+        """
         sim = self.sim
         out = np.zeros(self.n_pairs)
-        mask = self.action_masks()
-        for p in np.flatnonzero(mask[:-1]):
-            i, j = self.pairs[p]
-            H_i, H_j, _ = sim.relative_terms(int(p))
-            A = H_i @ sim.P[i] @ H_i.T
-            N = H_j @ sim.P[j] @ H_j.T + sim.R_rel
-            out[p] = np.linalg.slogdet(np.eye(A.shape[0]) + np.linalg.solve(N, A))[1]
+        ps = np.flatnonzero((self.action_masks() if mask is None else mask)[:-1])
+        if ps.size == 0:
+            return out
+        H_i, H_j = sim.relative_jacobians(ps)
+        ij = self._pair_index[ps]
+        A = H_i @ sim.P[ij[:, 0]] @ H_i.transpose(0, 2, 1)
+        N = H_j @ sim.P[ij[:, 1]] @ H_j.transpose(0, 2, 1) + sim.R_rel
+        out[ps] = np.linalg.slogdet(np.eye(A.shape[1]) + np.linalg.solve(N, A))[1]
         return out
 
-    def _obs(self) -> dict[str, np.ndarray]:
+    def _logdets(self) -> np.ndarray:
+        """(A,) ``log det P_i``, cached on the bytes of ``sim.P`` (recomputed when it changes)."""
+        P = self.sim.P
+        key = P.tobytes()
+        if self._logdet_cache is None or self._logdet_cache[0] != key:
+            self._logdet_cache = (key, np.asarray(logdet_spd(P, "P")))
+        return self._logdet_cache[1]
+
+    def _obs(self, mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
         sim = self.sim
+        mask = self.action_masks() if mask is None else mask
         return {
-            "logdet": np.asarray(logdet_spd(sim.P, "P"), np.float32),
+            "logdet": np.asarray(self._logdets(), np.float32),
             "pos_std": np.sqrt(np.trace(sim.P[:, :2, :2], axis1=1, axis2=2)).astype(np.float32),
-            "pair_gain": self._pair_gains().astype(np.float32),
+            "pair_gain": self._pair_gains(mask).astype(np.float32),
             "budget_left": np.array([self.budget_left / self.budget], np.float32),
             "time": np.array([sim.k / self.horizon], np.float32),
-            "action_mask": self.action_masks().astype(np.int8),
+            "action_mask": mask.astype(np.int8),
         }
 
-    def _info(self, reason: str | None = None) -> dict[str, Any]:
+    def _info(self, reason: str | None = None, mask: np.ndarray | None = None) -> dict[str, Any]:
         sim = self.sim
         return {
             "objective": self.objective_value(),
             "k": sim.k,
             "position_errors": sim.position_errors(),
             "processed": sorted(self._done_pairs),
-            "action_mask": self.action_masks(),
+            "action_mask": self.action_masks() if mask is None else mask,
             **self.invalid_rule.info(reason),
         }

@@ -463,9 +463,9 @@ def fuse_relative(
         R: (m, m) measurement noise.
         residual: (m,) ``z - h(x_i, x_j)`` (angles wrapped).
     """
-    B = H_j @ P_j @ H_j.T
-    z_eff = H_i @ x_i + residual  # kf_update forms y = z_eff - H_i x_i = residual
     if method == "naive":  # independence: the other agent's uncertainty is extra noise
+        B = H_j @ P_j @ H_j.T
+        z_eff = H_i @ x_i + residual  # kf_update forms y = z_eff - H_i x_i = residual
         res = kf_update(x_i, P_i, z_eff, H_i, B + R, validate=False)
         return res.x, res.P
     from selenv.core import fusion  # deferred: keeps scenarios importable without cvxpy
@@ -530,8 +530,9 @@ class CLSimulation:
         cfg = self.problem.config
         for i in range(cfg.n_agents):
             u = self.problem.inputs[self.k, i]
-            F, Q = self.model.jacobians(self.x[i], u, cfg.dt, cfg.input_sigma_of(i))
-            self.x[i] = self.model.propagate(self.x[i], u, cfg.dt)
+            self.x[i], F, Q = self.model.propagate_with_jacobians(
+                self.x[i], u, cfg.dt, cfg.input_sigma_of(i)
+            )
             P = F @ self.P[i] @ F.T + Q
             self.P[i] = 0.5 * (P + P.T)
         self.k += 1
@@ -587,6 +588,27 @@ class CLSimulation:
             H_i, H_j = np.vstack([H_i, Hb_i]), np.vstack([H_j, Hb_j])
         return H_i, H_j, np.asarray(res)
 
+    def relative_jacobians(self, ps: Sequence[int] | np.ndarray) -> tuple[FloatArray, FloatArray]:
+        """``(H_i, H_j)`` stacked ``(K, m, n)`` for the relative measurements ``ps`` now.
+
+        Bit-for-bit the ``H_i, H_j`` of :meth:`relative_terms` (same BLAS ``dot`` for the
+        ranges, same elementwise divisions), batched over the pairs; no residuals.
+        """
+        cfg, model = self.problem.config, self.model
+        pairs = np.asarray(cfg.relative_pairs, dtype=np.intp).reshape(-1, 2)[np.asarray(ps)]
+        pos = self.x[:, : model.dim]
+        d = pos[pairs[:, 0]] - pos[pairs[:, 1]]  # (K, dim)
+        # (K,1,dim) @ (K,dim,1) is one ddot per pair: the np.linalg.norm of relative_range
+        r = np.sqrt((d[:, None, :] @ d[:, :, None])[:, 0, 0])
+        H_i = np.zeros((len(pairs), 1, model.n))
+        H_i[:, 0, : model.dim] = d / r[:, None]
+        H_j = -H_i
+        if cfg.bearing_sigma_deg is not None:
+            Hb = [relative_bearing(model, self.x[i], self.x[j])[1:] for i, j in pairs]
+            H_i = np.concatenate([H_i, np.stack([b[0] for b in Hb])], axis=1)
+            H_j = np.concatenate([H_j, np.stack([b[1] for b in Hb])], axis=1)
+        return H_i, H_j
+
     def preview(self, p: int, method: str | None = None) -> tuple[FloatArray, FloatArray]:
         """Agent ``i``'s posterior ``(x, P)`` if relative measurement ``p`` were processed now."""
         i, j = self.problem.config.relative_pairs[p]
@@ -599,8 +621,13 @@ class CLSimulation:
         """Process relative measurement ``p``; return the drop in ``log det P_i`` (nats)."""
         i = self.problem.config.relative_pairs[p][0]
         before = float(logdet_spd(self.P[i], "P_i"))
-        self.x[i], self.P[i] = self.preview(p, method)
+        self.apply_relative(p, method)
         return before - float(logdet_spd(self.P[i], "P_i"))
+
+    def apply_relative(self, p: int, method: str | None = None) -> None:
+        """Process relative measurement ``p`` (:meth:`relative_update` without its log dets)."""
+        i = self.problem.config.relative_pairs[p][0]
+        self.x[i], self.P[i] = self.preview(p, method)
 
     def step(self, pairs: Sequence[int] | None = None) -> None:
         """Predict, beacon updates, then the relative updates ``pairs`` (default: all available)."""

@@ -74,6 +74,19 @@ class AgentModel:
         Q = Gs @ Gs.T
         return F, 0.5 * (Q + Q.T)
 
+    def propagate_with_jacobians(
+        self, x: FloatArray, u: FloatArray, dt: float, input_sigma: tuple[float, float]
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(x+, F, Q)``: :meth:`propagate` and :meth:`jacobians` at one ``(x, u)``.
+
+        The same values bit for bit; the ins model forms the attitude terms once.
+        """
+        if self.name == "ins":
+            x_new, F, G = lm.propagate_with_jacobians(x, u, dt)
+            return x_new, F, lm.process_noise(G, *input_sigma)
+        F, Q = self.jacobians(x, u, dt, input_sigma)
+        return self.propagate(x, u, dt), F, Q
+
     def position(self, x: FloatArray) -> FloatArray:
         """The measured position (dim,)."""
         return np.asarray(x[: self.dim], dtype=np.float64)

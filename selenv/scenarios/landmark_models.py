@@ -76,6 +76,7 @@ __all__ = [
     "paper_jacobian",
     "process_noise",
     "propagate",
+    "propagate_with_jacobians",
     "propagation_jacobians",
     "skew",
     "state_difference",
@@ -142,6 +143,10 @@ def _dt(dt: float) -> float:
     return float(dt)
 
 
+#: ``(sin roll, cos roll, sin pitch, cos pitch, sin yaw, cos yaw)`` of one angle triple
+_Trig = tuple[float, float, float, float, float, float]
+
+
 # -- attitude -----------------------------------------------------------------------------------
 def _trig(theta: Any) -> tuple[float, float, float, float, float, float]:
     """``(sr, cr, sp, cp, sy, cy)`` of one angle triple, with scalar ``math`` (no array ops)."""
@@ -158,14 +163,7 @@ def euler_to_dcm(theta: ArrayLike) -> FloatArray:
     """
     th = np.asarray(theta, dtype=np.float64)
     if th.ndim == 1:
-        sr, cr, sp, cp, sy, cy = _trig(th)
-        return np.array(
-            [
-                [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
-                [cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
-                [sp, -sr * cp, -cr * cp],
-            ]
-        )
+        return _dcm(_trig(th))
     c, s = np.cos(th), np.sin(th)
     ca, cb, cc = c[..., 0], c[..., 1], c[..., 2]  # cos roll, pitch, yaw
     sa, sb, sc = s[..., 0], s[..., 1], s[..., 2]
@@ -175,13 +173,30 @@ def euler_to_dcm(theta: ArrayLike) -> FloatArray:
     return np.stack([east, north, up], -2)  # C_ned^enu C_b^ned: rows E, N, -D
 
 
+def _dcm(t: _Trig) -> FloatArray:
+    """:func:`euler_to_dcm` of one triple from its ``_trig`` values."""
+    sr, cr, sp, cp, sy, cy = t
+    return np.array(
+        [
+            [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+            [cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+            [sp, -sr * cp, -cr * cp],
+        ]
+    )
+
+
 def euler_to_dcm_derivatives(theta: ArrayLike) -> FloatArray:
     """``dC_b^e / dtheta_i`` for one angle triple: (3, 3, 3), index ``i`` first.
 
     Entry-wise derivatives of :func:`euler_to_dcm` (equal to ``dR_x/da = R_x [e_x]_x`` etc. in
     the product ``C_ned^enu R_z R_y R_x``; the tests check both and finite differences).
     """
-    sr, cr, sp, cp, sy, cy = _trig(np.asarray(theta, dtype=np.float64))
+    return _dcm_derivatives(_trig(np.asarray(theta, dtype=np.float64)))
+
+
+def _dcm_derivatives(t: _Trig) -> FloatArray:
+    """:func:`euler_to_dcm_derivatives` from the ``_trig`` values."""
+    sr, cr, sp, cp, sy, cy = t
     return np.array(
         [
             [  # d/droll
@@ -205,14 +220,24 @@ def euler_to_dcm_derivatives(theta: ArrayLike) -> FloatArray:
 
 def euler_rate_matrix(theta: ArrayLike) -> FloatArray:
     """``E(theta)`` (3, 3) with ``d theta / dt = E(theta) w_b`` (z-y-x Euler kinematics)."""
-    sr, cr, sp, cp, _, _ = _trig(np.asarray(theta, dtype=np.float64))
+    return _rate_matrix(_trig(np.asarray(theta, dtype=np.float64)))
+
+
+def _rate_matrix(t: _Trig) -> FloatArray:
+    """:func:`euler_rate_matrix` from the ``_trig`` values."""
+    sr, cr, sp, cp, _, _ = t
     tp = sp / cp
     return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
 
 
 def _euler_rate_matrix_derivatives(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
     """``dE/droll``, ``dE/dpitch`` (each (3, 3)); ``E`` does not depend on yaw."""
-    sr, cr, sp, cp, _, _ = _trig(theta)
+    return _rate_matrix_derivatives(_trig(theta))
+
+
+def _rate_matrix_derivatives(t: _Trig) -> tuple[FloatArray, FloatArray]:
+    """:func:`_euler_rate_matrix_derivatives` from the ``_trig`` values."""
+    sr, cr, sp, cp, _, _ = t
     tp, c2 = sp / cp, cp * cp
     dEr = np.array([[0.0, cr * tp, -sr * tp], [0.0, -sr, -cr], [0.0, cr / cp, -sr / cp]])
     dEp = np.array([[0.0, sr / c2, cr / c2], [0.0, 0.0, 0.0], [0.0, sr * sp / c2, cr * sp / c2]])
@@ -234,12 +259,20 @@ def body_rates_from_euler_rates(theta: ArrayLike, theta_dot: ArrayLike) -> Float
 def propagate(x: ArrayLike, u: ArrayLike, dt: float) -> FloatArray:
     """One strapdown step ``x+ = f(x, u)`` (module docstring), (9,) -> (9,)."""
     xa, ua, h = _state(x), _input(u), _dt(dt)
+    t = _trig(xa[6:9])
+    return _propagate(xa, ua, h, _dcm(t), _rate_matrix(t))
+
+
+def _propagate(
+    xa: FloatArray, ua: FloatArray, h: float, C: FloatArray, E: FloatArray
+) -> FloatArray:
+    """:func:`propagate` of checked inputs, given ``C = C_b^e(theta)`` and ``E(theta)``."""
     p, v, th = xa[0:3], xa[3:6], xa[6:9]
-    a = euler_to_dcm(th) @ ua[0:3] + _G_E  # a = C_b^e f_b + g_e
+    a = C @ ua[0:3] + _G_E  # a = C_b^e f_b + g_e
     out = np.empty(STATE_DIM)
     out[0:3] = p + v * h + 0.5 * a * h * h  # p+ = p + v dt + a dt^2 / 2
     out[3:6] = v + a * h  # v+ = v + a dt
-    out[6:9] = th + euler_rate_matrix(th) @ ua[3:6] * h  # theta+ = theta + E w_b dt
+    out[6:9] = th + E @ ua[3:6] * h  # theta+ = theta + E w_b dt
     return out
 
 
@@ -252,10 +285,17 @@ def propagation_jacobians(x: ArrayLike, u: ArrayLike, dt: float) -> tuple[FloatA
         G = [[dt^2/2 C, 0], [dt C, 0], [0, dt E]]
     """
     xa, ua, h = _state(x), _input(u), _dt(dt)
-    th, f, w = xa[6:9], ua[0:3], ua[3:6]
-    C = euler_to_dcm(th)
-    A = euler_to_dcm_derivatives(th) @ f  # (3 angles, 3): row i = (dC/dtheta_i) f
-    dEr, dEp = _euler_rate_matrix_derivatives(th)
+    t = _trig(xa[6:9])
+    return _jacobians(xa, ua, h, _dcm(t), _rate_matrix(t), t)
+
+
+def _jacobians(
+    xa: FloatArray, ua: FloatArray, h: float, C: FloatArray, E: FloatArray, t: _Trig
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`propagation_jacobians` of checked inputs, given ``C``, ``E``, ``_trig`` at theta."""
+    f, w = ua[0:3], ua[3:6]
+    A = _dcm_derivatives(t) @ f  # (3 angles, 3): row i = (dC/dtheta_i) f
+    dEr, dEp = _rate_matrix_derivatives(t)
     F = np.eye(STATE_DIM)
     F[0:3, 3:6] = h * np.eye(3)
     F[0:3, 6:9] = 0.5 * h * h * A.T
@@ -265,8 +305,22 @@ def propagation_jacobians(x: ArrayLike, u: ArrayLike, dt: float) -> tuple[FloatA
     G = np.zeros((STATE_DIM, 6))
     G[0:3, 0:3] = 0.5 * h * h * C
     G[3:6, 0:3] = h * C
-    G[6:9, 3:6] = h * euler_rate_matrix(th)
+    G[6:9, 3:6] = h * E
     return F, G
+
+
+def propagate_with_jacobians(
+    x: ArrayLike, u: ArrayLike, dt: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(x+, F, G)``: :func:`propagate` and :func:`propagation_jacobians` at one ``(x, u)``.
+
+    The same values bit for bit, with the inputs checked and ``C``, ``E`` formed once.
+    """
+    xa, ua, h = _state(x), _input(u), _dt(dt)
+    t = _trig(xa[6:9])
+    C, E = _dcm(t), _rate_matrix(t)
+    F, G = _jacobians(xa, ua, h, C, E, t)
+    return _propagate(xa, ua, h, C, E), F, G
 
 
 def process_noise(G: ArrayLike, accel_sigma: float, gyro_sigma: float) -> FloatArray:

@@ -353,6 +353,43 @@ def _readonly(**arrays: FloatArray) -> dict[str, FloatArray]:
     return arrays
 
 
+#: deterministic flights by :func:`_flight_key`: (states, imu_true, F_true, Q), read-only
+_FLIGHTS: dict[tuple[str, ...], tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = {}
+_MAX_FLIGHTS = 8
+
+
+def _flight_key(cfg: LandmarkConfig) -> tuple[str, ...]:
+    """Every field the true flight, its Jacobians and ``Q`` depend on (``repr``: -0.0 != 0.0)."""
+    legs = tuple(repr(float(v)) for leg in cfg.legs for v in leg)
+    scalars = (cfg.horizon, cfg.dt, cfg.speed, cfg.heading_deg, cfg.altitude,
+               cfg.max_roll_rate_deg, cfg.accel_sigma, cfg.gyro_sigma)  # fmt: skip
+    return (*(repr(float(v)) for v in scalars), "legs", *legs)
+
+
+def _flight(cfg: LandmarkConfig) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """True states, IMU, ``F_true`` and ``Q`` of ``cfg``'s flight, computed once per config.
+
+    None of them depends on the generator (the flight is a deterministic guidance law), so a
+    reset reuses them (read-only arrays, shared between problems) instead of re-flying.
+    """
+    key = _flight_key(cfg)
+    hit = _FLIGHTS.get(key)
+    if hit is not None:
+        return hit
+    states, imu_true = fly(cfg)
+    T, dt = int(cfg.horizon), float(cfg.dt)
+    F_true, Q = np.empty((T, STATE_DIM, STATE_DIM)), np.empty((T, STATE_DIM, STATE_DIM))
+    for k in range(T):
+        F_true[k], G = propagation_jacobians(states[k], imu_true[k], dt)
+        Q[k] = process_noise(G, float(cfg.accel_sigma), cfg.gyro_sigma)
+    for a in (states, imu_true, F_true, Q):
+        a.setflags(write=False)
+    if len(_FLIGHTS) >= _MAX_FLIGHTS:
+        _FLIGHTS.pop(next(iter(_FLIGHTS)))  # oldest first
+    _FLIGHTS[key] = (states, imu_true, F_true, Q)
+    return _FLIGHTS[key]
+
+
 def make_landmark_problem(
     config: LandmarkConfig | None, rng: np.random.Generator
 ) -> LandmarkProblem:
@@ -368,8 +405,8 @@ def make_landmark_problem(
     cfg = LandmarkConfig() if config is None else config
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    states, imu_true = fly(cfg)
-    T, N, dt = int(cfg.horizon), int(cfg.n_landmarks), float(cfg.dt)
+    states, imu_true, F_true, Q = _flight(cfg)
+    T, N = int(cfg.horizon), int(cfg.n_landmarks)
     if cfg.landmarks is None:
         landmarks = draw_layout(cfg, states, rng)
     else:
@@ -379,10 +416,6 @@ def make_landmark_problem(
     noise = rng.standard_normal((T, N, 2)) * cfg.aoa_sigma
     P0 = cfg.P0
     x0_hat = states[0] + np.sqrt(np.diag(P0)) * rng.standard_normal(STATE_DIM)  # P0 diagonal
-    F_true, Q = np.empty((T, STATE_DIM, STATE_DIM)), np.empty((T, STATE_DIM, STATE_DIM))
-    for k in range(T):
-        F_true[k], G = propagation_jacobians(states[k], imu_true[k], dt)
-        Q[k] = process_noise(G, float(cfg.accel_sigma), cfg.gyro_sigma)
     z = wrap_angle(aoa_angles(body_vectors_along(states[1:], landmarks)) + noise)
     arrays = _readonly(
         landmarks=landmarks,
