@@ -58,6 +58,8 @@ import numpy as np
 
 from selenv.core.information import (
     LogDetGainState,
+    _as_candidates,
+    _logdet_objective_trusted,
     as_candidates,
     information_matrix,
     logdet_objective,
@@ -196,12 +198,41 @@ def greedy_whitened(
         ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
             [0, N]; an unknown ``objective``; a bad ``interest``.
     """
+    if type(objective) is str and objective == "logdet" and interest is None:  # one validation
+        Q0_a, G_a = whitened_pool(Q0, G)
+        return _greedy_logdet(Q0_a, G_a, cholesky_spd(Q0_a, "Q0"), budget)
     state = make_gain_state(Q0, G, objective, interest=interest, track_gains=True)
     budget = _check_budget(budget, state.N)
     for _ in range(budget):
         state.add(int(np.argmax(state.masked_gains())))  # line 4: best marginal gain
     idx = getattr(state, "interest", None)
     return _finish(state.Q0, state.G, state.order, budget * state.N, objective, idx)
+
+
+def _greedy_logdet(Q0: FloatArray, G: FloatArray, L0: FloatArray, budget: object) -> Selection:
+    """Log-det greedy on a validated ``Q0`` / ``G``: the picks and objective of the general path.
+
+    The same :class:`~selenv.core.information.LogDetGainState` updates and argmax as
+    :func:`greedy_whitened` with ``make_gain_state``, minus the re-validation of ``Q0`` and
+    ``G`` and with ``Q0``'s Cholesky factor ``L0`` (``cholesky_spd(Q0)``) reused for the final
+    objective.
+
+    Raises:
+        TypeError: ``budget`` not an int.
+        ValueError: ``budget`` outside [0, N].
+    """
+    budget = _check_budget(budget, G.shape[0])
+    state = LogDetGainState._trusted(Q0, G, L0)
+    selected, order, gains = state.selected, state.order, state.gains
+    for _ in range(budget):
+        assert gains is not None  # tracked by construction
+        j = int(np.argmax(np.where(selected, -np.inf, gains)))  # line 4: best marginal gain
+        state._add_rank_one(G[j])
+        selected[j] = True
+        order.append(j)
+        gains = state.gains
+    value = _logdet_objective_trusted(Q0, G, order, state.L0)
+    return Selection(tuple(order), value, budget * state.N)
 
 
 def _refuse_lazy(objective: object) -> None:
@@ -444,6 +475,8 @@ def greedy(
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
             [0, N]; an unknown ``objective``; a bad ``interest``.
     """
+    if type(objective) is str and objective == "logdet" and interest is None:  # fast path
+        return _greedy_logdet(*_as_candidates(Q0, H, R), budget)
     Q0_a, G = as_candidates(Q0, H, R)
     return greedy_whitened(Q0_a, G, budget, objective=objective, interest=interest)
 

@@ -28,13 +28,16 @@ shapes (cheap) and that ``G`` is finite and within ``MAX_ABS``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg.lapack import dpotrs, dtrtrs
 
 from selenv.core.linalg import (
     MAX_ABS,
+    MIN_PD_DIAG,
     FloatArray,
     ShapeError,
     as_float_array,
@@ -49,6 +52,8 @@ from selenv.core.linalg import (
     symmetrize,
     validate_spd,
 )
+
+_MAX_ABS2 = MAX_ABS * MAX_ABS
 
 __all__ = [
     "LogDetGainState",
@@ -162,6 +167,8 @@ def _candidates(H_a: FloatArray, R_a: FloatArray, d: int | None) -> tuple[FloatA
     if d is not None and H_a.shape[-1] != d:
         want = "(N, d)" if H_a.ndim == 2 else "(N, m, d)"
         raise ShapeError(f"H must have shape {want} with d = {d} to match Q0, got {H_a.shape}", "H")
+    if H_a.ndim == 2 and _scalar_pool_ok(H_a, R_a):  # fast path: every check below passes
+        return H_a[:, None, :], R_a[:, None, None]
     check_magnitude(check_finite(H_a, "H"), "H")
     check_finite(R_a, "R")
     if H_a.ndim == 2:
@@ -192,6 +199,94 @@ def _candidates(H_a: FloatArray, R_a: FloatArray, d: int | None) -> tuple[FloatA
     return H_a, check_magnitude(R_a, "R", definite=True)
 
 
+def _scalar_pool_ok(H_a: FloatArray, R_a: FloatArray) -> bool:
+    """Whether scalar candidates ``H (N, d)``, ``R (N,)`` pass every check of :func:`_candidates`.
+
+    One ``np.vdot`` bounds ``H`` (finite and ``|h| <= MAX_ABS``: NaN/inf fail the comparison)
+    and ``min`` / ``max`` bound ``R`` (NaN fails both comparisons). Anything that fails runs
+    the canonical checks, so every error message and its precedence is unchanged.
+    """
+    if R_a.ndim != 1 or R_a.shape[0] != H_a.shape[0] or not R_a.size:
+        return False
+    if not float(np.vdot(H_a, H_a)) <= _MAX_ABS2:  # vdot: no FP warning on overflow
+        return False
+    return bool(MIN_PD_DIAG <= R_a.min()) and bool(R_a.max() <= MAX_ABS)
+
+
+def _whiten_rows(H_a: FloatArray, R_a: FloatArray) -> FloatArray:
+    """:func:`whiten` of validated one-row candidates ``H (N, 1, d)``, ``R (N, 1, 1)``.
+
+    ``G_k = H_k * (1 / sqrt(R_k))``: bit for bit the batched Cholesky and solve of
+    :func:`whiten` when :func:`_rows_match_solve` holds (OpenBLAS's triangular solve with
+    ``d >= 2`` right-hand sides multiplies by the inverse of the diagonal, and the 1 x 1
+    Cholesky factor is ``sqrt(R_k)``), without their per-candidate overhead; otherwise
+    :func:`whiten` itself. Validated inputs (``|H| <= MAX_ABS``, ``R >= MIN_PD_DIAG``) cannot
+    overflow.
+    """
+    if H_a.shape[2] < 2 or not _rows_match_solve():
+        return whiten(H_a, R_a)
+    G: FloatArray = H_a * (1.0 / np.sqrt(R_a))
+    return G
+
+
+_ROWS_MATCH: list[bool] = []
+
+
+def _rows_match_solve() -> bool:
+    """Whether this BLAS whitens one-row candidates as ``H * (1 / sqrt(R))`` (probed once).
+
+    The probe draws values where multiplying by the reciprocal and dividing differ in the
+    last bit, so a BLAS that divides (e.g. the one-right-hand-side path) is detected.
+    """
+    if not _ROWS_MATCH:
+        rng = np.random.default_rng(19)
+        H = rng.normal(size=(256, 1, 3)) * 10.0 ** rng.uniform(-30, 30, size=(256, 1, 1))
+        R = 10.0 ** rng.uniform(-30, 30, size=(256, 1, 1))
+        ref = np.linalg.solve(np.sqrt(R), H)
+        _ROWS_MATCH.append(ref.tobytes() == (H * (1.0 / np.sqrt(R))).tobytes())
+    return _ROWS_MATCH[0]
+
+
+def _valid_prior(Q0: object) -> tuple[FloatArray, FloatArray] | None:
+    """Fast path of ``validate_spd(Q0)`` + ``check_magnitude(Q0, definite=True)``: ``(Q0, L0)``.
+
+    Accepts only a float64 ``(d, d)`` ndarray that is byte-wise symmetric (so its symmetrized
+    copy is bit for bit itself), bounded by one ``np.vdot`` (finite, ``|a| <= MAX_ABS``), with
+    diagonal ``>= MIN_PD_DIAG`` and a Cholesky factor ``L0`` (returned, so it is not factored
+    again). ``None`` for anything else: the caller then runs the canonical checks.
+    """
+    if type(Q0) is not np.ndarray or Q0.dtype != np.float64 or Q0.ndim != 2:
+        return None
+    d = Q0.shape[0]
+    if Q0.shape[1] != d or d == 0 or Q0.tobytes() != Q0.T.tobytes():
+        return None
+    if not float(np.vdot(Q0, Q0)) <= _MAX_ABS2 or not bool(Q0.diagonal().min() >= MIN_PD_DIAG):
+        return None
+    try:
+        L0 = np.linalg.cholesky(Q0)
+    except np.linalg.LinAlgError:
+        return None
+    if not math.isfinite(float(np.sum(L0.diagonal()))):
+        return None
+    return 0.5 * (Q0 + Q0.T), L0  # = symmetrize(Q0), a copy as validate_spd returns
+
+
+def _as_candidates(Q0: object, H: object, R: object) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`as_candidates` plus ``cholesky_spd(Q0)`` (the same checks and results)."""
+    fast = _valid_prior(Q0)
+    if fast is None:
+        Q0_a, G = as_candidates(Q0, H, R)
+        return Q0_a, G, cholesky_spd(Q0_a, "Q0")
+    Q0_a, L0 = fast
+    H_a, R_a = as_float_array(H, "H"), as_float_array(R, "R")
+    try:
+        H_a, R_a = _candidates(H_a, R_a, Q0_a.shape[0])
+    except ShapeError as exc:
+        raise _blame(exc, Q0=Q0, H=H, R=R) from None
+    G = _whiten_rows(H_a, R_a) if H_a.shape[1] == 1 else whiten(H_a, R_a)
+    return Q0_a, G, L0
+
+
 def as_candidates(Q0: object, H: object, R: object) -> tuple[FloatArray, FloatArray]:
     """Validate ``Q0`` (SPD, ``(d, d)``) and a candidate pool, and whiten the pool.
 
@@ -210,6 +305,8 @@ def as_candidates(Q0: object, H: object, R: object) -> tuple[FloatArray, FloatAr
     except ShapeError as exc:
         raise _blame(exc, Q0=Q0, H=H, R=R) from None
     check_magnitude(Q0_a, "Q0", definite=True)
+    if H_a.shape[1] == 1:  # one row per candidate: no batched factorisation needed
+        return Q0_a, _whiten_rows(H_a, R_a)
     return Q0_a, whiten(H_a, R_a)
 
 
@@ -271,6 +368,72 @@ def logdet_objective(
     )
 
 
+def _lower_solve(L: FloatArray, B: FloatArray) -> FloatArray:
+    """``solve_triangular(L, B, lower=True)`` for a finite non-singular ``L``, bit for bit.
+
+    Calls LAPACK ``trtrs`` exactly as SciPy's ``_solve_triangular`` does (on ``L^T`` with
+    ``trans=1`` unless ``L`` is Fortran-ordered), without its validation and batching
+    wrappers (about 20 us per call); anything unusual goes through SciPy.
+    """
+    if B.size:
+        if L.flags.f_contiguous:
+            X, info = dtrtrs(L, B, lower=1, trans=0)
+        else:
+            X, info = dtrtrs(L.T, B, lower=0, trans=1)
+        if info == 0:
+            out: FloatArray = X
+            return out
+    return solve_triangular(L, B, lower=True)
+
+
+def _logdet_objective_trusted(
+    Q0: FloatArray, G: FloatArray, selected: list[int], L0: FloatArray
+) -> float:
+    """:func:`logdet_objective` of validated inputs, bit for bit, without re-validating.
+
+    ``L0`` is ``cholesky_spd(Q0)`` (so ``log det Q0`` is not factored again). The FIM is
+    formed and factored exactly as :func:`information_matrix` and :func:`logdet_spd` do (the
+    symmetrized FIM is exactly symmetric, so :func:`cholesky_spd` would factor it as is); a
+    failed factorisation runs :func:`logdet_objective` for the canonical error.
+    """
+    idx = np.asarray(selected, dtype=np.intp)
+    Gs = G[idx].reshape(-1, G.shape[2])
+    B = Q0 + Gs.T @ Gs
+    A = 0.5 * (B + B.T)  # = symmetrize(B)
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        return logdet_objective(Q0, G, selected)
+    out = 2.0 * np.sum(np.log(np.diagonal(L)), axis=-1)
+    if not math.isfinite(float(out)):
+        return logdet_objective(Q0, G, selected)
+    return float(out) - float(2.0 * np.sum(np.log(np.diagonal(L0)), axis=-1))
+
+
+def _logdet_gains3(S: FloatArray) -> FloatArray:
+    """``log det(I + S_k)`` of PSD ``3 x 3`` blocks ``S`` ``(N, 3, 3)`` by a vectorised Cholesky.
+
+    The column-by-column Cholesky of ``A = I + S`` as OpenBLAS's ``potf2`` runs it (columns
+    scaled by the reciprocal of the pivot), then ``2 (log l00 + log l11 + log l22)``: one
+    LAPACK call per candidate becomes about 20 vector operations. ``l00 .. l21`` are bit for
+    bit LAPACK's; ``l22 = sqrt(a22 - (l20^2 + l21^2))`` rounds the length-2 dot without the
+    kernel's fused multiply-add, so a few gains per thousand differ in the last bits (by at
+    most ~1e-14 (1 + S22) / l22^2). Internal (the greedy solvers), ``S`` not validated.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):  # not PD: reported below
+        a00, a11, a22 = 1.0 + S[:, 0, 0], 1.0 + S[:, 1, 1], 1.0 + S[:, 2, 2]
+        l00 = np.sqrt(a00)
+        r0 = 1.0 / l00
+        l10, l20 = S[:, 1, 0] * r0, S[:, 2, 0] * r0
+        l11 = np.sqrt(a11 - l10 * l10)
+        l21 = (S[:, 2, 1] - l20 * l10) * (1.0 / l11)
+        l22 = np.sqrt(a22 - (l20 * l20 + l21 * l21))
+        out: FloatArray = 2.0 * ((np.log(l00) + np.log(l11)) + np.log(l22))
+    if not np.all(np.isfinite(out)):
+        return block_logdet_gains(S)  # the canonical error (or result)
+    return out
+
+
 def block_logdet_gains(S: FloatArray) -> FloatArray:
     """``log det(I_m + S_k)`` for a batch ``S`` of PSD ``(N, m, m)`` matrices, shape ``(N,)``.
 
@@ -327,31 +490,75 @@ class LogDetGainState:
         track_gains: bool = True,
         track_whitened: bool = False,
     ) -> None:
-        self.Q0, G = whitened_pool(Q0, G)
+        Q0_a, G_a = whitened_pool(Q0, G)
+        self._setup(Q0_a, G_a, cholesky_spd(Q0_a, "Q0"), track_gains, track_whitened)
+
+    @classmethod
+    def _trusted(cls, Q0: FloatArray, G: FloatArray, L0: FloatArray) -> LogDetGainState:
+        """Rank-one state with gains over an already validated ``Q0`` / ``G`` (no checks).
+
+        ``L0`` is ``cholesky_spd(Q0)``. For the solvers, which validated their input with
+        :func:`whitened_pool` or :func:`as_candidates` (internal: not for user input).
+        """
+        self = cls.__new__(cls)
+        self._setup(Q0, G, L0, True, False, closed3=True)
+        return self
+
+    def _setup(
+        self,
+        Q0: FloatArray,
+        G: FloatArray,
+        L0: FloatArray,
+        track_gains: bool,
+        track_whitened: bool,
+        *,
+        closed3: bool = False,
+    ) -> None:
+        """Initial ``P`` (or ``L^-1``), ``Z``, ``S`` and gains from validated inputs.
+
+        ``closed3``: gains of 3-row candidates by the vectorised Cholesky
+        :func:`_logdet_gains3` instead of LAPACK's (the solvers only: the last bits of gains may
+        differ, the picks do not; see ``tests/test_speed_identity_greedy.py``).
+        """
+        self._closed3 = closed3 and G.shape[1] == 3
+        self.Q0 = Q0
         self.G = G
         self.N, self.m, self.d = G.shape
         self._Gflat = G.reshape(self.N * self.m, self.d)
-        L0 = cholesky_spd(self.Q0, "Q0")
+        self._pairs = [(a, b) for a in range(self.m) for b in range(a, self.m)]
+        self.L0 = L0
         # rank-one mode keeps P = A^-1; whitened mode keeps L^-1 (A = L L^T) and P = L^-T L^-1
         self._P: FloatArray | None = None
         self._Linv: FloatArray | None = None
         if track_whitened:
-            self._Linv = solve_triangular(L0, np.eye(self.d), lower=True)
-        else:
-            self._P = cho_solve((L0, True), np.eye(self.d))  # P = Q0^-1
+            self._Linv = solve_triangular(L0, np.eye(self.d), lower=True, check_finite=False)
+        else:  # P = Q0^-1 by LAPACK potrs, the routine cho_solve calls, minus its wrappers
+            P, info = dpotrs(L0, np.eye(self.d), lower=1)
+            if info != 0:
+                P = cho_solve((L0, True), np.eye(self.d))
+            self._P = P
         self.selected = np.zeros(self.N, dtype=bool)
         self.order: list[int] = []
         self.objective = 0.0
         self.track_gains = track_gains
         self.track_whitened = track_whitened
-        W = solve_triangular(L0, self._Gflat.T, lower=True).T  # rows g L0^-T
+        W = _lower_solve(L0, self._Gflat.T).T  # rows g L0^-T
         self.Z: FloatArray | None = W.reshape(G.shape) if track_whitened else None
         self.S: FloatArray | None = None
         self.gains: FloatArray | None = None
         if track_gains:
             Wb = W.reshape(G.shape)
             self.S = np.einsum("kid,kjd->kij", Wb, Wb)  # S_k = G_k Q0^-1 G_k^T
-            self.gains = block_logdet_gains(self.S)
+            self.gains = self._gains(self.S)
+
+    def _gains(self, S: FloatArray) -> FloatArray:
+        """``log det(I + S_k)`` of the tracked ``S`` (see :func:`block_logdet_gains`)."""
+        if self.m == 1:  # inlined: block_logdet_gains computes the same log1p
+            out: FloatArray = np.log1p(S[:, 0, 0])
+            return out
+        if self._closed3:
+            return _logdet_gains3(S)
+        return block_logdet_gains(S)
 
     @property
     def P(self) -> FloatArray:
@@ -411,25 +618,30 @@ class LogDetGainState:
 
     def _add_rank_one(self, Gj: FloatArray) -> None:
         """One Sherman-Morrison update of ``P`` (and ``S``) per non-zero row of ``G_j``."""
-        assert self._P is not None
-        pairs = [(a, b) for a in range(self.m) for b in range(a, self.m)]
+        P = self._P
+        assert P is not None
+        S = self.S
         for g in Gj:
-            if not np.any(g):
+            if not g.any():
                 continue  # zero padding row: no information
-            u = self._P @ g  # u = P g
+            u = P @ g  # u = P g
             q = float(g @ u)  # q = g^T P g
-            self._P = symmetrize(self._P - np.outer(u, u) / (1.0 + q))  # Sherman-Morrison
+            B = P - u[:, None] * u / (1.0 + q)  # Sherman-Morrison (u[:, None] * u = np.outer)
+            P = 0.5 * (B + B.T)  # = symmetrize(B), inlined
             self.objective += float(np.log1p(q))  # matrix determinant lemma
-            if self.S is not None:
+            if S is not None:
                 c = (self._Gflat @ u).reshape(self.N, self.m)  # c = G u
                 c *= 1.0 / np.sqrt(1.0 + q)
-                for a, b in pairs:  # S <- S - c c^T / (1 + q), unique entries only
+                # S <- S - c c^T / (1 + q), unique entries only: N-long vector operations are
+                # 3-7x faster here than one (N, m, m) broadcast or einsum (inner loops of m)
+                for a, b in self._pairs:
                     v = c[:, a] * c[:, b]
-                    self.S[:, a, b] -= v
+                    S[:, a, b] -= v
                     if a != b:
-                        self.S[:, b, a] -= v
-        if self.S is not None:
-            self.gains = block_logdet_gains(self.S)
+                        S[:, b, a] -= v
+        self._P = P
+        if S is not None:
+            self.gains = self._gains(S)
 
     def _add_whitened(self, j: int) -> None:
         """Block update through the whitened rows: ``Z <- Z C^-T``, then ``S = Z Z^T``.
