@@ -341,3 +341,36 @@ def test_landmark_episodes_match_the_reference(i: int, monkeypatch: pytest.Monke
     monkeypatch.setattr(landmarks_mod, "_flight", ref_flight)
     ref = [play(LandmarkSelectionEnv(**kw), s, a) for a in AGENTS for s in range(2)]
     assert new == ref
+
+
+def _ref_process_noise(G: Any, accel_sigma: float, gyro_sigma: float) -> FloatArray:
+    """The previous ``process_noise`` (scale vector built on every call), verbatim."""
+    Ga = np.asarray(G, dtype=np.float64)
+    scale = np.repeat([float(accel_sigma), float(gyro_sigma)], 3)
+    Gs = Ga * scale
+    Q = Gs @ Gs.T
+    return 0.5 * (Q + Q.T)
+
+
+@pytest.mark.parametrize(
+    "sigmas", [(0.1, 0.01), (0.1, 0.01), (2.0, 3e-4), (0.0, 0.01), (-0.0, 0.01), (0.1, -0.0)]
+)
+def test_process_noise_cached_scale_is_bit_identical(sigmas: tuple[float, float]) -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        G = rng.standard_normal((9, 6))
+        G[:, int(rng.integers(6))] = -0.0  # signed zeros must survive the cached scale
+        got, want = lm.process_noise(G, *sigmas), _ref_process_noise(G, *sigmas)
+        assert got.tobytes() == want.tobytes()
+
+
+def test_jacobian_template_is_not_shared_with_callers() -> None:
+    """``F`` comes from a cached read-only skeleton: writing into one result must not leak."""
+    x, u, h = np.full(9, 0.1), np.full(6, 0.2), 0.05
+    F1, _ = lm.propagation_jacobians(x, u, h)
+    F1[:] = 7.0  # the caller owns its F
+    F2, G2 = lm.propagation_jacobians(x, u, h)
+    F_ref, G_ref = ref_propagation_jacobians(x, u, h)
+    np.testing.assert_array_equal(F2, F_ref)
+    np.testing.assert_array_equal(G2, G_ref)
+    assert F2.flags.writeable

@@ -309,3 +309,54 @@ def test_kf_update_errors_and_slow_path_unchanged(monkeypatch: pytest.MonkeyPatc
             ours, ref = (a.x, a.P, a.K, a.log_likelihood), (b.x, b.P, b.K, b.log_likelihood)
             for u, v in zip(ours, ref, strict=True):
                 assert np.asarray(u).tobytes() == np.asarray(v).tobytes()
+
+
+def _ref_check_finite(arr: Any, name: str) -> np.ndarray:
+    """The previous ``check_finite`` (``np.all(np.isfinite)`` on every call), verbatim."""
+    from selenv.core.linalg import as_float_array
+
+    if type(arr) is not np.ndarray or arr.dtype is not np.dtype(np.float64):
+        arr = as_float_array(arr, name)
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise ValueError(f"{name} must be finite, but {bad} entries are NaN or inf")
+    return arr
+
+
+def _finite_cases() -> list[Any]:
+    rng = np.random.default_rng(7)
+    big = np.full((3, 3), 1e200)  # finite, but its vdot overflows: the exact test decides
+    cases: list[Any] = [np.zeros(0), np.float64(2.0), np.array(3.0), big, -big, big.T[:, ::2]]
+    cases += [np.arange(6).reshape(2, 3), [1.0, 2.0], 4, np.float32([1.0, np.inf])]
+    for _ in range(200):
+        a = rng.standard_normal(rng.integers(1, 5, size=rng.integers(1, 3))) * 10.0 ** float(
+            rng.integers(-300, 300)
+        )
+        if rng.random() < 0.5:  # plant NaN / +-inf somewhere
+            a.flat[int(rng.integers(a.size))] = rng.choice([np.nan, np.inf, -np.inf])
+        cases.append(a if rng.random() < 0.8 else a.T)
+    return cases
+
+
+def test_check_finite_accepts_and_rejects_exactly_as_before() -> None:
+    """The one-``vdot`` test of ``check_finite`` raises iff the previous exact test raised,
+    with the same message, and returns the same array (also when the ``vdot`` overflows)."""
+    from selenv.core.linalg import check_finite
+
+    n_raised = 0
+    for a in _finite_cases():
+        try:
+            want: Any = _ref_check_finite(a, "v")
+        except ValueError as exc:
+            want = str(exc)
+        try:
+            got: Any = check_finite(a, "v")
+        except ValueError as exc:
+            got = str(exc)
+        if isinstance(want, str):
+            n_raised += 1
+            assert got == want
+        else:
+            assert isinstance(got, np.ndarray) and got.dtype == np.float64
+            assert got.tobytes() == want.tobytes() and got.shape == want.shape
+    assert 50 < n_raised < 200  # both branches were exercised

@@ -115,7 +115,8 @@ def check_finite(arr: FloatArray, name: str) -> FloatArray:
     """
     if type(arr) is not np.ndarray or arr.dtype is not _F64:
         arr = as_float_array(arr, name)
-    if not np.all(np.isfinite(arr)):
+    # one ``vdot`` (no warning on NaN / overflow); the exact test only when it is not finite
+    if not math.isfinite(float(np.vdot(arr, arr))) and not np.isfinite(arr).all():
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
         raise ValueError(f"{name} must be finite, but {bad} entries are NaN or inf")
     return arr

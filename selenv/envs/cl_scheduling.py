@@ -225,7 +225,8 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         check_learned_fusion(self.config, fusion)  # ldmv / lpecmv: a surrogate for this noise
         self.pairs: tuple[tuple[int, int], ...] = self.config.relative_pairs
         self._pair_index = np.asarray(self.pairs, dtype=np.intp).reshape(-1, 2)
-        self._logdet_cache: tuple[bytes, np.ndarray] | None = None
+        #: (bytes of sim.P, log det P_i per agent, their sum as a float)
+        self._logdet_cache: tuple[bytes, np.ndarray, float] | None = None
         self.n_pairs = len(self.pairs)
         if self.n_pairs == 0:
             raise ValueError("relative_pairs must hold at least one (i, j) pair to schedule")
@@ -277,8 +278,8 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
 
     def objective_value(self) -> float:
         """Sum over agents of ``log det P`` or of the horizontal position variance."""
-        if self.objective == "logdet":  # the same agent_objective values, cached
-            return float(np.sum(self._logdets()))
+        if self.objective == "logdet":  # the sum of the same agent_objective values, cached
+            return self._logdet_entry()[2]
         return float(np.sum(agent_objective(self.sim.P, self.objective)))
 
     # -- Gymnasium API -----------------------------------------------------------------------
@@ -390,11 +391,17 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
 
     def _logdets(self) -> np.ndarray:
         """(A,) ``log det P_i``, cached on the bytes of ``sim.P`` (recomputed when it changes)."""
+        return self._logdet_entry()[1]
+
+    def _logdet_entry(self) -> tuple[bytes, np.ndarray, float]:
+        """The cache entry ``(bytes of sim.P, log det P_i per agent, their sum)``, up to date."""
         P = self.sim.P
         key = P.tobytes()
-        if self._logdet_cache is None or self._logdet_cache[0] != key:
-            self._logdet_cache = (key, np.asarray(logdet_spd(P, "P")))
-        return self._logdet_cache[1]
+        entry = self._logdet_cache
+        if entry is None or entry[0] != key:
+            ld = np.asarray(logdet_spd(P, "P"))
+            entry = self._logdet_cache = (key, ld, float(np.sum(ld)))
+        return entry
 
     def _obs(self, mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
         sim = self.sim

@@ -51,6 +51,7 @@ respect to ``x`` by ``H_paper = H_exact T`` with ``T = dx/de`` from :func:`paper
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -296,8 +297,7 @@ def _jacobians(
     f, w = ua[0:3], ua[3:6]
     A = _dcm_derivatives(t) @ f  # (3 angles, 3): row i = (dC/dtheta_i) f
     dEr, dEp = _rate_matrix_derivatives(t)
-    F = np.eye(STATE_DIM)
-    F[0:3, 3:6] = h * np.eye(3)
+    F = _f_template(h).copy()  # I with the dt I block (the same bits as building it here)
     F[0:3, 6:9] = 0.5 * h * h * A.T
     F[3:6, 6:9] = h * A.T
     F[6:9, 6] += h * (dEr @ w)
@@ -307,6 +307,26 @@ def _jacobians(
     G[3:6, 0:3] = h * C
     G[6:9, 3:6] = h * E
     return F, G
+
+
+@functools.lru_cache(maxsize=8)
+def _f_template(h: float) -> FloatArray:
+    """Read-only ``F`` skeleton of :func:`_jacobians`: ``I`` (9, 9) with ``F[0:3, 3:6] = h I``.
+
+    ``h`` is a checked ``dt > 0``, so equal keys give the same bits (no signed zeros).
+    """
+    F = np.eye(STATE_DIM)
+    F[0:3, 3:6] = h * np.eye(3)
+    F.flags.writeable = False
+    return F
+
+
+@functools.lru_cache(maxsize=8)
+def _noise_scale(accel_sigma: float, gyro_sigma: float) -> FloatArray:
+    """Read-only ``(sa, sa, sa, sg, sg, sg)`` of :func:`process_noise` for positive sigmas."""
+    scale = np.repeat([accel_sigma, gyro_sigma], 3)
+    scale.flags.writeable = False
+    return scale
 
 
 def propagate_with_jacobians(
@@ -332,7 +352,11 @@ def process_noise(G: ArrayLike, accel_sigma: float, gyro_sigma: float) -> FloatA
         gyro_sigma: gyro noise ``sg`` per sample (rad/s).
     """
     Ga = np.asarray(G, dtype=np.float64)
-    scale = np.repeat([float(accel_sigma), float(gyro_sigma)], 3)
+    sa, sg = float(accel_sigma), float(gyro_sigma)
+    if sa > 0.0 and sg > 0.0:  # cached (positive: no signed zero or NaN in the key)
+        scale = _noise_scale(sa, sg)
+    else:
+        scale = np.repeat([sa, sg], 3)
     Gs = Ga * scale  # G diag(sa, sa, sa, sg, sg, sg)
     Q = Gs @ Gs.T
     return 0.5 * (Q + Q.T)
