@@ -360,3 +360,30 @@ def test_check_finite_accepts_and_rejects_exactly_as_before() -> None:
             assert isinstance(got, np.ndarray) and got.dtype == np.float64
             assert got.tobytes() == want.tobytes() and got.shape == want.shape
     assert 50 < n_raised < 200  # both branches were exercised
+
+
+@pytest.mark.parametrize(
+    "lo, hi, x0", [(0.0, 1.0, 0.5), (-1.0, 1.0, 0.0), (-3.0, 5.0, 0.5), (0.0, 40.0, 20.0)]
+)
+def test_root_increasing_batch_tolerance_shortcut_keeps_iterates(
+    lo: float, hi: float, x0: float
+) -> None:
+    """Inside [-1, 1] the tolerance tests compare with ``xtol`` itself (max(1, |x|) = 1);
+    outside they keep ``xtol * max(1, |x|)``: the roots equal the previous iteration's bit for
+    bit either way, also for roots at the ends of the bracket and far outside [-1, 1]."""
+    rng = np.random.default_rng(17)
+    k = 4000
+    roots = rng.uniform(lo, hi, size=k)
+    roots[:200] = lo  # at the ends: the shortcut's corner cases
+    roots[200:400] = hi
+    roots[400:600] = np.nextafter(lo, hi)
+    slope = 10.0 ** rng.uniform(-3, 3, size=k)
+    curv = rng.uniform(0.0, 2.0, size=k)
+
+    def g(w: Any, s: Any) -> tuple[Any, Any]:  # increasing: slope + curvature * (w - root)^2
+        d = w - roots[s]
+        return slope[s] * d + curv[s] * d * d * d, slope[s] + 3.0 * curv[s] * d * d
+
+    args = (np.full(k, lo), np.full(k, hi), np.full(k, x0))
+    new = root_increasing_batch(g, *args)
+    assert new.tobytes() == _ref_root(lambda w: g(w, slice(None)), *args).tobytes()

@@ -48,6 +48,10 @@ __all__ = ["PECMVBatchResult", "dmv_omega_batch", "pecmv_batch"]
 #: the gufuncs behind ``np.linalg.solve`` / ``np.linalg.cholesky`` (the same LAPACK calls per
 #: matrix without the ~5 us of their Python wrappers; their error state is set by the caller)
 _gesv = _umath_linalg.solve
+try:  # the C function np.einsum calls for explicit subscripts without ``optimize``
+    from numpy._core.multiarray import c_einsum as _c_einsum
+except ImportError:  # pragma: no cover - other numpy layouts: the public wrapper
+    _c_einsum = np.einsum
 _cholesky_lo = _umath_linalg.cholesky_lo
 _MAX_ABS2 = MAX_ABS * MAX_ABS
 
@@ -136,10 +140,10 @@ def _derivs(
         X1 = _gesv(M, R, signature="dd->d")  # M^-1 R
         X2 = _gesv(Q, np.concatenate([dQ, R], axis=-1), signature="dd->d")  # Q^-1 [Q', R]
     G, H = X2[..., :m], X2[..., m:]
-    tr = lambda X: np.trace(X, axis1=-2, axis2=-1)  # noqa: E731
-    sq = lambda X: np.einsum("...ij,...ji->...", X, X)  # noqa: E731
-    f1 = -(n - m) / w - tr(X1) - tr(G)
-    f2 = (n - m) / w**2 - sq(X1) + sq(G) + 2.0 * tr(H)
+    # the method behind np.trace and the C einsum behind np.einsum, without their wrappers
+    f1 = -(n - m) / w - X1.trace(0, 1, 2) - G.trace(0, 1, 2)
+    f2 = (n - m) / w**2 - _c_einsum("...ij,...ji->...", X1, X1)
+    f2 = f2 + _c_einsum("...ij,...ji->...", G, G) + 2.0 * H.trace(0, 1, 2)
     return f1, f2
 
 

@@ -396,6 +396,12 @@ def root_increasing_batch(
     paying numpy's per-call overhead for a whole pass on a handful of slow items.
     """
     x, lo, hi = x0.astype(np.float64), lo.astype(np.float64), hi.astype(np.float64)
+    # Inside [-1, 1] (the weights w of DMV / PECMV), every iterate whose tolerance test can
+    # decide anything lies in its bracket, so max(1, |x|) is exactly 1 and the tests below
+    # compare with xtol itself: the same booleans for ~6 fewer numpy calls per pass.
+    unit = x.size > 0 and bool(
+        lo.min() >= -1.0 and hi.max() <= 1.0 and np.all((lo <= x) & (x <= hi))
+    )
     out = x.copy()
     idx = np.arange(x.shape[0])
     dxold = hi - lo
@@ -410,7 +416,7 @@ def root_increasing_batch(
             step = f / df
             x_step = x - step
             pos = df > 0.0
-            conv = pos & (np.abs(step) <= xtol * np.maximum(1.0, np.abs(x)))
+            conv = pos & (np.abs(step) <= (xtol if unit else xtol * np.maximum(1.0, np.abs(x))))
             newton = (x_step > lo) & (x_step < hi) & pos
             newton &= np.abs(2.0 * f) <= np.abs(dxold * df)
             newton |= conv
@@ -418,7 +424,8 @@ def root_increasing_batch(
             half = 0.5 * (hi - lo)
             dx = np.where(newton, step, half)
             x_new = np.where(newton, x_step, lo + half)
-            done = conv | (x_new == x) | (np.abs(dx) <= xtol * np.maximum(1.0, np.abs(x_new)))
+            tol_new = xtol if unit else xtol * np.maximum(1.0, np.abs(x_new))
+            done = conv | (x_new == x) | (np.abs(dx) <= tol_new)
             x = np.where(live, x_new, x)
             keep = live & ~done
             if not keep.all():  # drop the finished items
