@@ -213,7 +213,7 @@ def test_bad_objective_or_interest_is_a_clear_error() -> None:
     with pytest.raises(TypeError, match="objective"):
         gym.make(FIM_ID, objective=None)
     with pytest.raises(ValueError, match="objective"):
-        gym.make(LM_ID, objective="max_eig")
+        gym.make(LM_ID, objective="a_optimal")
 
 
 def test_lazy_greedy_refuses_non_submodular_objectives() -> None:
@@ -271,8 +271,17 @@ def test_fim_env_return_is_f_of_the_selected_set_and_agents_optimise_it(objectiv
     assert results["greedy"][0] <= results["swap"][0] + 1e-12 <= best + 2e-12
 
 
-def test_landmark_trace_cost_is_the_position_mse_of_the_ekf_posterior() -> None:
-    env = gym.make(LM_ID, n_landmarks=7, k=2, horizon=4, objective="trace").unwrapped
+def _position_criterion(P: np.ndarray, objective: str) -> float:
+    """``tr`` or ``lambda_max`` of the position block, by numpy's own routines."""
+    block = P[:3, :3]
+    return float(np.trace(block) if objective == "trace" else np.linalg.eigvalsh(block)[-1])
+
+
+@pytest.mark.parametrize("objective", ["trace", "max_eig"])
+def test_landmark_position_cost_is_that_of_the_ekf_posterior(objective: str) -> None:
+    """The env's trace / max-eig cost equals the criterion of the information-form posterior,
+    and brute force picks the subset that minimises it (checked against every subset)."""
+    env = gym.make(LM_ID, n_landmarks=7, k=2, horizon=4, objective=objective).unwrapped
     obs, info = env.reset(seed=2)
     agent = selenv.agents.make("brute_force", LM_ID)
     agent.reset(env, seed=2)
@@ -284,7 +293,7 @@ def test_landmark_trace_cost_is_the_position_mse_of_the_ekf_posterior() -> None:
 
         def post_trace(S, P_pred=P_pred, H=H):  # information form, explicit inverses
             info_form = np.linalg.inv(P_pred) + sum(H[j].T @ Rinv @ H[j] for j in S)
-            return float(np.trace(np.linalg.inv(info_form)[:3, :3]))
+            return _position_criterion(np.linalg.inv(info_form), objective)
 
         costs = {S: post_trace(S) for S in itertools.combinations(range(7), 2)}
         picks = []
@@ -292,17 +301,18 @@ def test_landmark_trace_cost_is_the_position_mse_of_the_ekf_posterior() -> None:
             a = agent.act(obs, info)
             picks.append(a)
             obs, r, done, _, info = env.step(a)
-        assert info["objective_name"] == "trace"
+        assert info["objective_name"] == objective
         assert info["objective"] == pytest.approx(post_trace(picks), rel=1e-6)
         assert r == -info["objective"]
         assert costs[tuple(sorted(picks))] == pytest.approx(min(costs.values()), rel=1e-9)
     assert done  # the last update is not followed by a prediction: P is the posterior
-    assert info["objective"] == pytest.approx(float(np.trace(env.ekf.P[:3, :3])), rel=1e-12)
+    assert info["objective"] == pytest.approx(_position_criterion(env.ekf.P, objective), rel=1e-12)
 
 
-def test_landmark_vns_and_greedy_run_on_trace() -> None:
+@pytest.mark.parametrize("objective", ["trace", "max_eig"])
+def test_landmark_vns_and_greedy_run_on_position_objectives(objective: str) -> None:
     for name in ("vns", "greedy", "swap"):
-        env = gym.make(LM_ID, n_landmarks=6, k=1, horizon=3, objective="trace").unwrapped
+        env = gym.make(LM_ID, n_landmarks=6, k=1, horizon=3, objective=objective).unwrapped
         obs, info = env.reset(seed=4)
         agent = selenv.agents.make(name, LM_ID)
         agent.reset(env, seed=4)

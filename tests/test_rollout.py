@@ -154,10 +154,11 @@ def test_cl_horizon_zero_is_greedy() -> None:
     assert n >= CL_KW["horizon"]
 
 
-@pytest.mark.parametrize("objective", ["logdet", "trace"])
+@pytest.mark.parametrize("objective", ["logdet", "trace", "max_eig"])
 @pytest.mark.parametrize("base", ["brute_force", "greedy"])
 def test_landmark_horizon_zero_is_brute_force(base: str, objective: str) -> None:
-    """Horizon 0 plays brute force's optimum of the env's objective (trace: position MSE)."""
+    """Horizon 0 plays brute force's optimum of the env's objective (trace: position MSE,
+    max_eig: the largest position variance)."""
     env = gym.make(LM, **LM_KW, objective=objective)
     bf, roll = make("brute_force", LM), make("rollout", LM, horizon=0, base=base)
     obs, info = env.reset(seed=4)

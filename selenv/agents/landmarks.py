@@ -15,9 +15,10 @@ of a filter step at its first pick and plays them.
 | ``all`` | every landmark (needs ``k = n_landmarks``): the lower bound |
 
 All of them are myopic (they minimise eq. 11 of the current step, eq. 14), as in the paper.
-With ``objective="trace"`` the env exposes ``solver_objective = "trace"`` and
+With ``objective="trace"`` (or ``"max_eig"``) the env exposes that ``solver_objective`` and
 ``interest = (0, 1, 2)``, and every solver agent (VNS included) then minimises the one-step
-position MSE ``tr(P_post[:3, :3])`` instead (:func:`~selenv.agents.fim.env_objective`).
+position MSE ``tr(P_post[:3, :3])`` (or ``lambda_max(P_post[:3, :3])``) instead
+(:func:`~selenv.agents.fim.env_objective`).
 """
 
 from __future__ import annotations

@@ -186,8 +186,9 @@ def _subset_gains(
     """One-step gain of each subset, ``(C,)``, higher is better.
 
     ``"logdet"``: ``log det(I + G_S P G_S^T)`` (the dual identity), ``G_S P G_S^T`` gathered from
-    ``S = G P G^T`` over all rows (one ``Nm x Nm`` product). ``"trace"``: minus the trace of the
-    ``interest`` block of the posterior ``(P^-1 + G_S^T G_S)^-1``
+    ``S = G P G^T`` over all rows (one ``Nm x Nm`` product). ``"trace"`` / ``"max_eig"``: minus
+    the trace / largest eigenvalue of the ``interest`` block of the posterior
+    ``(P^-1 + G_S^T G_S)^-1``
     (:func:`~selenv.core.objectives.subset_criteria`, batched Cholesky).
     """
     if objective != "logdet":
@@ -207,7 +208,8 @@ class LandmarkRolloutAgent(PlanAgent):
 
     At the first pick of a filter step, candidates are the ``top_k`` K-subsets of the open
     landmarks by one-step gain in the env's objective (``log det(I + W_S)``, or the decrease of
-    the position trace with ``objective="trace"``) (all ``C(N, K)`` subsets ranked when there
+    the position trace / largest position variance with ``objective="trace"`` / ``"max_eig"``)
+    (all ``C(N, K)`` subsets ranked when there
     are at most ``max_subsets``; otherwise each of the ``top_k`` best single landmarks completed
     greedily), plus the base policy's own subset. For each, a forecast applies the update, then
     ``horizon`` future filter steps (prediction with the held IMU sample, the base policy's
@@ -268,7 +270,7 @@ class LandmarkRolloutAgent(PlanAgent):
         optimum of :func:`~selenv.agents.fim_solvers.brute_force_whitened`, on ``2K x 2K``
         determinants);
         ``greedy``: :func:`greedy_whitened` with the prior ``P^-1``. Both on the env's
-        one-step objective (``solver_objective``: log det, or the position trace).
+        one-step objective (``solver_objective``: log det, or the position trace / max eig).
         """
         objective, interest = self.lm.solver_objective, self.lm.interest
         if self.base_policy == "brute_force":

@@ -36,9 +36,10 @@ __all__ = [
     "landmark_features",
 ]
 
-OBJECTIVES = ("logdet", "det", "trace")
+OBJECTIVES = ("logdet", "det", "trace", "max_eig")
 
-#: indices of the position ``p`` in the EKF state ``(p, v, theta)``: what ``"trace"`` scores
+#: indices of the position ``p`` in the EKF state ``(p, v, theta)``: what ``"trace"`` and
+#: ``"max_eig"`` score
 POSITION: tuple[int, ...] = (0, 1, 2)
 
 
@@ -47,10 +48,13 @@ def landmark_cost(P: FloatArray, objective: str) -> float:
 
     ``"logdet"`` / ``"det"``: ``log det P`` or ``det P`` (eq. 11); ``"trace"``: the position
     MSE ``tr(P[:3, :3])`` (m^2), the A-optimal criterion (Kirchner et al. 2020, eq. 6) on the
-    position block.
+    position block; ``"max_eig"``: ``lambda_max(P[:3, :3])`` (m^2), the variance along the
+    worst-determined direction of the position, the E-optimal criterion (eq. 7).
     """
     if objective == "trace":
         return float(np.trace(P[:3, :3]))
+    if objective == "max_eig":
+        return float(np.linalg.eigvalsh(P[:3, :3])[-1])
     logdet = float(logdet_spd(P, "P"))
     return logdet if objective == "logdet" else float(np.exp(logdet))
 
@@ -79,7 +83,8 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     selected rows whitened in the predicted covariance; the sequence matters through the
     future (the Bellman eq. 13 the paper truncates to its first term). ``objective="trace"``
     scores the position MSE ``tr(P[:3, :3])`` (m^2) instead (A-optimal, Kirchner et al. 2020
-    eq. 6, on the position block; not submodular).
+    eq. 6, on the position block; not submodular), ``objective="max_eig"`` the largest
+    eigenvalue of that block (E-optimal, eq. 7; not submodular either).
 
     ## Action Space
     ``Discrete(N)``: one landmark per env step; the filter updates after the ``k``-th pick of
@@ -103,13 +108,14 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     | ``action_mask`` | ``(N,)`` | 1 where the action is allowed |
 
     ``gain``: the marginal ``log det`` information gain (``"logdet"``, ``"det"``), or with
-    ``"trace"`` the decrease of ``tr(P[:3, :3])`` (m^2) of this step's posterior if the landmark
-    were added.
+    ``"trace"`` / ``"max_eig"`` the decrease of ``tr(P[:3, :3])`` / ``lambda_max(P[:3, :3])``
+    (m^2) of this step's posterior if the landmark were added.
 
     ## Rewards
     0 for the first ``k - 1`` picks of a filter step; at the ``k``-th the filter updates and the
     reward is minus the cost eq. (11) of the posterior (``-log det P``, ``-det P`` or, with
-    ``"trace"``, ``-tr(P[:3, :3])``), so the return is minus the paper's objective eq. (12).
+    ``"trace"`` / ``"max_eig"``, ``-tr(P[:3, :3])`` / ``-lambda_max(P[:3, :3])``), so the
+    return is minus the paper's objective eq. (12).
     ``info["objective"]`` is that cost after the latest update, ``info["objective_name"]`` the
     ``objective`` and ``info["position_error"]`` the true position error (m) of that posterior
     estimate (``k`` is the index of the step whose picks are open).
@@ -131,7 +137,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     ``gymnasium.make("selenv/LandmarkSelection-v0", n_landmarks=30, k=2, horizon=300,
     objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
     render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout; ``objective`` is
-    ``"logdet"``, ``"det"`` or ``"trace"``. Any other
+    ``"logdet"``, ``"det"``, ``"trace"`` or ``"max_eig"``. Any other
     :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too (its docstring
     gives every range: ``n_landmarks`` an int in ``[1, 200]``, ``horizon`` in ``[1, 100000]``,
     ``dt`` in ``[1e-3, 1]`` s, ...); ``k`` is an int in ``[1, n_landmarks]``. An unknown
@@ -139,7 +145,8 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
 
     ## Version History
     * v0: initial version (``invalid_action`` modes and rendering added without changing
-      valid trajectories).
+      valid trajectories); ``objective="trace"`` and ``"max_eig"`` added later, the default
+      unchanged.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
@@ -211,17 +218,18 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
 
     @property
     def solver_objective(self) -> str:
-        """What the one-step oracle agents maximise: ``"trace"``, else ``"logdet"``.
+        """What the one-step oracle agents maximise: ``"trace"``, ``"max_eig"``, else ``"logdet"``.
 
         ``det`` and ``log det`` of the posterior have the same minimiser, the maximiser of the
-        log-det gain; ``"trace"`` is scored on :data:`POSITION` (:attr:`interest`).
+        log-det gain; ``"trace"`` and ``"max_eig"`` are scored on :data:`POSITION`
+        (:attr:`interest`).
         """
-        return "trace" if self.objective == "trace" else "logdet"
+        return self.objective if self.objective in ("trace", "max_eig") else "logdet"
 
     @property
     def interest(self) -> tuple[int, ...] | None:
-        """State indices scored by ``"trace"`` (the position); ``None`` for log det."""
-        return POSITION if self.objective == "trace" else None
+        """State indices scored by ``"trace"`` / ``"max_eig"`` (the position); else ``None``."""
+        return POSITION if self.objective in ("trace", "max_eig") else None
 
     @property
     def budget_left(self) -> int:
