@@ -7,7 +7,7 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
 STAMP  := $(VENV)/.installed
 
-.PHONY: bench test lint figures perf clean
+.PHONY: bench test lint figures perf overheads clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -30,6 +30,11 @@ figures: $(STAMP)
 
 perf: $(STAMP)
 	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py && $(PY) benchmarks/bench_fusion.py && $(PY) benchmarks/bench_surrogates.py
+
+# the issue-19 overhead ratios (docs/BENCHMARKS.md, "Overheads around the core algorithms");
+# bench_kalman.py compares with FilterPy if it is installed (pip install filterpy==1.4.5)
+overheads: $(STAMP)
+	export OPENBLAS_NUM_THREADS=1; $(PY) benchmarks/bench_greedy_setup.py && $(PY) benchmarks/bench_clustering.py --compare --rounds 300 && $(PY) benchmarks/bench_clustering.py --env-step --rounds 100 && $(PY) benchmarks/bench_env_step.py --target issue19 --rounds 15 && $(PY) benchmarks/bench_fusion.py --scaling --rounds 31 && $(PY) benchmarks/bench_kalman.py --rounds 41
 
 clean:
 	rm -rf $(VENV) bench_results.json bench_plots .pytest_cache .ruff_cache .mypy_cache
