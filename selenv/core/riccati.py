@@ -65,6 +65,23 @@ def riccati_step(
     return 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
 
 
+def singular_step_error(t: int) -> ValueError:
+    """The ``ValueError`` of a pass whose ``S = H P H^T + R`` is singular at step ``t``."""
+    return ValueError(
+        f"riccati_pass: S = H P H^T + R is singular at step {t}; R must be positive "
+        "definite (or H P H^T must be)"
+    )
+
+
+def history_overflow_error(steps: int) -> ValueError:
+    """The ``ValueError`` of a pass whose covariance history overflows float64."""
+    return ValueError(
+        "riccati_pass: the covariance history is not representable in float64 (overflow); "
+        f"keep |entry| <= {MAX_ABS:g} and the model stable enough over {steps} steps "
+        "(rescale the problem)"
+    )
+
+
 def riccati_pass(
     P0: FloatArray,
     F: FloatArray,
@@ -121,17 +138,10 @@ def riccati_pass(
         try:
             P = riccati_step(P, F, Q, H, R[:, t - 1] if per_step else R)  # R_t of (12a)
         except np.linalg.LinAlgError:
-            raise ValueError(
-                f"riccati_pass: S = H P H^T + R is singular at step {t}; R must be positive "
-                "definite (or H P H^T must be)"
-            ) from None
+            raise singular_step_error(t) from None
         out[:, t] = P
     if not np.all(np.isfinite(out)):
-        raise ValueError(
-            "riccati_pass: the covariance history is not representable in float64 (overflow); "
-            f"keep |entry| <= {MAX_ABS:g} and the model stable enough over {steps} steps "
-            "(rescale the problem)"
-        )
+        raise history_overflow_error(steps)
     return out
 
 

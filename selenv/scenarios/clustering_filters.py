@@ -38,8 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from selenv.core.linalg import MAX_ABS, FloatArray
-from selenv.core.riccati import riccati_step
+from selenv.core.linalg import FloatArray
+from selenv.core.riccati import history_overflow_error, riccati_step, singular_step_error
 from selenv.scenarios.clustering import ClusteringProblem, CostBreakdown, clustering_cost, n_states
 from selenv.scenarios.clustering_labels import canonicalize
 
@@ -109,16 +109,9 @@ def window_pass(
                 P = 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
                 out[:, t] = P
     except np.linalg.LinAlgError:
-        raise ValueError(
-            f"riccati_pass: S = H P H^T + R is singular at step {t}; R must be positive "
-            "definite (or H P H^T must be)"
-        ) from None
+        raise singular_step_error(t) from None
     if not np.all(np.isfinite(out)):
-        raise ValueError(
-            "riccati_pass: the covariance history is not representable in float64 (overflow); "
-            f"keep |entry| <= {MAX_ABS:g} and the model stable enough over {steps} steps "
-            "(rescale the problem)"
-        )
+        raise history_overflow_error(steps)
     return out
 
 
