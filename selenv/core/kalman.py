@@ -48,6 +48,7 @@ from selenv.core.linalg import (
     symmetrize,
     validate_spd,
 )
+from selenv.core.spd import require_spd
 
 __all__ = [
     "KalmanFilter",
@@ -270,6 +271,7 @@ def _update(
     w = _tri_solve(L, y[..., None])[..., 0]  # w = L^-1 y, so y^T S^-1 y = w^T w
     logdet_S = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)  # log det S
     ll = -0.5 * (np.sum(w * w, axis=-1) + logdet_S + m * _LOG_2PI)  # log N(y; 0, S)
+    require_spd(P_post, "the Kalman update", "the posterior covariance P")  # SPD on any BLAS
     return KalmanUpdate(x_post, P_post, y, S, K, float(ll) if np.ndim(ll) == 0 else ll)
 
 
@@ -303,6 +305,7 @@ def _update_single(
     w, _ = dtrtrs(L, y, lower=1)  # w = L^-1 y
     logdet_S = 2.0 * float(np.log(L.diagonal()).sum())  # the same reduction as np.sum
     ll = -0.5 * (float(w @ w) + logdet_S + m * _LOG_2PI)
+    require_spd(P_post, "the Kalman update", "the posterior covariance P")  # SPD on any BLAS
     return KalmanUpdate(x_post, P_post, y, S, K, ll)
 
 

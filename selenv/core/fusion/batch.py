@@ -42,6 +42,7 @@ from selenv.core.linalg import (
     check_shape,
     validate_spd,
 )
+from selenv.core.spd import require_spd
 
 __all__ = ["PECMVBatchResult", "dmv_omega_batch", "pecmv_batch"]
 
@@ -514,6 +515,7 @@ def pecmv_batch(
     parts = (res.P, res.K, res.X, res.C)
     if np.any(np.isnan(res.log_det)) or not all(np.all(np.isfinite(v)) for v in parts):
         raise overflow_error("pecmv_batch")
+    require_spd(res.P, "pecmv_batch", "the updated covariance P_i+")  # SPD on any BLAS
     return res
 
 

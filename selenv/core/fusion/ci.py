@@ -59,6 +59,7 @@ from selenv.core.fusion.common import (
     vector,
 )
 from selenv.core.linalg import FloatArray, ShapeError, blame_shapes
+from selenv.core.spd import require_spd
 
 __all__ = ["CI_METHODS", "CIResult", "covariance_intersection"]
 
@@ -288,5 +289,6 @@ def covariance_intersection(
             w = 0.5 * (1.0 - r_a + r_b)  # Fraenken & Hupper
         K, P = ci.fuse(w)
         x = av + K @ (bv - av)  # Kalman form of x = P (w A^-1 a + (1-w) B^-1 b)
+    require_spd(P, "covariance_intersection", "the fused covariance")  # SPD on any BLAS
     LP = chol(P, "fused covariance")
     return CIResult(x=x, P=P, omega=float(w), log_det=logdet_from_chol(LP))

@@ -66,6 +66,7 @@ from selenv.core.fusion.common import (
     validate_pair,
 )
 from selenv.core.linalg import FloatArray, ShapeError, all_finite, as_float_array
+from selenv.core.spd import require_spd
 
 __all__ = ["DMVResult", "checked_omega", "dmv_cost", "dmv_from_pair", "dmv_update"]
 
@@ -388,6 +389,7 @@ def dmv_from_pair(
         x = None if x_v is None else x_v + dx  # x+ = x- + K (z - z_hat)
     if check and (math.isnan(ld) or not all_finite(P, K, *(v for v in (dx, x) if v is not None))):
         raise overflow_error("dmv_update")
+    require_spd(P, "dmv_update", "the updated covariance P_i+")  # SPD on any BLAS
     return DMVResult(P=P, K=K, omega=float(w), updated=w < 1.0, log_det=ld, dx=dx, x=x)
 
 

@@ -68,6 +68,7 @@ from selenv.core.fusion.common import (
 )
 from selenv.core.fusion.sdp import pecmv_sdp_cvxpy, solve_reduced
 from selenv.core.linalg import FloatArray, ShapeError, all_finite
+from selenv.core.spd import require_spd
 
 __all__ = [
     "PECMV_METHODS",
@@ -357,6 +358,7 @@ def pecmv_from_pair(
     parts = (res.P, res.K, res.X, dx, x)
     if check and not all_finite(*(v for v in parts if v is not None)):
         raise overflow_error("pecmv_update")
+    require_spd(res.P, "pecmv_update", "the updated covariance P_i+")  # SPD on any BLAS
     if check and not math.isfinite(res.log_det):
         raise ValueError(_NOT_PD)
     if dx is None:
