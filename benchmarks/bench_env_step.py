@@ -1,18 +1,18 @@
-"""Env step timings: FIMSelection vs a naive step, and the issue-19 ratios.
+"""Env step timings: FIMSelection vs a naive step, and the overhead ratios.
 
 Default (``--target fim-naive``): one ``selenv/FIMSelection-v0`` step at N = 1000 candidates
 vs a naive step. The env keeps gains and whitened rows by rank-one / triangular updates; the
 naive step recomputes the FIM, its Cholesky factor, every gain (batched slogdet) and every
 whitened row.
 
-``--target issue19``: in ONE process, interleaved rounds (a block of env steps, a block of
+``--target overheads``: in ONE process, interleaved rounds (a block of env steps, a block of
 ``CartPole-v1`` steps, env, CartPole, ...), medians of the per-round means, printed as ratios:
 CLScheduling-v0 (preset dense: 4 agents, budget 2) step / CartPole step, LandmarkSelection-v0
 reset / CartPole step, FIMSelection-v0 step at N = 10000 / its core ``GainState.add``.
 Run with ``OPENBLAS_NUM_THREADS=1`` (set here before numpy is imported if unset).
 
     .venv/bin/python benchmarks/bench_env_step.py [--n-candidates 500] [--episodes 20]
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_env_step.py --target issue19
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_env_step.py --target overheads
 """
 
 from __future__ import annotations
@@ -92,8 +92,8 @@ def _stepper(env: Any, n: int, seed: int = 0) -> Callable[[], int]:
     return block
 
 
-def issue19(rounds: int) -> None:
-    """The issue-19 ratios (see the module docstring)."""
+def overheads(rounds: int) -> None:
+    """The ratios (see the module docstring)."""
     cart = gym.make("CartPole-v1").unwrapped
     cart.reset(seed=0)
 
@@ -169,14 +169,14 @@ def issue19(rounds: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--target", choices=("fim-naive", "issue19"), default="fim-naive")
-    ap.add_argument("--rounds", type=int, default=15, help="issue19: interleaved rounds")
+    ap.add_argument("--target", choices=("fim-naive", "overheads"), default="fim-naive")
+    ap.add_argument("--rounds", type=int, default=15, help="overheads: interleaved rounds")
     ap.add_argument("--n-candidates", type=int, default=500, help="per sensor (x2 sensors)")
     ap.add_argument("--budget", type=int, default=50)
     ap.add_argument("--episodes", type=int, default=20)
     a = ap.parse_args()
-    if a.target == "issue19":
-        issue19(a.rounds)
+    if a.target == "overheads":
+        overheads(a.rounds)
         return
     results = {}
     for label, wrapped in (("unwrapped", False), ("gym.make (checker+order)", True)):

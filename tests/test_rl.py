@@ -299,8 +299,12 @@ def test_fim_training_script_with_plain_ppo(tmp_path: Path) -> None:
 
 
 def test_training_learns_a_toy_problem_with_known_optimum() -> None:
-    """On a 6-candidate, budget-2 FIM pool PPO must beat random and approach brute force."""
-    kwargs = {"n_candidates": 2, "budget": 2, "sensors": ["camera"]}
+    """On a 6-candidate, budget-2 FIM pool PPO must beat random and approach brute force.
+
+    (6 candidates: 15 feasible subsets. With 2 candidates and budget 2 every policy picked the
+    same set, and "PPO beats random" compared two sums of the same terms one ulp apart.)
+    """
+    kwargs = {"n_candidates": 6, "budget": 2, "sensors": ["camera"]}
     env = gym.make(FIM_ID, **kwargs)
     model = make_maskable_ppo(env, seed=0, n_steps=256, batch_size=128, learning_rate=3e-3)
     model.learn(6_000)
@@ -331,7 +335,8 @@ def test_training_learns_a_toy_problem_with_known_optimum() -> None:
         return float(np.mean(out))
 
     opt = best()
-    assert ppo > rand
+    assert opt - rand > 0.05 * abs(opt), (rand, opt)  # the choice matters on this pool
+    assert ppo > rand + 0.5 * (opt - rand), (ppo, rand, opt)
     assert ppo >= opt - 0.25 * (opt - rand), (ppo, rand, opt)
 
 
