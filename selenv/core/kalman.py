@@ -28,11 +28,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.linalg import _umath_linalg
 from numpy.typing import ArrayLike
 from scipy.linalg import cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
 
+from selenv.core import npfast
 from selenv.core.linalg import (
     MAX_ABS,
     MIN_PD_DIAG,
@@ -61,8 +61,6 @@ __all__ = [
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 _MAX_ABS2 = MAX_ABS * MAX_ABS
-#: the gufunc behind ``np.linalg.cholesky`` (same LAPACK call, without its ~5 us wrapper)
-_cholesky_lo = _umath_linalg.cholesky_lo
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,7 +168,7 @@ def _spd_exact_prechecks(A: FloatArray) -> bool:
 
 def _chol_ok(A: FloatArray) -> bool:
     """Whether the gufunc behind ``np.linalg.cholesky`` factors ``A`` (call under errstate)."""
-    L = _cholesky_lo(A, signature="d->d")  # NaN-filled when the factorisation fails
+    L = npfast.cholesky_lo(A)  # NaN-filled when the factorisation fails
     return bool(L[-1, -1] == L[-1, -1])
 
 

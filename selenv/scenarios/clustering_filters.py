@@ -33,11 +33,12 @@ the moments computed for the evaluation.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from selenv.core import npfast
 from selenv.core.linalg import FloatArray
 from selenv.core.riccati import history_overflow_error, riccati_step, singular_step_error
 from selenv.scenarios.clustering import ClusteringProblem, CostBreakdown, clustering_cost, n_states
@@ -46,19 +47,6 @@ from selenv.scenarios.clustering_labels import canonicalize
 __all__ = ["ClusterFilterBank", "cluster_keys", "window_pass"]
 
 Key = tuple[int, ...]
-
-
-def _find_solve_gufunc() -> Callable[..., FloatArray] | None:
-    """The gufunc behind ``np.linalg.solve`` (same kernel, same bits, without its wrapper)."""
-    try:
-        from numpy.linalg import _umath_linalg
-    except ImportError:  # pragma: no cover - a numpy without it: the public function
-        return None
-    gufunc: Callable[..., FloatArray] | None = getattr(_umath_linalg, "solve", None)
-    return gufunc
-
-
-_solve_gufunc = _find_solve_gufunc()
 
 
 def _raise_singular(err: str, flag: int) -> None:
@@ -71,10 +59,7 @@ def _solve(S: FloatArray, HP: FloatArray) -> FloatArray:
     Call it inside ``np.errstate(call=_raise_singular, invalid="call", ...)`` (as
     ``np.linalg.solve`` sets it) so that a singular ``S`` raises ``LinAlgError``.
     """
-    if _solve_gufunc is None:  # pragma: no cover
-        return np.asarray(np.linalg.solve(S, HP), dtype=np.float64)
-    out: FloatArray = _solve_gufunc(S, HP, signature="dd->d")
-    return out
+    return npfast.solve(S, HP)
 
 
 def window_pass(

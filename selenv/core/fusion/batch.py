@@ -16,9 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.linalg import _umath_linalg
 from numpy.typing import ArrayLike
 
+from selenv.core import npfast
 from selenv.core.fusion.common import (
     IntArray,
     Pair,
@@ -46,14 +46,6 @@ from selenv.core.spd import require_spd
 
 __all__ = ["PECMVBatchResult", "dmv_omega_batch", "pecmv_batch"]
 
-#: the gufuncs behind ``np.linalg.solve`` / ``np.linalg.cholesky`` (the same LAPACK calls per
-#: matrix without the ~5 us of their Python wrappers; their error state is set by the caller)
-_gesv = _umath_linalg.solve
-try:  # the C function np.einsum calls for explicit subscripts without ``optimize``
-    from numpy._core.multiarray import c_einsum as _c_einsum
-except ImportError:  # pragma: no cover - other numpy layouts: the public wrapper
-    _c_einsum = np.einsum
-_cholesky_lo = _umath_linalg.cholesky_lo
 _MAX_ABS2 = MAX_ABS * MAX_ABS
 
 
@@ -138,13 +130,13 @@ def _derivs(
     Q = v * A + wb * B + wb * v * R
     dQ = (B - A if BmA is None else BmA) + (1.0 - 2.0 * wb) * R
     with _solve_errstate():  # as np.linalg.solve: a singular matrix raises LinAlgError
-        X1 = _gesv(M, R, signature="dd->d")  # M^-1 R
-        X2 = _gesv(Q, np.concatenate([dQ, R], axis=-1), signature="dd->d")  # Q^-1 [Q', R]
+        X1 = npfast.solve(M, R)  # M^-1 R
+        X2 = npfast.solve(Q, np.concatenate([dQ, R], axis=-1))  # Q^-1 [Q', R]
     G, H = X2[..., :m], X2[..., m:]
     # the method behind np.trace and the C einsum behind np.einsum, without their wrappers
     f1 = -(n - m) / w - X1.trace(0, 1, 2) - G.trace(0, 1, 2)
-    f2 = (n - m) / w**2 - _c_einsum("...ij,...ji->...", X1, X1)
-    f2 = f2 + _c_einsum("...ij,...ji->...", G, G) + 2.0 * H.trace(0, 1, 2)
+    f2 = (n - m) / w**2 - npfast.einsum("...ij,...ji->...", X1, X1)
+    f2 = f2 + npfast.einsum("...ij,...ji->...", G, G) + 2.0 * H.trace(0, 1, 2)
     return f1, f2
 
 
@@ -208,11 +200,11 @@ def _g_one(
         rhs = [[BmA[i][j] + u * Rl[i][j] for j in rng] + Rl[i] for i in rng]
         if guard:
             with _solve_errstate():
-                X1 = _gesv(np.array(M), R, signature="dd->d").tolist()
-                X2 = _gesv(np.array(Q), np.array(rhs), signature="dd->d").tolist()
+                X1 = npfast.solve(np.array(M), R).tolist()
+                X2 = npfast.solve(np.array(Q), np.array(rhs)).tolist()
         else:
-            X1 = _gesv(np.array(M), R, signature="dd->d").tolist()
-            X2 = _gesv(np.array(Q), np.array(rhs), signature="dd->d").tolist()
+            X1 = npfast.solve(np.array(M), R).tolist()
+            X2 = npfast.solve(np.array(Q), np.array(rhs)).tolist()
         G = [row[:m] for row in X2]
         f1 = -(n - m) / w - _tr(X1, m) - _tr(G, m)
         f2 = (n - m) / (w * w) - _sq(X1, m) + _sq(G, m) + 2.0 * _tr([r[m:] for r in X2], m)
@@ -253,11 +245,11 @@ def _g_two(
         )
         if guard:
             with _solve_errstate():
-                X1 = _gesv(M, R, signature="dd->d").tolist()
-                X2 = _gesv(Q, rhs, signature="dd->d").tolist()
+                X1 = npfast.solve(M, R).tolist()
+                X2 = npfast.solve(Q, rhs).tolist()
         else:
-            X1 = _gesv(M, R, signature="dd->d").tolist()
-            X2 = _gesv(Q, rhs, signature="dd->d").tolist()
+            X1 = npfast.solve(M, R).tolist()
+            X2 = npfast.solve(Q, rhs).tolist()
         (x11, x12), (x21, x22) = X1
         (g11, g12, h11, _), (g21, g22, _, h22) = X2
         f1 = c / w - (x11 + x22) - (g11 + g22)
@@ -323,7 +315,7 @@ def _spd_fast(A: FloatArray, B: int | None) -> tuple[FloatArray, FloatArray] | N
                 return None
         A = 0.5 * (A + AT)
     with np.errstate(all="ignore"):
-        L: FloatArray = _cholesky_lo(A, signature="d->d")
+        L: FloatArray = npfast.cholesky_lo(A)
     return None if np.isnan(L[:, -1, -1]).any() else (A, L)
 
 
@@ -452,11 +444,11 @@ def _dmv_omega_batch(
             raise ValueError(_B_NOT_PD)
         return _omega_scalar_batch(a, b, n)
     with np.errstate(all="ignore"):  # only pass / fail matters: a failure is NaN-filled
-        LB = _cholesky_lo(B, signature="d->d")  # as np.linalg.cholesky(B)
+        LB = npfast.cholesky_lo(B)  # as np.linalg.cholesky(B)
     if np.isnan(LB[:, -1, -1]).any():
         raise ValueError(_B_NOT_PD)
     with _solve_errstate():
-        trace_ratio = np.trace(_gesv(B, A, signature="dd->d"), axis1=1, axis2=2)  # tr(B^-1 A)
+        trace_ratio = np.trace(npfast.solve(B, A), axis1=1, axis2=2)  # tr(B^-1 A)
     if Bn == 1 and m <= 3:  # one problem: Newton in Python floats (bit-identical)
         if not trace_ratio[0] > n:
             return np.ones(1)
