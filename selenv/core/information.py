@@ -413,12 +413,11 @@ def _logdet_objective_trusted(
 def _logdet_gains3(S: FloatArray) -> FloatArray:
     """``log det(I + S_k)`` of PSD ``3 x 3`` blocks ``S`` ``(N, 3, 3)`` by a vectorised Cholesky.
 
-    The column-by-column Cholesky of ``A = I + S`` as OpenBLAS's ``potf2`` runs it (columns
-    scaled by the reciprocal of the pivot), then ``2 (log l00 + log l11 + log l22)``: one
-    LAPACK call per candidate becomes about 20 vector operations. ``l00 .. l21`` are bit for
-    bit LAPACK's; ``l22 = sqrt(a22 - (l20^2 + l21^2))`` rounds the length-2 dot without the
-    kernel's fused multiply-add, so a few gains per thousand differ in the last bits (by at
-    most ~1e-14 (1 + S22) / l22^2). Internal (the greedy solvers), ``S`` not validated.
+    The column-by-column Cholesky ``A = I + S = L L^T`` written out for ``3 x 3`` (one LAPACK
+    call per candidate becomes about 20 vector operations), then
+    ``2 (log l00 + log l11 + log l22)``. It agrees with LAPACK's factorisation to rounding:
+    ``|error| <~ 1e-13 (1 + S22) / l22^2`` (tested), and the solvers' picks do not depend on
+    which of the two computed a gain. Internal (the greedy solvers), ``S`` not validated.
     """
     with np.errstate(invalid="ignore", divide="ignore"):  # not PD: reported below
         a00, a11, a22 = 1.0 + S[:, 0, 0], 1.0 + S[:, 1, 1], 1.0 + S[:, 2, 2]
