@@ -1,17 +1,25 @@
-"""Issue 19: the faster CLScheduling step and LandmarkSelection reset give bit-identical results.
+"""Issue 19: the faster CLScheduling step and LandmarkSelection reset give the previous results.
 
 The references below are the previous implementations, kept verbatim: the per-pair loop of
 ``CLSchedulingEnv._pair_gains``, the uncached objective, ``relative_update`` for the env's
 pair update, the separate ``jacobians`` / ``propagate`` calls of ``CLSimulation.predict`` (with
 the previous strapdown formulas), and the landmark flight flown anew at every reset. The new
 internals are compared with them on many states, and seeded episodes played by several agents
-are hashed (every observation array, reward, terminated / truncated and info entry) with the
-new code and with the references patched in.
+are recorded (every action, observation array, reward, terminated / truncated and info entry)
+with the new code and with the references patched in.
+
+Contract: the references and the new code run in the same process, so a comparison is exact
+where both do the same operations (the strapdown formulas, the prediction, the cached objective
+and log dets, the flight cache, ``process_noise``). Where the new code batches what the
+reference did one pair at a time (``_pair_gains``, ``relative_jacobians``) the BLAS kernel may
+take another path per matrix and round differently (it does under ``OPENBLAS_CORETYPE=Prescott``),
+so those floats are compared with ``assert_allclose(rtol=1e-9)``. Episodes: the decisions and
+integer / bool data (actions, masks, flags, ``k``, lengths) are exact, the floats within
+``rtol=1e-9`` (float32 observations within one float32 ulp, see ``assert_same_episode``).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
 from typing import Any
 
@@ -183,35 +191,35 @@ def ref_flight(cfg: LandmarkConfig) -> tuple[FloatArray, FloatArray, FloatArray,
     return states, imu_true, F_true, Q
 
 
-# ------------------------------------------------------------------ hashing episodes
+# ------------------------------------------------------------------ recording episodes
+
+#: float32 observations are roundings of float64 values that may differ in the last bits (the
+#: batched pair gains), and such a rounding can land one float32 ulp apart: allow that much
+F32_RTOL = float(np.finfo(np.float32).eps)
+F64_RTOL = 1e-9
 
 
-def _feed(x: Any, d: Any) -> None:
+def _flatten(x: Any, path: str, out: list[tuple[str, Any]]) -> None:
+    """Append ``(path, leaf)`` for every leaf of nested dicts / lists / tuples."""
     if isinstance(x, dict):
+        out.append((f"{path}{{}}", tuple(sorted(x))))  # the keys, exactly
         for k in sorted(x):
-            d.update(k.encode())
-            _feed(x[k], d)
-    elif isinstance(x, np.ndarray):
-        d.update(f"{x.dtype}{x.shape}".encode())
-        d.update(np.ascontiguousarray(x).tobytes())
+            _flatten(x[k], f"{path}.{k}", out)
     elif isinstance(x, list | tuple):
-        d.update(b"[")
-        for v in x:
-            _feed(v, d)
-        d.update(b"]")
-    elif isinstance(x, float | np.floating):
-        d.update(np.float64(x).tobytes())
+        out.append((f"{path}[]", len(x)))
+        for i, v in enumerate(x):
+            _flatten(v, f"{path}[{i}]", out)
     else:
-        d.update(repr(x).encode())
+        out.append((path, np.array(x, copy=True) if isinstance(x, np.ndarray) else x))
 
 
-def play(env: Any, seed: int, agent: str, max_steps: int = 300) -> str:
-    """SHA-256 of a seeded episode: every obs array, reward, flag and info entry."""
-    d = hashlib.sha256()
+def play(env: Any, seed: int, agent: str, max_steps: int = 300) -> list[tuple[str, Any]]:
+    """A seeded episode as ``(path, leaf)`` records: every action, obs array, reward, flag, info."""
+    out: list[tuple[str, Any]] = []
     obs, info = env.reset(seed=seed)
-    _feed((obs, info), d)
+    _flatten((obs, info), "reset", out)
     rng = np.random.default_rng(seed + 1000)
-    for _ in range(max_steps):
+    for t in range(max_steps):
         mask = np.asarray(info["action_mask"], bool)
         valid = np.flatnonzero(mask)
         if agent == "random":
@@ -227,10 +235,33 @@ def play(env: Any, seed: int, agent: str, max_steps: int = 300) -> str:
         else:  # "invalid": any action, masked ones too (noop mode)
             a = int(rng.integers(0, len(mask)))
         obs, r, term, trunc, info = env.step(a)
-        _feed((obs, float(r), term, trunc, info), d)
+        _flatten((a, obs, float(r), term, trunc, info), f"step{t}", out)
         if term or trunc:
             break
-    return d.hexdigest()
+    return out
+
+
+def _is_float(v: Any) -> bool:
+    return isinstance(v, float | np.floating) or (
+        isinstance(v, np.ndarray) and v.dtype.kind in "fc"
+    )
+
+
+def assert_same_episode(got: list[tuple[str, Any]], want: list[tuple[str, Any]]) -> None:
+    """Same records in the same order (so the same length and actions); non-floats exact (type,
+    dtype, shape, value), floats within ``F64_RTOL`` (float32 arrays: ``F32_RTOL``)."""
+    assert [k for k, _ in got] == [k for k, _ in want]
+    for (path, g), (_, w) in zip(got, want, strict=True):
+        assert type(g) is type(w), (path, type(g), type(w))
+        if isinstance(g, np.ndarray):
+            assert (g.dtype, g.shape) == (w.dtype, w.shape), path
+        if _is_float(g):
+            rtol = F32_RTOL if np.asarray(g).dtype == np.float32 else F64_RTOL
+            np.testing.assert_allclose(g, w, rtol=rtol, atol=0, err_msg=path)
+        elif isinstance(g, np.ndarray):
+            np.testing.assert_array_equal(g, w, err_msg=path)
+        else:
+            assert g == w, (path, g, w)
 
 
 AGENTS = ("random", "first", "last", "greedy_obs", "invalid")
@@ -250,7 +281,7 @@ def test_cl_episodes_match_the_reference(case: str) -> None:
     new, ref = CLSchedulingEnv(**kw), RefCLEnv(**kw)
     for agent in AGENTS:
         for seed in range(2):
-            assert play(new, seed, agent) == play(ref, seed, agent), (case, agent, seed)
+            assert_same_episode(play(new, seed, agent), play(ref, seed, agent))
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -261,16 +292,17 @@ def test_cl_internals_match_the_reference_on_many_states(seed: int) -> None:
     rng = np.random.default_rng(seed)
     for _ in range(40):
         sim = env.sim
-        np.testing.assert_array_equal(env._pair_gains(), ref_pair_gains(env))
+        # batched (new) vs per pair (reference): other BLAS calls, so within rtol
+        np.testing.assert_allclose(env._pair_gains(), ref_pair_gains(env), rtol=1e-9, atol=0)
         assert env.objective_value() == float(np.sum(agent_objective(sim.P, env.objective)))
         np.testing.assert_array_equal(env._logdets(), agent_objective(sim.P, "logdet"))
         open_ = np.flatnonzero(env.action_masks()[:-1])
-        if open_.size:  # batched Jacobians == relative_terms'
+        if open_.size:  # batched Jacobians == relative_terms' (batched: within rtol)
             H_i, H_j = sim.relative_jacobians(open_)
             for k, p in enumerate(open_):
                 ref_i, ref_j, _ = sim.relative_terms(int(p))
-                np.testing.assert_array_equal(H_i[k], ref_i)
-                np.testing.assert_array_equal(H_j[k], ref_j)
+                np.testing.assert_allclose(H_i[k], ref_i, rtol=1e-9, atol=0)
+                np.testing.assert_allclose(H_j[k], ref_j, rtol=1e-9, atol=0)
         twin = coop.CLSimulation(sim.problem, sim.fusion)  # the prediction from this state
         twin.x, twin.P, twin.k = sim.x.copy(), sim.P.copy(), sim.k
         if twin.k < sim.problem.config.horizon:
@@ -340,7 +372,9 @@ def test_landmark_episodes_match_the_reference(i: int, monkeypatch: pytest.Monke
     new = [play(LandmarkSelectionEnv(**kw), s, a) for a in AGENTS for s in range(2)]
     monkeypatch.setattr(landmarks_mod, "_flight", ref_flight)
     ref = [play(LandmarkSelectionEnv(**kw), s, a) for a in AGENTS for s in range(2)]
-    assert new == ref
+    assert len(new) == len(ref)
+    for got, want in zip(new, ref, strict=True):
+        assert_same_episode(got, want)
 
 
 def _ref_process_noise(G: Any, accel_sigma: float, gyro_sigma: float) -> FloatArray:
