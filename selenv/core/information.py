@@ -216,35 +216,13 @@ def _scalar_pool_ok(H_a: FloatArray, R_a: FloatArray) -> bool:
 def _whiten_rows(H_a: FloatArray, R_a: FloatArray) -> FloatArray:
     """:func:`whiten` of validated one-row candidates ``H (N, 1, d)``, ``R (N, 1, 1)``.
 
-    ``G_k = H_k * (1 / sqrt(R_k))``: bit for bit the batched Cholesky and solve of
-    :func:`whiten` when :func:`_rows_match_solve` holds (OpenBLAS's triangular solve with
-    ``d >= 2`` right-hand sides multiplies by the inverse of the diagonal, and the 1 x 1
-    Cholesky factor is ``sqrt(R_k)``), without their per-candidate overhead; otherwise
-    :func:`whiten` itself. Validated inputs (``|H| <= MAX_ABS``, ``R >= MIN_PD_DIAG``) cannot
-    overflow.
+    ``G_k = H_k * (1 / sqrt(R_k))``: the 1 x 1 Cholesky factor is ``sqrt(R_k)``, so this is
+    :func:`whiten`'s ``L_k^-1 H_k`` to one rounding (a BLAS may divide where this multiplies
+    by the reciprocal), without the per-candidate overhead of the batched factorisation and
+    solve. Validated inputs (``|H| <= MAX_ABS``, ``R >= MIN_PD_DIAG``) cannot overflow.
     """
-    if H_a.shape[2] < 2 or not _rows_match_solve():
-        return whiten(H_a, R_a)
     G: FloatArray = H_a * (1.0 / np.sqrt(R_a))
     return G
-
-
-_ROWS_MATCH: list[bool] = []
-
-
-def _rows_match_solve() -> bool:
-    """Whether this BLAS whitens one-row candidates as ``H * (1 / sqrt(R))`` (probed once).
-
-    The probe draws values where multiplying by the reciprocal and dividing differ in the
-    last bit, so a BLAS that divides (e.g. the one-right-hand-side path) is detected.
-    """
-    if not _ROWS_MATCH:
-        rng = np.random.default_rng(19)
-        H = rng.normal(size=(256, 1, 3)) * 10.0 ** rng.uniform(-30, 30, size=(256, 1, 1))
-        R = 10.0 ** rng.uniform(-30, 30, size=(256, 1, 1))
-        ref = np.linalg.solve(np.sqrt(R), H)
-        _ROWS_MATCH.append(ref.tobytes() == (H * (1.0 / np.sqrt(R))).tobytes())
-    return _ROWS_MATCH[0]
 
 
 def _valid_prior(Q0: object) -> tuple[FloatArray, FloatArray] | None:
