@@ -535,7 +535,9 @@ def test_improved_variant_is_bit_identical_to_the_recorded_runs(cfg, seed, expli
     kwargs = dict(IMPROVED_CFG[cfg])
     if explicit:
         kwargs["variant"] = "improved"
-    assert _trace(seed, **kwargs) == IMPROVED_RECORDED[(cfg, seed)]
+    got, want = _trace(seed, **kwargs), IMPROVED_RECORDED[(cfg, seed)]
+    assert got[:2] == want[:2]  # populations (int64 hash) and best labels: exact
+    assert got[2] == pytest.approx(want[2], rel=1e-9, abs=1e-10)  # cost, rounded to 1e-10
 
 
 def test_improved_operators_are_bit_identical_to_the_recorded_draws():

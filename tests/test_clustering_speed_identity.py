@@ -95,7 +95,9 @@ LITERAL_OPS_RECORDED = "979f6d271102a572"
 @pytest.mark.parametrize(("cfg", "seed"), list(LITERAL_RECORDED))
 def test_literal_variant_is_bit_identical_to_the_recorded_runs(cfg: str, seed: int) -> None:
     got = _trace(seed, variant="literal", **LITERAL_CFG[cfg])
-    assert (got[0], got[1], got[2]) == LITERAL_RECORDED[(cfg, seed)]
+    want = LITERAL_RECORDED[(cfg, seed)]
+    assert (got[0], got[1]) == want[:2]  # populations (int64 hash) and best labels: exact
+    assert got[2] == pytest.approx(want[2], rel=1e-9, abs=1e-10)  # cost, rounded to 1e-10
 
 
 def test_literal_operators_are_bit_identical_to_the_recorded_draws() -> None:
