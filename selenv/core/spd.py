@@ -20,6 +20,8 @@ factor 1e3 away from ``tau`` gets the same verdict on every machine.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.linalg.lapack import dpotrf
 
@@ -58,20 +60,30 @@ def is_certified_spd(A: FloatArray) -> bool | np.ndarray:
     ``A`` is read as symmetric (the lower triangle is used) and is not validated: it must be a
     float64 array. NaN / inf and non-positive diagonals are never certified.
     """
-    if A.ndim == 2:
-        C = _shifted_correlation(A)
-        if C is None or not bool(np.all(np.isfinite(C))):
+    if A.ndim == 2:  # the hot path: a few us (no errstate unless an entry could overflow)
+        d = A.diagonal()
+        dmin = float(d.min())
+        if not dmin > 0.0 or not math.isfinite(float(d.max())):  # NaN compares false
             return False
+        s = 1.0 / np.sqrt(d)
+        if float(np.abs(A).max()) / dmin >= 1e300:  # C could overflow: the careful path
+            Cs = _shifted_correlation(A)
+            if Cs is None or not bool(np.all(np.isfinite(Cs))):
+                return False
+            C = Cs
+        else:
+            C = (A * s) * s[:, None]
+            C.flat[:: A.shape[0] + 1] -= spd_margin(A.shape[0])
         _, info = dpotrf(C, lower=1, clean=0, overwrite_a=1)
         return bool(info == 0)
     flat = A.reshape(-1, *A.shape[-2:])
     out = np.zeros(flat.shape[0], dtype=bool)
-    C = _shifted_correlation(flat)
-    if C is None:  # find the bad items one by one (rare: only on failure)
+    Cb = _shifted_correlation(flat)
+    if Cb is None:  # find the bad items one by one (rare: only on failure)
         out[:] = [bool(is_certified_spd(a)) for a in flat]
         return out.reshape(A.shape[:-2])
     try:
-        np.linalg.cholesky(C)
+        np.linalg.cholesky(Cb)
         out[:] = True
     except np.linalg.LinAlgError:
         out[:] = [bool(is_certified_spd(a)) for a in flat]
