@@ -468,8 +468,8 @@ class GAConfig:
             crossovers on aligned labels, O1M may open a singleton, see the module docstring)
             or ``"literal"`` (Table I as printed: :func:`o1c_literal`, :func:`o2c_literal`,
             :func:`o1m_literal`, :func:`o2m_literal`, :func:`o3m`). Named ``variant`` because
-            ``operators`` is already Table II's O vector (GitHub issue 18 calls it
-            ``operators="literal"``); the O vector selects among the chosen variant's five.
+            ``operators`` is already Table II's O vector, which selects among the chosen
+            variant's five.
             ``n_labels`` only applies to the improved O1M and must be ``None`` with literal.
 
     Raises:

@@ -90,7 +90,7 @@ class FIMSelectionParallelEnv(ParallelEnv):
         preset: scenario preset, a key of
             :data:`~selenv.scenarios.fim_selection.PRESETS`. Default ``"example3_moving"``:
             two agents with camera + Doppler and a moving target, the v0 benchmark (the
-            pre-issue-18 ``example3``, kept so v0 trajectories do not change); ``"example3"``
+            earlier ``example3``, kept so v0 trajectories do not change); ``"example3"``
             is the paper's Example 3 (stationary target).
         n_candidates: candidates per sensor per agent.
         budgets: ``B_i``, one int for all agents or one per agent.

@@ -176,7 +176,7 @@ _CD = ("camera", "doppler")
 #: trajectories; every figure marks a single ground-truth location), so ``theta_2 = theta_3 = 0``
 #: are known (after eq. 18) and only the position (plus the sensors' nuisance parameters) is
 #: estimated. ``*_moving`` are the same pools with a moving target (velocity and curvature
-#: estimated too); ``example2_moving`` / ``example3_moving`` are the pre-issue-18 ``example2`` /
+#: estimated too); ``example2_moving`` / ``example3_moving`` are the earlier ``example2`` /
 #: ``example3``, kept as the defaults of ``FIMSelection-v0`` / ``fim_selection_v0`` so that
 #: their v0 trajectories do not change.
 PRESETS: dict[str, FIMScenarioConfig] = {
