@@ -114,6 +114,7 @@ NUMERICS_FILES = frozenset(
         "test_information.py",
         "test_kalman.py",
         "test_numpy_fallbacks.py",
+        "test_objective_registry.py",
         "test_objectives.py",
         "test_spd_contract.py",
         "test_speed_identity_core.py",

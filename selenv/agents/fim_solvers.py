@@ -75,6 +75,7 @@ from selenv.core.linalg import (
 from selenv.core.objectives import (
     check_interest,
     check_objective,
+    get_objective,
     make_gain_state,
     objective_value,
     subset_criteria,
@@ -114,7 +115,7 @@ class Selection:
             from the selection by :func:`~selenv.core.objectives.objective_value`: nats for
             ``"logdet"`` (eq. 9), squared parameter units for ``"trace"`` / ``"max_eig"``.
         evaluations: number of marginal-gain or subset evaluations the solver made.
-        objective_name: ``"logdet"``, ``"trace"`` or ``"max_eig"``.
+        objective_name: the registered objective's name (``"logdet"``, ``"trace"``, ...).
     """
 
     indices: tuple[int, ...]
@@ -236,12 +237,18 @@ def _greedy_logdet(Q0: FloatArray, G: FloatArray, L0: FloatArray, budget: object
 
 
 def _refuse_lazy(objective: object) -> None:
-    if check_objective(objective) != "logdet":
+    obj = get_objective(objective)
+    if not obj.submodular:
         raise ValueError(
             f"lazy_greedy needs a submodular objective, and objective={objective!r} is not "
             "submodular (Kirchner et al. 2020, after eq. 7): stale gains are then no upper "
             "bounds and the lazy picks could differ from greedy's; use greedy with this "
             "objective, or objective='logdet'"
+        )
+    if obj.name != "logdet":
+        raise ValueError(
+            f"lazy_greedy is implemented for objective='logdet' only, got {objective!r}; use "
+            "greedy with this objective"
         )
 
 
@@ -466,8 +473,9 @@ def greedy(
 ) -> Selection:
     """Greedy selection (Algorithm 1) on raw arrays; see the module docstring for shapes.
 
-    ``objective``: ``"logdet"`` (default), ``"trace"`` or ``"max_eig"``; ``interest``: indices
-    of the parameters scored by trace / max_eig (default all ``d``).
+    ``objective``: a registered objective (:mod:`selenv.core.objective_registry`): ``"logdet"``
+    (default), ``"trace"``, ``"max_eig"``, ``"det"`` or the user's own; ``interest``: indices
+    of the parameters scored by objectives other than log det (default all ``d``).
 
     Raises:
         TypeError: ``Q0``, ``H`` or ``R`` not real numeric (complex, bool, str, object),

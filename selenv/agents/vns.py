@@ -17,7 +17,9 @@ of the whitened rows, so one evaluation is a ``(m K) x (m K)`` log det.
 :mod:`selenv.core.objectives`): with ``Y = G P0 E^T`` (rows ``Z L^-1 E^T``), Woodbury gives
 ``E P_S E^T = E P0 E^T - Y_S^T (I + Z_S Z_S^T)^-1 Y_S``, so one evaluation is a Cholesky of the
 same ``(m K) x (m K)`` matrix: ``f = ||C^-1 Y_S||_F^2`` (trace) or
-``lambda_max(E P0 E^T) - lambda_max(E P0 E^T - (C^-1 Y_S)^T C^-1 Y_S)`` (max_eig).
+``lambda_max(E P0 E^T) - lambda_max(E P0 E^T - (C^-1 Y_S)^T C^-1 Y_S)`` (max_eig); any other
+registered objective ``c`` is ``c(E P0 E^T) - c(E P_S E^T)`` by the same downdate
+(:meth:`~selenv.core.objective_registry.Objective.downdate_gain`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import numpy as np
 from selenv.agents.fim_solvers import Interest, Selection, _check_budget, _finish, int_indices
 from selenv.core.information import as_candidates, whitened_pool
 from selenv.core.linalg import FloatArray, cholesky_spd
-from selenv.core.objectives import check_interest, check_objective
+from selenv.core.objectives import check_interest, check_objective, get_objective
 
 __all__ = ["DEFAULT_M", "vns", "vns_whitened"]
 
@@ -71,7 +73,8 @@ def vns_whitened(
             neighbourhood ``V_l`` has at most ``M_l`` members it is enumerated instead of
             sampled, so with ``K = 1`` VNS returns the exact optimum.
         rng: generator or seed for the neighbourhood draws.
-        objective: ``"logdet"`` (default, the paper's), ``"trace"`` or ``"max_eig"``.
+        objective: a registered objective (:mod:`selenv.core.objective_registry`):
+            ``"logdet"`` (default, the paper's), ``"trace"``, ``"max_eig"``, ...
         interest: parameters scored by trace / max_eig (default all ``d``).
 
     Returns:
@@ -121,12 +124,12 @@ def vns_whitened(
     gram = Z @ Z.T  # (N m, N m)
     rows = np.arange(N * m).reshape(N, m)
     eye = np.eye(m * K)
+    crit = get_objective(objective)
     if objective != "logdet":
         Et = np.eye(d) if idx is None else np.eye(d)[:, idx]  # E^T (d, p)
         Ye = np.linalg.solve(L, Et)  # L^-1 E^T
         Y = Z @ Ye  # rows of G P0 E^T, (N m, p)
         C0 = Ye.T @ Ye  # E P0 E^T
-        lam0 = float(np.linalg.eigvalsh(C0)[-1])
 
     def values(cands: np.ndarray) -> FloatArray:  # (B, K') subsets -> (B,) f
         r = rows[cands].reshape(cands.shape[0], -1)
@@ -134,10 +137,7 @@ def vns_whitened(
         if objective == "logdet":
             return np.linalg.slogdet(M)[1]
         V = np.linalg.solve(np.linalg.cholesky(M), Y[r])  # C^-1 Y_S, (B, m K', p)
-        if objective == "trace":
-            return np.einsum("bip,bip->b", V, V)
-        Mp = C0[None] - np.einsum("bip,biq->bpq", V, V)  # E P_S E^T
-        return lam0 - np.linalg.eigvalsh(Mp)[:, -1]
+        return crit.downdate_gain(C0, V)  # c(E P0 E^T) - c(E P_S E^T)
 
     if objective == "logdet":  # the original single-gain pass (bit-identical)
         single = np.linalg.slogdet(eye[:m, :m] + gram[rows[:, :, None], rows[:, None, :]])[1]

@@ -24,6 +24,11 @@ Marginal gains. With ``P`` the current CRLB and a candidate ``G_k`` ``(m, d)``, 
 
 both batched over every candidate; ``P`` itself is kept by the rank-one / block updates of
 :class:`~selenv.core.information.LogDetGainState`.
+
+The objectives themselves are :class:`~selenv.core.objective_registry.Objective` records in one
+registry (:mod:`selenv.core.objective_registry`): every function here takes a registered name,
+so an objective the user registers (``register_objective``) works in the greedy, swap,
+brute-force and VNS solvers through the generic downdate ``c(M0) - c(M0 - V_k^T V_k)``.
 """
 
 from __future__ import annotations
@@ -38,37 +43,36 @@ from selenv.core.information import (
     logdet_objective,
 )
 from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.core.objective_registry import (
+    Objective,
+    check_objective,
+    get_objective,
+    objective_names,
+    register_objective,
+)
 
 __all__ = [
     "OBJECTIVES",
     "CriterionGainState",
     "GainState",
+    "Objective",
     "check_interest",
     "check_objective",
     "covariance_criterion",
     "criterion_gains",
+    "get_objective",
     "make_gain_state",
+    "objective_names",
     "objective_value",
+    "register_objective",
     "subset_criteria",
     "swap_criteria",
 ]
 
-#: selection objectives: D-optimal (eq. 5/9), A-optimal (eq. 6), E-optimal (eq. 7)
+#: the FIM-selection objectives shipped with selenv: D-optimal (eq. 5/9), A-optimal (eq. 6),
+#: E-optimal (eq. 7). Every registered objective is accepted (:func:`objective_names`), including
+#: ``"det"`` and the user's own (:func:`register_objective`).
 OBJECTIVES: tuple[str, ...] = ("logdet", "trace", "max_eig")
-
-
-def check_objective(objective: object) -> str:
-    """``objective`` if it is one of :data:`OBJECTIVES`.
-
-    Raises:
-        TypeError: not a str.
-        ValueError: a str that is not one of :data:`OBJECTIVES`.
-    """
-    if not isinstance(objective, str):
-        raise TypeError(f"objective must be one of {OBJECTIVES}, got {type(objective).__name__}")
-    if objective not in OBJECTIVES:
-        raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
-    return objective
 
 
 def check_interest(interest: object, d: int, objective: str = "trace") -> np.ndarray | None:
@@ -83,8 +87,8 @@ def check_interest(interest: object, d: int, objective: str = "trace") -> np.nda
         return None
     if objective == "logdet":
         raise ValueError(
-            "interest applies to objective='trace' or 'max_eig' only; objective='logdet' "
-            "scores the whole parameter (pass interest=None)"
+            "interest applies to objectives other than 'logdet' (e.g. 'trace', 'max_eig'); "
+            "objective='logdet' scores the whole parameter (pass interest=None)"
         )
     if isinstance(interest, str) or not isinstance(interest, Sequence | np.ndarray):
         raise TypeError(f"interest must be a sequence of int indices, got {interest!r}")
@@ -107,17 +111,14 @@ def _block(P: FloatArray, interest: np.ndarray | None) -> FloatArray:
 def covariance_criterion(
     P: FloatArray, objective: str, interest: np.ndarray | None = None
 ) -> FloatArray:
-    """``tr(E P E^T)`` (eq. 6) or ``lambda_max(E P E^T)`` (eq. 7): ``(..., d, d) -> (...)``.
+    """``c(E P E^T)`` of the registered objective: ``(..., d, d) -> (...)`` (lower is better).
+
+    ``"trace"``: eq. 6; ``"max_eig"``: eq. 7; ``"logdet"``: eq. 5 on the block.
 
     Raises:
-        ValueError: ``objective`` not ``"trace"`` / ``"max_eig"``.
+        TypeError, ValueError: ``objective`` not a registered name.
     """
-    B = _block(P, interest)
-    if objective == "trace":
-        return np.asarray(np.trace(B, axis1=-2, axis2=-1), dtype=np.float64)
-    if objective == "max_eig":
-        return np.asarray(np.linalg.eigvalsh(B)[..., -1], dtype=np.float64)
-    raise ValueError(f"objective must be 'trace' or 'max_eig' here, got {objective!r}")
+    return get_objective(objective).value(_block(P, interest))
 
 
 def _inverse_block(A: FloatArray, interest: np.ndarray | None) -> FloatArray:
@@ -138,8 +139,9 @@ def objective_value(
 ) -> float:
     """``f(S)`` of the chosen objective by direct Cholesky solves (the independent reference).
 
-    ``"logdet"`` is :func:`~selenv.core.information.logdet_objective` (eq. 9); ``"trace"`` and
-    ``"max_eig"`` are ``crit(E Q0^-1 E^T) - crit(E FIM(S)^-1 E^T)`` (eqs. 6, 7 as gains).
+    ``"logdet"`` is :func:`~selenv.core.information.logdet_objective` (eq. 9); every other
+    registered objective (``"trace"``, ``"max_eig"``: eqs. 6, 7 as gains) is
+    ``c(E Q0^-1 E^T) - c(E FIM(S)^-1 E^T)``.
 
     Raises:
         TypeError, ValueError: as :func:`~selenv.core.information.information_matrix`, an
@@ -162,25 +164,25 @@ def criterion_gains(
 ) -> FloatArray:
     """Marginal gains ``(N,)`` of every candidate ``G`` ``(N, m, d)`` given the CRLB ``P`` (d, d).
 
-    The Woodbury forms of the module docstring, batched (no loop over candidates). Both gains
-    are exactly ``>= 0`` (monotonicity); ``max_eig`` rounding below 0 is set to 0.
+    The Woodbury downdate of the module docstring, batched (no loop over candidates), for any
+    registered objective (:meth:`~selenv.core.objective_registry.Objective.downdate_gain`).
+    Gains are exactly ``>= 0`` (monotonicity); rounding below 0 is set to 0.
+
+    Raises:
+        TypeError, ValueError: ``objective`` not a registered name.
     """
+    obj = get_objective(objective)
     N, m, d = G.shape
     B = (G.reshape(N * m, d) @ P).reshape(N, m, d)  # G_k P
     S = np.einsum("kad,kbd->kab", B, G)  # S_k = G_k P G_k^T (m, m)
     W = B if interest is None else B[:, :, interest]  # W_k = G_k P E^T (m, p)
     C = np.linalg.cholesky(S + np.eye(m))  # I + S_k = C_k C_k^T
     V = np.linalg.solve(C, W)  # C_k^-1 W_k
-    if objective == "trace":
-        return np.einsum("kab,kab->k", V, V)  # tr(W^T (I + S)^-1 W)
-    M0 = _block(P, interest)
-    M = M0[None] - np.einsum("kap,kaq->kpq", V, V)  # E P_k E^T
-    lam0 = np.linalg.eigvalsh(M0)[-1]
-    return np.maximum(lam0 - np.linalg.eigvalsh(M)[:, -1], 0.0)
+    return np.maximum(obj.downdate_gain(_block(P, interest), V), 0.0)  # c(M0) - c(M0 - V^T V)
 
 
 class CriterionGainState:
-    """Marginal trace / max-eig gains of every candidate given the measurements selected so far.
+    """Marginal gains of every candidate in a registered objective other than log det.
 
     The counterpart of :class:`~selenv.core.information.LogDetGainState` (same attributes, so
     envs and agents can hold either): ``P`` (and ``Z``) are kept by an inner log-det state's
@@ -191,14 +193,15 @@ class CriterionGainState:
     Args:
         Q0: ``(d, d)`` SPD prior information.
         G: ``(N, m, d)`` whitened candidates.
-        objective: ``"trace"`` (eq. 6) or ``"max_eig"`` (eq. 7).
+        objective: a registered objective other than ``"logdet"``: ``"trace"`` (eq. 6),
+            ``"max_eig"`` (eq. 7), ``"det"`` or the user's own.
         interest: indices of the parameters of interest (default all).
         track_gains: keep ``gains`` for all candidates.
         track_whitened: keep ``Z`` (as in :class:`LogDetGainState`).
 
     Raises:
-        TypeError, ValueError: as :class:`LogDetGainState`, an ``objective`` that is not
-            ``"trace"`` / ``"max_eig"``, or a bad ``interest``.
+        TypeError, ValueError: as :class:`LogDetGainState`, an ``objective`` that is not a
+            registered name or is ``"logdet"``, or a bad ``interest``.
     """
 
     def __init__(

@@ -11,6 +11,7 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.core.linalg import logdet_spd
+from selenv.core.objectives import get_objective, objective_names
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import (
     EpisodeLengthSpec,
@@ -39,6 +40,7 @@ __all__ = [
     "relative_pairs",
 ]
 
+#: the objectives the presets use (every registered one is accepted: ``objective_names()``)
 OBJECTIVES = ("logdet", "trace")
 TOPOLOGIES = ("all", "chain")
 
@@ -64,11 +66,17 @@ PRESETS: dict[str, dict[str, Any]] = {
 def agent_objective(P: np.ndarray, objective: str) -> np.ndarray:
     """Each agent's term of the objective: ``log det P_i`` or ``tr P_i[:2, :2]`` (m^2).
 
-    ``P`` is ``(..., n, n)``; returns ``(...)``. The env's objective is the sum over agents.
+    ``P`` is ``(..., n, n)``; returns ``(...)``. The env's objective is the sum over agents. A
+    unit-invariant registered objective (``logdet``, ``det``) scores the whole state; any other
+    (``trace``, ``max_eig``, the user's own) the horizontal position block ``P_i[:2, :2]``.
+
+    Raises:
+        TypeError, ValueError: ``objective`` not a registered name.
     """
-    if objective == "logdet":
+    obj = get_objective(objective)
+    if obj.name == "logdet":
         return np.asarray(logdet_spd(P, "P"))
-    return np.asarray(P[..., 0, 0] + P[..., 1, 1])
+    return obj.value(P if obj.unit_invariant else P[..., :2, :2])
 
 
 def relative_pairs(n_agents: int, topology: str) -> tuple[tuple[int, int], ...]:
@@ -213,7 +221,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         )
         objective, topology = merged.pop("objective"), merged.pop("topology")
         check_choice(fusion, "fusion", FUSION_METHODS[1:])
-        check_choice(objective, "objective", OBJECTIVES)
+        check_choice(objective, "objective", objective_names())
         budget = check_integer(budget, "budget", 1)
         n_agents = check_integer(n_agents, "n_agents (relative measurements need 2)", 2, MAX_AGENTS)
         if "relative_pairs" in config and given["topology"] is not None:
@@ -277,7 +285,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         return mask
 
     def objective_value(self) -> float:
-        """Sum over agents of ``log det P`` or of the horizontal position variance."""
+        """Sum over agents of :func:`agent_objective` (``log det P_i``, horizontal variance)."""
         if self.objective == "logdet":  # the sum of the same agent_objective values, cached
             return self._logdet_entry()[2]
         return float(np.sum(agent_objective(self.sim.P, self.objective)))

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from selenv.core.objectives import OBJECTIVES, GainState, make_gain_state
+from selenv.core.objectives import GainState, get_objective, make_gain_state, objective_names
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer, draw_fim_selection
@@ -175,7 +175,9 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     ``[1e-3, 1e3]`` px, ``toa_sigma_m`` in ``[1e-3, 1e5]`` m, ``doppler_sigma_mps`` in
     ``[1e-3, 1e5]`` m/s, ``invalid_action_penalty`` in ``[-1e6, 1e6]``
     (:class:`~selenv.scenarios.fim_selection.FIMScenarioConfig` lists all fields).
-    ``objective="logdet"`` (default), ``"trace"`` or ``"max_eig"`` chooses ``f`` (see Rewards).
+    ``objective="logdet"`` (default), ``"trace"``, ``"max_eig"``, ``"det"`` or any objective
+    registered with :func:`~selenv.core.objective_registry.register_objective` chooses ``f``
+    (see Rewards; an unknown name is a ``ValueError`` listing the known ones).
 
     ## Version History
     * v0: initial version (``invalid_action`` modes, rendering and ``objective`` added without
@@ -202,7 +204,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         render_mode: str | None = None,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
-        self.objective = check_choice(objective, "objective", OBJECTIVES)
+        self.objective = check_choice(objective, "objective", objective_names())
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
         check_integer(budget, "budget", 1)  # the type first; the pool size bounds it below
@@ -218,10 +220,11 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.config = config_from(preset, **overrides)
         probe = make_problem(self.config, np.random.default_rng(0))  # shapes only
         self.n, self.m, self.d = probe.G.shape
-        #: ``(x, y)`` indices scored by trace / max_eig; ``None`` for log det (all parameters)
+        #: ``(x, y)`` indices scored by objectives that are not unit-invariant (trace, max_eig);
+        #: ``None`` (all parameters) for unit-invariant ones (log det, det)
         self.interest: tuple[int, ...] | None = (
             None
-            if self.objective == "logdet"
+            if get_objective(self.objective).unit_invariant
             else tuple(probe.param_names.index(name) for name in ("x", "y"))
         )
         self.budget = check_integer(budget, f"budget (at most the pool size {self.n})", 1, self.n)
@@ -244,8 +247,12 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
 
     @property
     def solver_objective(self) -> str:
-        """The objective the oracle agents optimise (``objective``; ``interest`` its indices)."""
-        return self.objective
+        """The objective the oracle agents optimise: ``objective`` or its ``solver_proxy``.
+
+        ``"det"`` -> ``"logdet"``: the same picks without under- / overflow of ``det``;
+        :attr:`interest` holds its indices.
+        """
+        return get_objective(self.objective).solver_name
 
     @property
     def budget_left(self) -> int:

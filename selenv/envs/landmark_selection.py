@@ -9,8 +9,8 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.core.information import whiten
-from selenv.core.linalg import FloatArray, cholesky_spd, logdet_spd
-from selenv.core.objectives import GainState, make_gain_state
+from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.core.objectives import GainState, get_objective, make_gain_state, objective_names
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import (
     EpisodeLengthSpec,
@@ -34,29 +34,45 @@ __all__ = [
     "LandmarkSelectionEnv",
     "landmark_cost",
     "landmark_features",
+    "landmark_interest",
 ]
 
+#: the built-in objectives (every registered one is accepted: :func:`objective_names`)
 OBJECTIVES = ("logdet", "det", "trace", "max_eig")
 
-#: indices of the position ``p`` in the EKF state ``(p, v, theta)``: what ``"trace"`` and
-#: ``"max_eig"`` score
+#: indices of the position ``p`` in the EKF state ``(p, v, theta)``: what objectives that are
+#: not unit-invariant (``"trace"``, ``"max_eig"``) score
 POSITION: tuple[int, ...] = (0, 1, 2)
 
 
+def landmark_interest(objective: str) -> tuple[int, ...] | None:
+    """State indices an objective scores: ``None`` (all) if unit-invariant, else the position.
+
+    ``logdet`` and ``det`` score the whole state; ``trace``, ``max_eig`` (and any registered
+    objective that is not unit-invariant) :data:`POSITION`, since velocity and attitude have
+    other units.
+
+    Raises:
+        TypeError, ValueError: ``objective`` not a registered name.
+    """
+    return None if get_objective(objective).unit_invariant else POSITION
+
+
 def landmark_cost(P: FloatArray, objective: str) -> float:
-    """The cost of a posterior covariance ``P`` (9, 9).
+    """The cost of a posterior covariance ``P`` (9, 9) under a registered objective.
 
     ``"logdet"`` / ``"det"``: ``log det P`` or ``det P`` (eq. 11); ``"trace"``: the position
     MSE ``tr(P[:3, :3])`` (m^2), the A-optimal criterion (Kirchner et al. 2020, eq. 6) on the
     position block; ``"max_eig"``: ``lambda_max(P[:3, :3])`` (m^2), the variance along the
-    worst-determined direction of the position, the E-optimal criterion (eq. 7).
+    worst-determined direction of the position, the E-optimal criterion (eq. 7). Any other
+    registered objective scores the block :func:`landmark_interest` gives.
+
+    Raises:
+        TypeError, ValueError: ``objective`` not a registered name.
     """
-    if objective == "trace":
-        return float(np.trace(P[:3, :3]))
-    if objective == "max_eig":
-        return float(np.linalg.eigvalsh(P[:3, :3])[-1])
-    logdet = float(logdet_spd(P, "P"))
-    return logdet if objective == "logdet" else float(np.exp(logdet))
+    idx = landmark_interest(objective)
+    block = P if idx is None else P[np.ix_(idx, idx)]
+    return float(get_objective(objective).value(block))
 
 
 def landmark_features(h_pred: FloatArray, k: int, horizon: int) -> np.ndarray:
@@ -137,7 +153,9 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     ``gymnasium.make("selenv/LandmarkSelection-v0", n_landmarks=30, k=2, horizon=300,
     objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
     render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout; ``objective`` is
-    ``"logdet"``, ``"det"``, ``"trace"`` or ``"max_eig"``. Any other
+    ``"logdet"``, ``"det"``, ``"trace"``, ``"max_eig"`` or any objective registered with
+    :func:`~selenv.core.objective_registry.register_objective` (scored on the whole state if
+    it is unit-invariant, else on the position block). Any other
     :class:`~selenv.scenarios.landmarks.LandmarkConfig` field can be passed too (its docstring
     gives every range: ``n_landmarks`` an int in ``[1, 200]``, ``horizon`` in ``[1, 100000]``,
     ``dt`` in ``[1e-3, 1]`` s, ...); ``k`` is an int in ``[1, n_landmarks]``. An unknown
@@ -173,7 +191,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         )
         self.render_mode = check_render_mode(render_mode, self.metadata)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        check_choice(objective, "objective", OBJECTIVES)
+        check_choice(objective, "objective", objective_names())
         if isinstance(k, bool | np.bool_) or not isinstance(k, int | np.integer):
             raise ArgumentTypeError(f"k must be an int in [1, n_landmarks], got {describe(k)}")
         self.config = LandmarkConfig(
@@ -218,18 +236,22 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
 
     @property
     def solver_objective(self) -> str:
-        """What the one-step oracle agents maximise: ``"trace"``, ``"max_eig"``, else ``"logdet"``.
+        """What the one-step oracle agents maximise: the objective or its ``solver_proxy``.
 
         ``det`` and ``log det`` of the posterior have the same minimiser, the maximiser of the
-        log-det gain; ``"trace"`` and ``"max_eig"`` are scored on :data:`POSITION`
-        (:attr:`interest`).
+        log-det gain, so ``"det"`` maps to ``"logdet"``; ``"trace"`` and ``"max_eig"`` are
+        scored on :data:`POSITION` (:attr:`interest`).
         """
-        return self.objective if self.objective in ("trace", "max_eig") else "logdet"
+        return get_objective(self.objective).solver_name
 
     @property
     def interest(self) -> tuple[int, ...] | None:
-        """State indices scored by ``"trace"`` / ``"max_eig"`` (the position); else ``None``."""
-        return POSITION if self.objective in ("trace", "max_eig") else None
+        """State indices the objective scores (:func:`landmark_interest`).
+
+        The position for ``"trace"`` / ``"max_eig"``; ``None`` (the whole state) for
+        ``"logdet"`` / ``"det"``.
+        """
+        return landmark_interest(self.objective)
 
     @property
     def budget_left(self) -> int:
