@@ -12,7 +12,7 @@ Workload of the paper's Sec. IV-A: n = 30 receivers, N_max = 14, N_S = 20, tau =
   with the selection maps ``M_I`` in the full 6-states-per-receiver model, then every cluster of
   every candidate run through ``kf_predict``/``kf_update`` for tau steps.
 
-Then a full 500-step episode of ``selenv/ReceiverClustering-v0`` with the ``ga`` agent running a
+Then a full 500-step episode of ``selenv/ReceiverClustering-v1`` with the ``ga`` agent running a
 generation every step (N_T = 1).
 
 ``--compare`` (issue 19): the GA generation of the code before issue 19
@@ -25,7 +25,7 @@ Prints the median per-generation times and their ratio.
     .venv/bin/python benchmarks/bench_clustering.py [--generations 100] [--naive 5]
     .venv/bin/python benchmarks/bench_clustering.py --compare [--rounds 300] [--seed 0]
 
-``--env-step``: one ``ReceiverClustering-v0`` step (preset ``paper``, ``gym.make``, the action
+``--env-step``: one ``ReceiverClustering-v1`` step (preset ``paper``, ``gym.make``, the action
 keeps the clustering) against one ``CartPole-v1`` step, interleaved rounds of 100 / 2000 steps;
 prints the median per-step times and their ratio (issue 19 target: <= 50x).
 
@@ -154,8 +154,8 @@ def compare_generation(rounds: int, seed: int, variant: str) -> tuple[float, flo
 
 
 def compare_env_step(rounds: int, seed: int) -> tuple[float, float]:
-    """Median seconds per step of (ReceiverClustering-v0, CartPole-v1), interleaved rounds."""
-    rc = gym.make("selenv/ReceiverClustering-v0", preset="paper", horizon=100_000)
+    """Median seconds per step of (ReceiverClustering-v1, CartPole-v1), interleaved rounds."""
+    rc = gym.make("selenv/ReceiverClustering-v1", preset="paper", horizon=100_000)
     cp = gym.make("CartPole-v1")
     rc.reset(seed=seed)
     cp.reset(seed=seed)
@@ -188,7 +188,7 @@ def main() -> None:
     if a.env_step:
         t_rc, t_cp = compare_env_step(a.rounds, a.seed)
         print(
-            f"env step ({a.rounds} rounds, median): ReceiverClustering-v0 {1e6 * t_rc:7.1f} us,"
+            f"env step ({a.rounds} rounds, median): ReceiverClustering-v1 {1e6 * t_rc:7.1f} us,"
             f" CartPole-v1 {1e6 * t_cp:6.2f} us, ratio {t_rc / t_cp:5.1f}x"
         )
         return
@@ -240,9 +240,9 @@ def main() -> None:
         t = float(np.median(times))
         print(f"  {label:<44} {1e3 * t:8.2f} ms   ratio {t / g:6.1f}x   (same costs: {agree})")
     # a full episode with a generation every step
-    env = gym.make("selenv/ReceiverClustering-v0")
+    env = gym.make("selenv/ReceiverClustering-v1")
     obs, info = env.reset(seed=a.seed)
-    agent = make_agent("ga", "selenv/ReceiverClustering-v0")
+    agent = make_agent("ga", "selenv/ReceiverClustering-v1")
     agent.reset(env, seed=a.seed)
     t0 = time.perf_counter()
     done = False

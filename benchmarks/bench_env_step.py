@@ -1,14 +1,14 @@
 """Env step timings: FIMSelection vs a naive step, and the overhead ratios.
 
-Default (``--target fim-naive``): one ``selenv/FIMSelection-v0`` step at N = 1000 candidates
+Default (``--target fim-naive``): one ``selenv/FIMSelection-v1`` step at N = 1000 candidates
 vs a naive step. The env keeps gains and whitened rows by rank-one / triangular updates; the
 naive step recomputes the FIM, its Cholesky factor, every gain (batched slogdet) and every
 whitened row.
 
 ``--target overheads``: in ONE process, interleaved rounds (a block of env steps, a block of
 ``CartPole-v1`` steps, env, CartPole, ...), medians of the per-round means, printed as ratios:
-CLScheduling-v0 (preset dense: 4 agents, budget 2) step / CartPole step, LandmarkSelection-v0
-reset / CartPole step, FIMSelection-v0 step at N = 10000 / its core ``GainState.add``.
+CLScheduling-v1 (preset dense: 4 agents, budget 2) step / CartPole step, LandmarkSelection-v1
+reset / CartPole step, FIMSelection-v1 step at N = 10000 / its core ``GainState.add``.
 Run with ``OPENBLAS_NUM_THREADS=1`` (set here before numpy is imported if unset).
 
     .venv/bin/python benchmarks/bench_env_step.py [--n-candidates 500] [--episodes 20]
@@ -107,8 +107,8 @@ def overheads(rounds: int) -> None:
                 cart_block.untimed += time.perf_counter() - t  # type: ignore[attr-defined]
         return len(cart_actions)
 
-    cl = gym.make("selenv/CLScheduling-v0", preset="dense", n_agents=4, budget=2).unwrapped
-    land = gym.make("selenv/LandmarkSelection-v0").unwrapped
+    cl = gym.make("selenv/CLScheduling-v1", preset="dense", n_agents=4, budget=2).unwrapped
+    land = gym.make("selenv/LandmarkSelection-v1").unwrapped
     seeds = iter(range(1 << 30))
 
     def land_reset() -> int:
@@ -116,7 +116,7 @@ def overheads(rounds: int) -> None:
             land.reset(seed=next(seeds))
         return 2
 
-    fim: Any = gym.make("selenv/FIMSelection-v0", n_candidates=5000).unwrapped  # 2 sensors
+    fim: Any = gym.make("selenv/FIMSelection-v1", n_candidates=5000).unwrapped  # 2 sensors
     fim.reset(seed=0)
     fim_state0 = copy.deepcopy(fim.state)
     order = [int(k) for k in np.random.default_rng(0).permutation(fim.n)[: fim.budget]]
@@ -161,9 +161,9 @@ def overheads(rounds: int) -> None:
     print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, {rounds} rounds")
     print(f"  CartPole-v1 step              {t_cart * 1e6:9.1f} us")
     t_cl, t_land = res["cl"], res["landmark_reset"]
-    print(f"  CLScheduling-v0 step (dense)  {t_cl * 1e6:9.1f} us  = {t_cl / t_cart:6.1f}x CartPole")
-    print(f"  LandmarkSelection-v0 reset  {t_land * 1e3:9.2f} ms = {t_land / t_cart:.0f}x CartPole")
-    print(f"  FIMSelection-v0 step N={fim.n}  {t_fim * 1e6:9.1f} us  = {t_fim / t_core:6.2f}x "
+    print(f"  CLScheduling-v1 step (dense)  {t_cl * 1e6:9.1f} us  = {t_cl / t_cart:6.1f}x CartPole")
+    print(f"  LandmarkSelection-v1 reset  {t_land * 1e3:9.2f} ms = {t_land / t_cart:.0f}x CartPole")
+    print(f"  FIMSelection-v1 step N={fim.n}  {t_fim * 1e6:9.1f} us  = {t_fim / t_core:6.2f}x "
           f"its GainState.add ({t_core * 1e6:.1f} us)")  # fmt: skip
 
 
@@ -180,7 +180,7 @@ def main() -> None:
         return
     results = {}
     for label, wrapped in (("unwrapped", False), ("gym.make (checker+order)", True)):
-        env: Any = gym.make("selenv/FIMSelection-v0", n_candidates=a.n_candidates, budget=a.budget)
+        env: Any = gym.make("selenv/FIMSelection-v1", n_candidates=a.n_candidates, budget=a.budget)
         target = env if wrapped else env.unwrapped
         times = []
         for ep in range(a.episodes):
@@ -203,7 +203,7 @@ def main() -> None:
         nt.append(time.perf_counter() - t)
         sel.append(j)
     t_naive = float(np.median(nt))
-    print(f"FIMSelection-v0 step, N = {n} candidates, m = {prob.G.shape[1]}, d = {prob.G.shape[2]}")
+    print(f"FIMSelection-v1 step, N = {n} candidates, m = {prob.G.shape[1]}, d = {prob.G.shape[2]}")
     for label, t in results.items():
         print(f"  {label:<28} median {t * 1e6:8.1f} us/step   naive/this = {t_naive / t:5.1f}x")
     print(f"  {'naive recomputation':<28} median {t_naive * 1e6:8.1f} us/step")

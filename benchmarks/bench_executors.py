@@ -8,7 +8,7 @@ identical on every executor, else the script exits 1.
 
 Workloads (``--workloads``):
 
-* ``bench``: ``selenv bench selenv/CLScheduling-v0 selenv/LandmarkSelection-v0 --episodes 6``
+* ``bench``: ``selenv bench selenv/CLScheduling-v1 selenv/LandmarkSelection-v1 --episodes 6``
   (every default agent, rollout references included);
 * ``greiff``: ``scripts/reproduce_greiff.py --runs 16 --table-runs 4 --steps 200``
   (Monte Carlo of the GA over noise realisations).
@@ -35,7 +35,7 @@ EXECUTORS = ("local", "process", "ray")
 
 def _bench(out: Path, executor: str, workers: int) -> list[str]:
     return [
-        *SELENV, "bench", "selenv/CLScheduling-v0", "selenv/LandmarkSelection-v0",
+        *SELENV, "bench", "selenv/CLScheduling-v1", "selenv/LandmarkSelection-v1",
         "--episodes", "6", "--no-progress", "--json", str(out),
         "--executor", executor, "--num-workers", str(workers),
     ]  # fmt: skip

@@ -1,6 +1,6 @@
 """Landmark selection (Soubaras & Chahbazian 2023): selection and EKF update times.
 
-States are taken from a real ``selenv/LandmarkSelection-v0`` episode (seed 0, N = 30, K = 2,
+States are taken from a real ``selenv/LandmarkSelection-v1`` episode (seed 0, N = 30, K = 2,
 VNS agent): the gain states of filter steps ``--start`` .. ``--start + --states - 1`` (50 states
 from step 50 by default), with the previous step's played selection as VNS's warm start.
 
@@ -49,7 +49,7 @@ from selenv.scenarios.landmarks import (
     make_landmark_problem,
 )
 
-ENV_ID = "selenv/LandmarkSelection-v0"
+ENV_ID = "selenv/LandmarkSelection-v1"
 K = 2
 PAPER_MS = {"brute_force": 4.81, "vns": 1.53}
 

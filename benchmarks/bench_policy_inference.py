@@ -6,7 +6,7 @@ For every env with a shipped checkpoint, plays the same episodes three times and
 greedy heuristic. Single thread (``torch.set_num_threads(1)``, as in the bench).
 
     .venv/bin/python benchmarks/bench_policy_inference.py [--decisions 200]
-    .venv/bin/python benchmarks/bench_policy_inference.py --env selenv/FIMSelection-v0 \
+    .venv/bin/python benchmarks/bench_policy_inference.py --env selenv/FIMSelection-v1 \
         --kwargs '{"n_candidates": 500}'
 """
 

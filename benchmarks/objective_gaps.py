@@ -1,7 +1,7 @@
 """Greedy (and swap) gap to the brute-force optimum for each selection objective.
 
 For log det (D-optimal, Kirchner et al. 2020 eq. 5/9), trace (A-optimal, eq. 6) and max_eig
-(E-optimal, eq. 7), on small instances of ``selenv/FIMSelection-v0`` (the env's default preset;
+(E-optimal, eq. 7), on small instances of ``selenv/FIMSelection-v1`` (the env's default preset;
 trace / max_eig score the target position ``(x, y)``): per seed, the relative gap
 ``(OPT - f(alg)) / OPT`` with ``OPT`` from ``brute_force_whitened``. Prints, per objective and
 algorithm, the mean relative gap with its 95 % percentile-bootstrap CI over the seeds (the gap
@@ -55,7 +55,7 @@ def gaps(objective: str, args: argparse.Namespace) -> dict[str, np.ndarray]:
     kwargs: dict[str, Any] = {"n_candidates": args.n_candidates, "budget": args.budget}
     if args.preset:
         kwargs["preset"] = args.preset
-    env = gym.make("selenv/FIMSelection-v0", objective=objective, **kwargs).unwrapped
+    env = gym.make("selenv/FIMSelection-v1", objective=objective, **kwargs).unwrapped
     out: dict[str, list[float]] = {name: [] for name in SOLVERS}
     for seed in range(args.seeds):
         env.reset(seed=seed)
@@ -78,13 +78,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--preset", default=None)
     args = p.parse_args(argv)
     env = gym.make(
-        "selenv/FIMSelection-v0",
+        "selenv/FIMSelection-v1",
         n_candidates=args.n_candidates,
         budget=args.budget,
         **({"preset": args.preset} if args.preset else {}),
     ).unwrapped
     print(
-        f"FIMSelection-v0 preset={env.config.preset} N={env.n} d={env.d} budget={args.budget} "
+        f"FIMSelection-v1 preset={env.config.preset} N={env.n} d={env.d} budget={args.budget} "
         f"seeds=0..{args.seeds - 1}"
     )
     print()

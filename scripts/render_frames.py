@@ -18,10 +18,10 @@ import selenv
 from selenv.agents import make
 
 FRAMES = {
-    "selenv/FIMSelection-v0": ("render_fim_selection.png", "greedy"),
-    "selenv/LandmarkSelection-v0": ("render_landmark_selection.png", "greedy"),
-    "selenv/CLScheduling-v0": ("render_cl_scheduling.png", "greedy"),
-    "selenv/ReceiverClustering-v0": ("render_receiver_clustering.png", "greedy"),
+    "selenv/FIMSelection-v1": ("render_fim_selection.png", "greedy"),
+    "selenv/LandmarkSelection-v1": ("render_landmark_selection.png", "greedy"),
+    "selenv/CLScheduling-v1": ("render_cl_scheduling.png", "greedy"),
+    "selenv/ReceiverClustering-v1": ("render_receiver_clustering.png", "greedy"),
 }
 
 

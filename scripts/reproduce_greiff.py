@@ -1,6 +1,6 @@
 """Reproduce Sec. IV of Greiff, Di Cairano & Berntorp (2022): Fig. 3, Table II and Fig. 4.
 
-Every run plays ``selenv/ReceiverClustering-v0`` with ``preset="paper"`` (fixed ``sigma`` per
+Every run plays ``selenv/ReceiverClustering-v1`` with ``preset="paper"`` (fixed ``sigma`` per
 realisation, as in the paper) with the registered agents (the same code as ``selenv bench``):
 
 * **Fig. 3** (n = 30, N_max = 14, one noise realisation): cost over K steps of singletons,
@@ -53,7 +53,7 @@ from selenv.parallel import Executor, ExecutorError, add_executor_arguments, exe
 from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
 from selenv.scenarios.clustering_labels import random_feasible_clustering
 
-ENV_ID = "selenv/ReceiverClustering-v0"
+ENV_ID = "selenv/ReceiverClustering-v1"
 #: the paper's noise model: ``sigma`` fixed per realisation (the env's default is time-varying)
 PAPER_PRESET = {"preset": "paper"}
 GA_START = 50  #: the paper switches the GA on at k = 50

@@ -1,6 +1,6 @@
 """Reproduce Sec. V of Soubaras & Chahbazian (2023): Figs. 3-6 and Table II.
 
-Angles-only UAV navigation (``selenv/LandmarkSelection-v0``, Table I parameters): an EKF with a
+Angles-only UAV navigation (``selenv/LandmarkSelection-v1``, Table I parameters): an EKF with a
 10 Hz IMU updates at every step with the angles of arrival of K = 2 of N = 30 landmarks
 (Algorithm 3). Monte Carlo over ``--runs`` seeds; each seed is one realisation (landmark
 layout, IMU noise, initial error, measurement noise) shared by every method, so the
@@ -65,7 +65,7 @@ from selenv.core.linalg import logdet_spd
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 from selenv.scenarios.landmarks import LandmarkEKF, LandmarkProblem, crlb_reference
 
-ENV_ID = "selenv/LandmarkSelection-v0"
+ENV_ID = "selenv/LandmarkSelection-v1"
 METHODS = ("all", "brute_force", "vns", "greedy", "random")
 ENV_METHODS = ("brute_force", "vns", "greedy", "random")
 LABELS = {

@@ -1,6 +1,6 @@
 """selenv: hard decision problems of state estimation as reinforcement-learning environments.
 
-``import selenv`` registers the Gymnasium ids (``selenv/FIMSelection-v0``, ...) and the
+``import selenv`` registers the Gymnasium ids (``selenv/FIMSelection-v1``, ...) and the
 baseline agents. See the README for the quick start.
 """
 

@@ -3,7 +3,7 @@ r"""The ``selenv`` command line: ``selenv list`` and ``selenv bench``.
 Examples::
 
     selenv list
-    selenv bench selenv/FIMSelection-v0 --agents greedy,random --episodes 5 \
+    selenv bench selenv/FIMSelection-v1 --agents greedy,random --episodes 5 \
         --env-kwargs '{"n_candidates": 20, "budget": 4}' --json out.json --plot figs/
     selenv bench selenv.multiagent.fim_selection_v0 --env-kwargs '{"mode": "independent"}' \
         --baseline greedy

@@ -22,7 +22,7 @@ from selenv.cli import main
 
 TOY = "selenv_test/Toy-v0"
 TOY2 = "selenv_test/Toy2-v0"
-FIM = "selenv/FIMSelection-v0"
+FIM = "selenv/FIMSelection-v1"
 CONTRACT_KEYS = {"env_id", "env_kwargs", "seed", "episodes", "agents"}
 AGENT_KEYS = {
     "returns",
@@ -483,7 +483,7 @@ def test_agent_spec_options_and_bad_options_exit_2(
     with pytest.raises(ValueError, match="two checkpoints"):
         parse_spec("ppo:a.zip:b.zip")
     out = tmp_path / "r.json"
-    env = "selenv/CLScheduling-v0"
+    env = "selenv/CLScheduling-v1"
     for spec, why in (("rollout:top_k=0", "top_k"), ("rollout:horizon=-1", "horizon")):
         argv = ["bench", env, "--agents", f"greedy,{spec}", "--episodes", "1", "--json", str(out)]
         assert main([*argv, "--no-progress", "--env-kwargs", '{"horizon": 2}']) == 2

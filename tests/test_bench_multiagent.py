@@ -218,7 +218,7 @@ def test_clustering_module_bench_runs_every_agent() -> None:
 # -- CLI and JSON ----------------------------------------------------------------------------
 def test_json_shape_is_the_same_for_single_and_multi_agent(tmp_path: Path) -> None:
     out = tmp_path / "res.json"
-    argv = ["bench", "selenv/FIMSelection-v0", FIM_MODULE, "--agents", "greedy,random"]
+    argv = ["bench", "selenv/FIMSelection-v1", FIM_MODULE, "--agents", "greedy,random"]
     assert main([*argv, "--episodes", "2", "--json", str(out), "--no-progress"]) == 0
     single, multi = json.loads(out.read_text())["results"]
     assert single["kind"] == "gymnasium" and multi["kind"] == "pettingzoo"

@@ -1,4 +1,4 @@
-"""Cooperative-localization simulator and selenv/CLScheduling-v0 (naive and CI fusion here)."""
+"""Cooperative-localization simulator and selenv/CLScheduling-v1 (naive and CI fusion here)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from selenv.scenarios.cooperative import (
 )
 from selenv.scenarios.cooperative_models import MODELS, relative_bearing, relative_range
 
-ENV_ID = "selenv/CLScheduling-v0"
+ENV_ID = "selenv/CLScheduling-v1"
 
 
 @pytest.mark.parametrize("model", ["ins", "unicycle"])

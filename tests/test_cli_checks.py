@@ -10,8 +10,8 @@ import pytest
 import selenv.cli as cli
 from selenv.cli import main, training_scripts
 
-FIM = "selenv/FIMSelection-v0"
-LANDMARK = "selenv/LandmarkSelection-v0"
+FIM = "selenv/FIMSelection-v1"
+LANDMARK = "selenv/LandmarkSelection-v1"
 
 
 @pytest.fixture

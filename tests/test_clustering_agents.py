@@ -1,4 +1,4 @@
-"""Clustering agents in selenv/ReceiverClustering-v0, and the Greiff reproduction script."""
+"""Clustering agents in selenv/ReceiverClustering-v1, and the Greiff reproduction script."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from selenv.scenarios.clustering import ClusteringConfig, make_clustering_proble
 from selenv.scenarios.clustering_filters import ClusterFilterBank
 from selenv.scenarios.clustering_labels import random_feasible_clustering
 
-ENV_ID = "selenv/ReceiverClustering-v0"
+ENV_ID = "selenv/ReceiverClustering-v1"
 
 
 def _play(env, agent, seed, options=None):
@@ -121,9 +121,9 @@ def test_agents_refuse_the_wrong_env_or_mode() -> None:
     edit.reset(seed=0)
     with pytest.raises(ValueError, match="action_mode"):
         make("ga", ENV_ID).reset(edit, seed=0)
-    fim = gym.make("selenv/FIMSelection-v0", n_candidates=5, budget=2)
+    fim = gym.make("selenv/FIMSelection-v1", n_candidates=5, budget=2)
     fim.reset(seed=0)
-    with pytest.raises(ValueError, match="needs selenv/ReceiverClustering-v0"):
+    with pytest.raises(ValueError, match="needs selenv/ReceiverClustering-v1"):
         make("ga", ENV_ID).reset(fim, seed=0)
     with pytest.raises(ValueError, match="every"):
         make("ga", ENV_ID, every=0)
@@ -159,7 +159,7 @@ def test_bench_counts_cost_evaluations_per_decision() -> None:
     from selenv.bench import format_table, run_bench
 
     res = run_bench(
-        "selenv/ReceiverClustering-v0",
+        "selenv/ReceiverClustering-v1",
         ["ga", "fixed_random", "greedy"],
         episodes=2,
         env_kwargs={"n_agents": 9, "horizon": 10},

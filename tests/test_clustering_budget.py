@@ -10,7 +10,7 @@ from selenv.agents import make
 from selenv.agents.clustering import GreedyMoveAgent, best_edit
 from selenv.envs.receiver_clustering import edit_cost_changes, edit_mask
 
-ENV = "selenv/ReceiverClustering-v0"
+ENV = "selenv/ReceiverClustering-v1"
 
 
 def _env() -> gym.Env:

@@ -1,4 +1,4 @@
-"""selenv/ReceiverClustering-v0: Gymnasium/SB3 checks, encodings, determinism, bad input."""
+"""selenv/ReceiverClustering-v1: Gymnasium/SB3 checks, encodings, determinism, bad input."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from selenv.envs.receiver_clustering import (
 from selenv.scenarios.clustering import canonical_labels
 from selenv.scenarios.clustering_labels import random_feasible_clustering
 
-ENV_ID = "selenv/ReceiverClustering-v0"
+ENV_ID = "selenv/ReceiverClustering-v1"
 
 
 def test_gymnasium_and_sb3_check_env_assignment_mode() -> None:

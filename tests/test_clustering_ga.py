@@ -639,7 +639,7 @@ def test_variant_round_trips_through_the_bench():
     from selenv.agents import make
     from selenv.bench import run_bench
 
-    env_id = "selenv/ReceiverClustering-v0"
+    env_id = "selenv/ReceiverClustering-v1"
     assert make("ga:variant=literal", env_id).config.variant == "literal"
     assert make("ga", env_id).config.variant == "improved"
     with pytest.raises(ValueError, match="variant must be one of"):

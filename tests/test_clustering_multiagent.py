@@ -241,7 +241,7 @@ def test_shared_reward_matches_single_agent_env(
     kw = kw | {"horizon": horizon, "tau": 4}
     n = kw["n_agents"]
     ma = rc.parallel_env(**kw)
-    sa = gym.make("selenv/ReceiverClustering-v0", **kw)
+    sa = gym.make("selenv/ReceiverClustering-v1", **kw)
     ma.reset(seed=11, options=options)
     sa.reset(seed=11, options=options)
     sa_raw: Any = sa.unwrapped

@@ -1,4 +1,4 @@
-"""Time-varying receiver noise (multipath regimes) and the presets of ReceiverClustering-v0."""
+"""Time-varying receiver noise (multipath regimes) and the presets of ReceiverClustering-v1."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from selenv.scenarios.clustering import (
 )
 from selenv.scenarios.clustering_filters import ClusterFilterBank
 
-ENV_ID = "selenv/ReceiverClustering-v0"
+ENV_ID = "selenv/ReceiverClustering-v1"
 
 
 # -- the regime model ------------------------------------------------------------------------------

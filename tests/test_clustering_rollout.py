@@ -1,4 +1,4 @@
-"""``rollout`` for ReceiverClustering-v0: options, L = 0 is greedy, no peeking, env untouched."""
+"""``rollout`` for ReceiverClustering-v1: options, L = 0 is greedy, no peeking, env untouched."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import selenv  # noqa: F401
 from selenv.agents import agents_for, make
 from selenv.agents.clustering_rollout import ClusteringRolloutAgent
 
-ENV_ID = "selenv/ReceiverClustering-v0"
+ENV_ID = "selenv/ReceiverClustering-v1"
 #: small and fast-switching, so that the regimes change within the rollout horizon
 ENV_KW: dict[str, Any] = {"n_agents": 9, "horizon": 30, "tau": 6, "p_enter": 0.1, "p_leave": 0.2}
 

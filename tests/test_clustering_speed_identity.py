@@ -2,7 +2,7 @@
 
 GA traces and operator draws of the ``"literal"`` variant (the ``"improved"`` ones are in
 ``tests/test_clustering_ga.py``), GA runs on a :class:`ClusterFilterBank`, 300-step ``ga``
-episodes and 120-step episodes of seven agents in ``ReceiverClustering-v0``. The references were
+episodes and 120-step episodes of seven agents in ``ReceiverClustering-v1``. The references were
 recorded with the current code (same seeds and calls as the pre-speed-up recordings) and are
 compared as *decisions* exactly (hashes or lists of integer data only: int64 populations, best
 labels, assignments, cluster sizes, masks, flags, counters, episode lengths) and float *values*
@@ -225,10 +225,10 @@ def _episode(seed: int, variant: str, steps: int = 300) -> tuple[tuple, list[flo
     Decisions: hash of the int64 assignment of every step (exact) and the episode length.
     Values: the ``J`` curve at sampled steps, its final value and the sum of the rewards.
     """
-    env = gym.make("selenv/ReceiverClustering-v0", preset="paper", horizon=steps)
+    env = gym.make("selenv/ReceiverClustering-v1", preset="paper", horizon=steps)
     obs, info = env.reset(seed=seed)
     kw = {} if variant == "improved" else {"variant": "literal"}
-    agent = make_agent("ga", "selenv/ReceiverClustering-v0", **kw)
+    agent = make_agent("ga", "selenv/ReceiverClustering-v1", **kw)
     agent.reset(env, seed=seed)
     J = [float(info["objective"])]
     h = hashlib.sha256(obs["assignment"].astype(np.int64).tobytes())
@@ -406,9 +406,9 @@ def _env_run(agent_spec: str, preset: str, seed: int = 0, steps: int = 120):
     sizes, masks, counters, flags; exact) and the episode length. Values: per key, the sum over
     all steps of the float entries (info floats and rewards in float64, float32 observations).
     """
-    env = gym.make("selenv/ReceiverClustering-v0", preset=preset, horizon=steps)
+    env = gym.make("selenv/ReceiverClustering-v1", preset=preset, horizon=steps)
     obs, info = env.reset(seed=seed)
-    agent = make_agent(agent_spec, "selenv/ReceiverClustering-v0")
+    agent = make_agent(agent_spec, "selenv/ReceiverClustering-v1")
     agent.reset(env, seed=seed)
     h = hashlib.sha256()
     f64: dict[str, float] = {"reward": 0.0}

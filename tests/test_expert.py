@@ -1,4 +1,4 @@
-"""Expert iteration on CLScheduling-v0: rollout labels, DAgger rounds, the training entry point."""
+"""Expert iteration on CLScheduling-v1: rollout labels, DAgger rounds, the training entry point."""
 
 from __future__ import annotations
 
@@ -109,7 +109,7 @@ def test_train_cl_expert_tiny_budget_end_to_end(tmp_path: Path) -> None:
         done = term or trunc
     with pytest.raises(SystemExit):  # the outputs exist: exit 2 unless --force
         train_cl_expert.main(argv)
-    bad = [*argv, "--force", "--checkpoint", str(DEFAULT_CHECKPOINTS["selenv/FIMSelection-v0"])]
+    bad = [*argv, "--force", "--checkpoint", str(DEFAULT_CHECKPOINTS["selenv/FIMSelection-v1"])]
     with pytest.raises(ValueError, match="trained on"):
         train_cl_expert.main(bad)
 

@@ -1,4 +1,4 @@
-"""selenv/FIMSelection-v0: API checkers, determinism, masks, objective and agents."""
+"""selenv/FIMSelection-v1: API checkers, determinism, masks, objective and agents."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import selenv
 from selenv.agents.fim_solvers import brute_force_whitened, greedy_whitened, swap_whitened
 from selenv.core.information import logdet_objective
 
-ENV_ID = "selenv/FIMSelection-v0"
+ENV_ID = "selenv/FIMSelection-v1"
 SMALL = {"n_candidates": 15, "budget": 4}
 
 

@@ -329,13 +329,13 @@ def _assert_same(a: list, b: list) -> None:
 
 
 def test_env_defaults_keep_the_v0_moving_presets() -> None:
-    """FIMSelection-v0 defaults to example2_moving, fim_selection_v0 to example3_moving."""
+    """FIMSelection-v1 defaults to example2_moving, fim_selection_v0 to example3_moving."""
     import gymnasium as gym
 
     import selenv  # noqa: F401  (registers the ids)
     from selenv.multiagent import fim_selection_v0
 
-    env_id = "selenv/FIMSelection-v0"
+    env_id = "selenv/FIMSelection-v1"
     default, moving = gym.make(env_id), gym.make(env_id, preset="example2_moving")
     assert default.unwrapped.config == moving.unwrapped.config  # type: ignore[attr-defined]
     for seed in (0, 1):

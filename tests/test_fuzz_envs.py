@@ -47,10 +47,10 @@ from selenv.multiagent import fim_selection_v0, receiver_clustering_v0
 pytestmark = pytest.mark.fuzz
 
 CL, FIM, LM, RC = (
-    "selenv/CLScheduling-v0",
-    "selenv/FIMSelection-v0",
-    "selenv/LandmarkSelection-v0",
-    "selenv/ReceiverClustering-v0",
+    "selenv/CLScheduling-v1",
+    "selenv/FIMSelection-v1",
+    "selenv/LandmarkSelection-v1",
+    "selenv/ReceiverClustering-v1",
 )
 MA_FIM, MA_RC = "fim_selection_v0", "receiver_clustering_v0"
 MODULES = {MA_FIM: fim_selection_v0, MA_RC: receiver_clustering_v0}
@@ -153,7 +153,7 @@ COMMON = {
     "render_mode": RENDER_MODE,
 }
 
-# ------------------------------------------------------------ FIMSelection-v0 / fim_selection_v0
+# ------------------------------------------------------------ FIMSelection-v1 / fim_selection_v0
 FIM_SENSORS = ("camera", "toa", "doppler")
 FIM_PRESETS = [f"example{i}{v}" for v in ("", "_moving") for i in (1, 2, 3)]  # every preset
 FIM_BASE = {"preset": "example2_moving", "n_candidates": 6, "budget": 2}  # pools hold >= 2 here
@@ -185,7 +185,7 @@ MA_FIM_KEYWORDS = {
     "mode": K(st.sampled_from(["independent", "cooperative"]), bad_choice(("cooperative",))),
 }
 
-# ------------------------------------------------------------ CLScheduling-v0
+# ------------------------------------------------------------ CLScheduling-v1
 CL_BASE = {"n_agents": 2, "horizon": 3, "budget": 1, "preset": "benchmark"}
 CL_KEYWORDS = {
     "preset": K(st.sampled_from(["benchmark", "dense", "paper"]), bad_choice(("benchmark",))),
@@ -256,7 +256,7 @@ CL_KEYWORDS = {
     **COMMON,
 }
 
-# ------------------------------------------------------------ LandmarkSelection-v0
+# ------------------------------------------------------------ LandmarkSelection-v1
 LM_BASE = {"n_landmarks": 5, "k": 2, "horizon": 3}
 LM_KEYWORDS = {
     "n_landmarks": K(int_in(2, 8), bad_int(1, 200)),
@@ -323,7 +323,7 @@ LM_KEYWORDS = {
     **COMMON,
 }
 
-# ------------------------------------------------------------ ReceiverClustering-v0
+# ------------------------------------------------------------ ReceiverClustering-v1
 RC_BASE = {"n_agents": 4, "horizon": 3}
 RC_SCENARIO = {
     "n_agents": K(int_in(1, 6), bad_int(1, 200)),

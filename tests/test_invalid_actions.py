@@ -49,9 +49,9 @@ def test_rule_validation_and_behaviour() -> None:
             check_discrete(bad, 5)
 
 
-# -- FIMSelection-v0 -------------------------------------------------------------------------------
+# -- FIMSelection-v1 -------------------------------------------------------------------------------
 def test_fim_noop_spends_the_slot_and_selects_nothing() -> None:
-    env = _make("selenv/FIMSelection-v0")
+    env = _make("selenv/FIMSelection-v1")
     env.reset(seed=0)
     env.step(3)
     order, objective, left = list(env.state.order), env.state.objective, env.budget_left
@@ -64,7 +64,7 @@ def test_fim_noop_spends_the_slot_and_selects_nothing() -> None:
 
 
 def test_fim_episode_is_bounded_even_if_every_action_is_invalid() -> None:
-    env = _make("selenv/FIMSelection-v0")
+    env = _make("selenv/FIMSelection-v1")
     env.reset(seed=1)
     steps, done, info = 0, False, {}
     while not done:
@@ -77,9 +77,9 @@ def test_fim_episode_is_bounded_even_if_every_action_is_invalid() -> None:
 @pytest.mark.parametrize(
     ("env_id", "first", "bad", "kw"),
     [
-        ("selenv/FIMSelection-v0", 2, 2, {}),
-        ("selenv/LandmarkSelection-v0", 2, 2, {}),
-        ("selenv/CLScheduling-v0", 0, 0, {"budget": 2}),  # two picks per filter step
+        ("selenv/FIMSelection-v1", 2, 2, {}),
+        ("selenv/LandmarkSelection-v1", 2, 2, {}),
+        ("selenv/CLScheduling-v1", 0, 0, {"budget": 2}),  # two picks per filter step
     ],
 )
 def test_raise_and_terminate_modes(env_id: str, first: int, bad: int, kw: dict) -> None:
@@ -99,7 +99,7 @@ def test_raise_and_terminate_modes(env_id: str, first: int, bad: int, kw: dict) 
 
 def test_out_of_space_actions_are_errors_in_every_mode() -> None:
     for mode in ("noop", "raise", "terminate"):
-        env = _make("selenv/FIMSelection-v0", mode)
+        env = _make("selenv/FIMSelection-v1", mode)
         env.reset(seed=0)
         with pytest.raises(ValueError, match="out of range"):
             env.step(env.n)
@@ -107,25 +107,25 @@ def test_out_of_space_actions_are_errors_in_every_mode() -> None:
             env.step(0.0)
 
 
-# -- LandmarkSelection-v0 --------------------------------------------------------------------------
+# -- LandmarkSelection-v1 --------------------------------------------------------------------------
 def test_landmark_noop_slot_updates_with_the_valid_picks_only() -> None:
-    env = _make("selenv/LandmarkSelection-v0", horizon=3)  # k = 2
+    env = _make("selenv/LandmarkSelection-v1", horizon=3)  # k = 2
     env.reset(seed=4)
     env.step(5)
     _obs, r, _term, _trunc, info = env.step(5)  # masked: the step closes with one landmark
     assert info["invalid_action"] and info["last_selection"] == (5,)
-    ref = gym.make("selenv/LandmarkSelection-v0", horizon=3, k=1).unwrapped  # same flight
+    ref = gym.make("selenv/LandmarkSelection-v1", horizon=3, k=1).unwrapped  # same flight
     ref.reset(seed=4)
     _obs, r_ref, *_ = ref.step(5)
     np.testing.assert_allclose(env.ekf.P, ref.ekf.P, rtol=1e-12, atol=1e-15)
     assert r == pytest.approx(r_ref + PEN, rel=1e-12)
 
 
-# -- CLScheduling-v0 -------------------------------------------------------------------------------
+# -- CLScheduling-v1 -------------------------------------------------------------------------------
 def test_cl_noop_on_the_last_slot_equals_stopping() -> None:
     kw = {"budget": 2}  # two picks per filter step: the no-op spends the second
-    env = _make("selenv/CLScheduling-v0", **kw)
-    ref = gym.make("selenv/CLScheduling-v0", **kw).unwrapped
+    env = _make("selenv/CLScheduling-v1", **kw)
+    ref = gym.make("selenv/CLScheduling-v1", **kw).unwrapped
     env.reset(seed=2)
     ref.reset(seed=2)
     r1, r1_ref = env.step(0)[1], ref.step(0)[1]
@@ -138,11 +138,11 @@ def test_cl_noop_on_the_last_slot_equals_stopping() -> None:
     np.testing.assert_array_equal(env.sim.P, ref.sim.P)
 
 
-# -- ReceiverClustering-v0 -------------------------------------------------------------------------
+# -- ReceiverClustering-v1 -------------------------------------------------------------------------
 @pytest.mark.parametrize("action_mode", ["assignment", "edit"])
 def test_clustering_noop_keeps_the_clustering_and_runs_the_filter(action_mode: str) -> None:
-    env = _make("selenv/ReceiverClustering-v0", action_mode=action_mode)
-    ref = gym.make("selenv/ReceiverClustering-v0", action_mode=action_mode).unwrapped
+    env = _make("selenv/ReceiverClustering-v1", action_mode=action_mode)
+    ref = gym.make("selenv/ReceiverClustering-v1", action_mode=action_mode).unwrapped
     env.reset(seed=3)
     ref.reset(seed=3)
     labels = env.bank.labels.copy()
@@ -156,7 +156,7 @@ def test_clustering_noop_keeps_the_clustering_and_runs_the_filter(action_mode: s
     np.testing.assert_array_equal(env.bank.labels, labels)
     assert env.bank.k == ref.bank.k == 1
     assert r == pytest.approx(r_ref + PEN, rel=1e-12)
-    strict = _make("selenv/ReceiverClustering-v0", "raise", action_mode=action_mode)
+    strict = _make("selenv/ReceiverClustering-v1", "raise", action_mode=action_mode)
     strict.reset(seed=3)
     with pytest.raises(ValueError, match="is invalid"):
         strict.step(bad)

@@ -1,4 +1,4 @@
-"""selenv/LandmarkSelection-v0 and its agents: checks, optimality, VNS, determinism, errors."""
+"""selenv/LandmarkSelection-v1 and its agents: checks, optimality, VNS, determinism, errors."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from selenv.agents.vns import vns, vns_whitened
 from selenv.core.kalman import kf_update
 from selenv.core.linalg import logdet_spd
 
-ENV_ID = "selenv/LandmarkSelection-v0"
+ENV_ID = "selenv/LandmarkSelection-v1"
 
 
 def test_gymnasium_and_sb3_check_env() -> None:

@@ -38,7 +38,7 @@ def test_lean_agent_equals_predict_on_shipped_checkpoints(env_id: str) -> None:
 @pytest.mark.parametrize("algo", ["maskable_ppo", "ppo"])
 def test_lean_mode_equals_predict_on_random_weights_and_masks(algo: str) -> None:
     """Random (untrained, scaled-up) weights, random observations and masks, incl. ties."""
-    env = gym.make("selenv/FIMSelection-v0", n_candidates=30, budget=5)
+    env = gym.make("selenv/FIMSelection-v1", n_candidates=30, budget=5)
     model = make_ppo(env, algo, seed=0, device="cpu")
     policy = model.policy
     with th.no_grad():
@@ -71,7 +71,7 @@ def test_lean_mode_equals_predict_on_random_weights_and_masks(algo: str) -> None
 def test_lean_scorer_rejects_other_policies_and_empty_masks() -> None:
     with pytest.raises(TypeError, match="candidate-scoring policy"):
         LeanScorer(object())
-    env = gym.make("selenv/FIMSelection-v0", n_candidates=10, budget=3)
+    env = gym.make("selenv/FIMSelection-v1", n_candidates=10, budget=3)
     scorer = LeanScorer(make_ppo(env, seed=0, device="cpu").policy)
     obs, _ = env.reset(seed=0)
     with pytest.raises(ValueError, match="empty action mask"):
@@ -83,7 +83,7 @@ def test_lean_scorer_rejects_other_policies_and_empty_masks() -> None:
 def test_top_m_scorer_matches_the_network_on_the_whole_pool_and_picks_from_the_top_m() -> None:
     from selenv.learned.rl.lean import TopMScorer
 
-    env = gym.make("selenv/FIMSelection-v0", n_candidates=30, budget=5)
+    env = gym.make("selenv/FIMSelection-v1", n_candidates=30, budget=5)
     policy = make_ppo(env, seed=1, device="cpu").policy
     with th.no_grad():
         for p in policy.pi_features_extractor.parameters():

@@ -19,8 +19,8 @@ from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, make_pp
 from selenv.learned.rl.candidate_policy import CandidateScoringPolicy, make_maskable_ppo
 from selenv.train import train_fim_ppo
 
-DEFAULT_CHECKPOINT = DEFAULT_CHECKPOINTS["selenv/FIMSelection-v0"]
-ENV_ID = "selenv/FIMSelection-v0"
+DEFAULT_CHECKPOINT = DEFAULT_CHECKPOINTS["selenv/FIMSelection-v1"]
+ENV_ID = "selenv/FIMSelection-v1"
 META_KEYS = {
     "env_id",
     "env_kwargs",
@@ -247,9 +247,9 @@ def test_metadata_disagreeing_with_model_is_rejected(tmp_path: Path) -> None:
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
     SB3PolicyAgent(zip_path)  # pool-size independent weights: any build size takes them
     meta["obs_layout"]["n_candidates_trained"] = 200
-    meta["env_id"] = "selenv/LandmarkSelection-v0"
+    meta["env_id"] = "selenv/LandmarkSelection-v1"
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match="trained on 'selenv/LandmarkSelection-v0'"):
+    with pytest.raises(ValueError, match="trained on 'selenv/LandmarkSelection-v1'"):
         SB3PolicyAgent(zip_path)
     del meta["obs_layout"]
     zip_path.with_suffix(".json").write_text(json.dumps(meta))

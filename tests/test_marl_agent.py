@@ -42,7 +42,7 @@ def test_shared_ppo_acts_like_predict_for_acting_agents_and_passes_otherwise(mod
 
 def test_shared_ppo_rejects_a_checkpoint_of_another_env() -> None:
     with pytest.raises(ValueError, match="trained on"):
-        SharedPPOPolicy(str(DEFAULT_CHECKPOINTS["selenv/FIMSelection-v0"]))
+        SharedPPOPolicy(str(DEFAULT_CHECKPOINTS["selenv/FIMSelection-v1"]))
 
 
 def test_shared_ppo_rejects_an_env_of_another_width() -> None:

@@ -128,9 +128,9 @@ def _calls() -> dict[str, Callable[[Any], object]]:
         "agent_objective": lambda o: agent_objective(np.eye(5), o),
         "get_objective": lambda o: get_objective(o),
         "check_objective": lambda o: check_objective(o),
-        "FIMSelection-v0": lambda o: gym.make("selenv/FIMSelection-v0", objective=o),
-        "LandmarkSelection-v0": lambda o: gym.make("selenv/LandmarkSelection-v0", objective=o),
-        "CLScheduling-v0": lambda o: gym.make("selenv/CLScheduling-v0", objective=o),
+        "FIMSelection-v1": lambda o: gym.make("selenv/FIMSelection-v1", objective=o),
+        "LandmarkSelection-v1": lambda o: gym.make("selenv/LandmarkSelection-v1", objective=o),
+        "CLScheduling-v1": lambda o: gym.make("selenv/CLScheduling-v1", objective=o),
     }
 
 
@@ -149,9 +149,9 @@ def test_unknown_objective_name_is_a_value_error_listing_the_known_ones(call, ba
 
 @pytest.mark.parametrize("call", list(CALLS))
 def test_non_string_objective_is_a_type_error(call) -> None:
-    # CLScheduling-v0 documents objective=None as "the preset's value"
+    # CLScheduling-v1 documents objective=None as "the preset's value"
     bads = (3, 2.0, get_objective("trace"))
-    for bad in bads if call == "CLScheduling-v0" else (None, *bads):
+    for bad in bads if call == "CLScheduling-v1" else (None, *bads):
         with pytest.raises(TypeError, match="objective"):
             CALLS[call](bad)
 
@@ -243,7 +243,7 @@ def test_user_objective_drives_every_solver(user_objective) -> None:
 
 
 def test_user_objective_in_the_envs(user_objective) -> None:
-    env = gym.make("selenv/FIMSelection-v0", objective=USER, n_candidates=20, budget=3)
+    env = gym.make("selenv/FIMSelection-v1", objective=USER, n_candidates=20, budget=3)
     obs, info = env.reset(seed=3)
     base = env.unwrapped
     assert base.interest is not None  # not unit-invariant: scored on the target's (x, y)
@@ -257,11 +257,11 @@ def test_user_objective_in_the_envs(user_objective) -> None:
     want = objective_value(problem.Q0, problem.G, picked, USER, base.interest)
     np.testing.assert_allclose([info["objective"], total], [want, want], rtol=1e-9)
     assert info["objective_name"] == USER
-    lm = gym.make("selenv/LandmarkSelection-v0", objective=USER, n_landmarks=8, horizon=3)
+    lm = gym.make("selenv/LandmarkSelection-v1", objective=USER, n_landmarks=8, horizon=3)
     lm.reset(seed=0)
     _, _, _, _, info = lm.step(0)
     assert lm.unwrapped.interest == (0, 1, 2)
-    cl = gym.make("selenv/CLScheduling-v0", objective=USER, horizon=3)
+    cl = gym.make("selenv/CLScheduling-v1", objective=USER, horizon=3)
     _, info = cl.reset(seed=0)
     P = cl.unwrapped.sim.P
     want = sum(_cost(USER, P[i][:2, :2]) for i in range(P.shape[0]))

@@ -24,8 +24,8 @@ from selenv.core.objectives import (
     objective_value,
 )
 
-FIM_ID = "selenv/FIMSelection-v0"
-LM_ID = "selenv/LandmarkSelection-v0"
+FIM_ID = "selenv/FIMSelection-v1"
+LM_ID = "selenv/LandmarkSelection-v1"
 CASES = [("trace", None), ("trace", [0, 2]), ("max_eig", None), ("max_eig", [1, 3, 4])]
 
 

@@ -179,10 +179,10 @@ def test_session_reuses_a_running_instance(ray_executor):
 # -- bench: identical results on every executor ---------------------------------------------
 
 CASES = [
-    ("selenv/FIMSelection-v0", {"n_candidates": 16, "budget": 4}, None),
-    ("selenv/LandmarkSelection-v0", {"n_landmarks": 7, "horizon": 4}, None),
-    ("selenv/ReceiverClustering-v0", {"horizon": 6}, "ga,greedy,fixed_random,ppo"),
-    ("selenv/CLScheduling-v0", {"horizon": 6}, "greedy,random,round_robin,rollout"),
+    ("selenv/FIMSelection-v1", {"n_candidates": 16, "budget": 4}, None),
+    ("selenv/LandmarkSelection-v1", {"n_landmarks": 7, "horizon": 4}, None),
+    ("selenv/ReceiverClustering-v1", {"horizon": 6}, "ga,greedy,fixed_random,ppo"),
+    ("selenv/CLScheduling-v1", {"horizon": 6}, "greedy,random,round_robin,rollout"),
     ("selenv.multiagent.fim_selection_v0", {"n_candidates": 10, "budgets": 3}, None),
     ("selenv.multiagent.receiver_clustering_v0", {"horizon": 6}, None),
 ]
@@ -217,7 +217,7 @@ def test_bench_cli_json_records_executor(tmp_path, ray_executor):
     out = tmp_path / "b.json"
     argv = [
         "bench",
-        "selenv/FIMSelection-v0",
+        "selenv/FIMSelection-v1",
         "--agents",
         "greedy,random",
         "--episodes",
@@ -257,7 +257,7 @@ def test_bench_cli_bad_executor_options(tmp_path, capsys, extra, needle):
     out = tmp_path / "x.json"
     argv = [
         "bench",
-        "selenv/FIMSelection-v0",
+        "selenv/FIMSelection-v1",
         "--agents",
         "greedy",
         "--episodes",
@@ -278,7 +278,7 @@ def test_bench_cli_ray_missing(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
     argv = [
         "bench",
-        "selenv/FIMSelection-v0",
+        "selenv/FIMSelection-v1",
         "--agents",
         "greedy",
         "--episodes",

@@ -114,7 +114,7 @@ def test_ellipse_label_flags_off_scale():
 # -- one frame per env ----------------------------------------------------------------------------
 @pytest.mark.parametrize("preset", ["example1", "example2", "example3", "example2_moving"])
 def test_fim_selection_frames(renderer, preset):
-    env = gym.make("selenv/FIMSelection-v0", preset=preset).unwrapped
+    env = gym.make("selenv/FIMSelection-v1", preset=preset).unwrapped
     _, info = env.reset(seed=0)
 
     def frame() -> np.ndarray:
@@ -132,7 +132,7 @@ def test_fim_selection_frames(renderer, preset):
 
 
 def test_landmark_selection_frames(renderer):
-    env = gym.make("selenv/LandmarkSelection-v0").unwrapped
+    env = gym.make("selenv/LandmarkSelection-v1").unwrapped
     _, info = env.reset(seed=0)
 
     def frame() -> np.ndarray:
@@ -156,7 +156,7 @@ def test_landmark_selection_frames(renderer):
 @pytest.mark.parametrize("model", ["ins", "unicycle"])
 def test_cl_scheduling_frames(renderer, model):
     # budget 2: after one pick the filter step is still open, so the link is drawn
-    env = gym.make("selenv/CLScheduling-v0", model=model, budget=2).unwrapped
+    env = gym.make("selenv/CLScheduling-v1", model=model, budget=2).unwrapped
     _, info = env.reset(seed=0)
 
     def frame() -> np.ndarray:
@@ -175,7 +175,7 @@ def test_cl_scheduling_frames(renderer, model):
 
 
 def test_receiver_clustering_frames(renderer):
-    env = gym.make("selenv/ReceiverClustering-v0").unwrapped
+    env = gym.make("selenv/ReceiverClustering-v1").unwrapped
     _, info = env.reset(seed=0)
 
     def frame() -> np.ndarray:

@@ -15,7 +15,7 @@ import selenv  # noqa: F401
 from selenv.agents import make
 from selenv.scenarios.landmarks import LandmarkEKF
 
-ENV_ID = "selenv/LandmarkSelection-v0"
+ENV_ID = "selenv/LandmarkSelection-v1"
 
 
 @pytest.fixture(scope="module")

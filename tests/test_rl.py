@@ -34,10 +34,10 @@ from selenv.train import (
     train_landmark_ppo,
 )
 
-CL_ID = "selenv/CLScheduling-v0"
-LM_ID = "selenv/LandmarkSelection-v0"
-CLU_ID = "selenv/ReceiverClustering-v0"
-FIM_ID = "selenv/FIMSelection-v0"
+CL_ID = "selenv/CLScheduling-v1"
+LM_ID = "selenv/LandmarkSelection-v1"
+CLU_ID = "selenv/ReceiverClustering-v1"
+FIM_ID = "selenv/FIMSelection-v1"
 TINY = ["--n-envs=2", "--n-steps=64", "--batch-size=64", "--n-epochs=1", "--no-progress"]
 
 
@@ -202,7 +202,7 @@ def test_cl_training_script_with_subprocess_envs(tmp_path: Path) -> None:
     for n_agents in (3, 4):  # the policy does not depend on the number of pairs
         env = gym.make(CL_ID, n_agents=n_agents, budget=1, horizon=4)
         assert np.isfinite(_play(agent, env, seed=3)[1])
-    with pytest.raises(ValueError, match=r"cl\.zip was trained on 'selenv/CLScheduling-v0'"):
+    with pytest.raises(ValueError, match=r"cl\.zip was trained on 'selenv/CLScheduling-v1'"):
         SB3PolicyAgent(out, env_id=LM_ID)
 
 

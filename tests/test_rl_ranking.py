@@ -22,8 +22,8 @@ from selenv.learned.rl.ranking import (
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.train import train_clustering_dagger, train_clustering_ppo
 
-CLU_ID = "selenv/ReceiverClustering-v0"
-FIM_ID = "selenv/FIMSelection-v0"
+CLU_ID = "selenv/ReceiverClustering-v1"
+FIM_ID = "selenv/FIMSelection-v1"
 
 
 def _play_final(agent: SB3PolicyAgent) -> float:
@@ -151,7 +151,7 @@ def test_clustering_script_ranks_then_verifies(tmp_path: Path) -> None:
         "ppo_top2",
     }
     assert np.isfinite(_play_final(SB3PolicyAgent(tmp_path / "dagger.zip", env_id=CLU_ID)))
-    with pytest.raises(ValueError, match="was trained on 'selenv/FIMSelection-v0'"):
+    with pytest.raises(ValueError, match="was trained on 'selenv/FIMSelection-v1'"):
         train_clustering_dagger.main(
             [
                 f"--checkpoint={DEFAULT_CHECKPOINTS[FIM_ID]}",
@@ -160,7 +160,7 @@ def test_clustering_script_ranks_then_verifies(tmp_path: Path) -> None:
             ]
         )
     with pytest.raises(ValueError, match="no exact verification"):
-        fim = SB3PolicyAgent(env_id="selenv/FIMSelection-v0", verify_top_k=3)
-        fim.reset(gym.make("selenv/FIMSelection-v0"), seed=0)
+        fim = SB3PolicyAgent(env_id="selenv/FIMSelection-v1", verify_top_k=3)
+        fim.reset(gym.make("selenv/FIMSelection-v1"), seed=0)
     with pytest.raises(ValueError, match="verify_top_k must be an int >= 0"):
         SB3PolicyAgent(out, env_id=CLU_ID, verify_top_k=-1)

@@ -14,8 +14,8 @@ import selenv  # noqa: F401
 from selenv.agents import agents_for, make
 from selenv.agents.rollout_models import CLForecast, LandmarkForecast
 
-CL = "selenv/CLScheduling-v0"
-LM = "selenv/LandmarkSelection-v0"
+CL = "selenv/CLScheduling-v1"
+LM = "selenv/LandmarkSelection-v1"
 # small instances: 3 agents (6 pairs), 12 landmarks; explicit keywords, whatever the presets
 CL_KW: dict[str, Any] = {"n_agents": 3, "budget": 2, "horizon": 25, "objective": "logdet"}
 LM_KW: dict[str, Any] = {"n_landmarks": 12, "k": 2, "horizon": 25}

@@ -16,7 +16,7 @@ import torch as th
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, load_metadata
 from selenv.learned.rl.safe_load import load_policy, read_weights
 
-FIM_ID = "selenv/FIMSelection-v0"
+FIM_ID = "selenv/FIMSelection-v1"
 SHIPPED = DEFAULT_CHECKPOINTS[FIM_ID]
 
 
@@ -150,8 +150,8 @@ def test_v01_class_names_still_load(tmp_path: Path) -> None:
         meta["architecture"][key] = meta["architecture"][key].removeprefix("selenv.")
         assert meta["architecture"][key].startswith("learned.rl.")
     dst.with_suffix(".json").write_text(json.dumps(meta))
-    make("ppo:" + str(dst), "selenv/FIMSelection-v0")  # loads
+    make("ppo:" + str(dst), "selenv/FIMSelection-v1")  # loads
     meta["architecture"]["policy"] = "elsewhere.Policy"
     dst.with_suffix(".json").write_text(json.dumps(meta))
     with pytest.raises(ValueError, match=r"elsewhere\.Policy"):
-        make("ppo:" + str(dst), "selenv/FIMSelection-v0")
+        make("ppo:" + str(dst), "selenv/FIMSelection-v1")

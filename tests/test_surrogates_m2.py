@@ -35,7 +35,7 @@ from selenv.scenarios.cooperative import (
 )
 from selenv.train import train_surrogate
 
-ENV_ID = "selenv/CLScheduling-v0"
+ENV_ID = "selenv/CLScheduling-v1"
 DEG = np.pi / 180.0
 #: the bearing noise the shipped m = 2 checkpoints are trained for
 TRAINED_DEG = 2.0

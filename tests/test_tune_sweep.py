@@ -19,7 +19,7 @@ from selenv.learned.rl.agent import SB3PolicyAgent
 from selenv.learned.rl.training import evaluate
 from selenv.train import tune_sweep
 
-FIM_ID = "selenv/FIMSelection-v0"
+FIM_ID = "selenv/FIMSelection-v1"
 ENV_KWARGS = {"n_candidates": 8, "budget": 3}
 TINY = [
     "--script=fim_ppo",

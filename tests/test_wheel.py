@@ -79,8 +79,8 @@ for name in ("learned", "train"):
     else:
         raise AssertionError(f"generic top-level package {name!r} is importable")
 from selenv.agents import make
-env = gym.make("selenv/FIMSelection-v0", n_candidates=20, budget=3)
-agent = make("ppo", "selenv/FIMSelection-v0")
+env = gym.make("selenv/FIMSelection-v1", n_candidates=20, budget=3)
+agent = make("ppo", "selenv/FIMSelection-v1")
 obs, info = env.reset(seed=0); agent.reset(env, seed=0)
 done = False
 while not done:
@@ -89,7 +89,7 @@ from selenv.fusion import ldmv_update
 P = np.diag([1.0, 2.0, 3.0, 1.0, 1.0, 1.0, 0.1, 0.1, 0.1]); H = np.zeros((1, 9)); H[0, 0] = 1.0
 res = ldmv_update(P, 2 * P, H, -H, np.array([[0.01]]))
 assert np.all(np.isfinite(res.P)) and np.all(np.linalg.eigvalsh(res.P) > 0)
-env = gym.make("selenv/CLScheduling-v0", fusion="ldmv"); obs, info = env.reset(seed=1)
+env = gym.make("selenv/CLScheduling-v1", fusion="ldmv"); obs, info = env.reset(seed=1)
 env.step(int(np.flatnonzero(info["action_mask"])[0]))
 print("OK", info["objective"])
 """.replace("VENV", str(venv))
@@ -100,7 +100,7 @@ print("OK", info["objective"])
         [
             selenv_cmd,
             "bench",
-            "selenv/FIMSelection-v0",
+            "selenv/FIMSelection-v1",
             "--agents",
             "greedy,ppo",
             "--episodes",

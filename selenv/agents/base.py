@@ -2,7 +2,7 @@
 
 An agent acts in a Gymnasium env exactly like a policy would::
 
-    agent = selenv.agents.make("greedy", "selenv/FIMSelection-v0")
+    agent = selenv.agents.make("greedy", "selenv/FIMSelection-v1")
     obs, info = env.reset(seed=0)
     agent.reset(env, seed=0)
     while not done:
@@ -24,6 +24,8 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
+
+from selenv.envs.versions import version_ids
 
 __all__ = [
     "AGENTS",
@@ -90,6 +92,9 @@ class AgentSpec:
     factory: Callable[..., Agent] | str
     description: str = ""
     kwargs: dict[str, Any] = field(default_factory=dict)
+    #: apply to every version of each env id's family (``-v0``, ``-v1``, ...); ``False`` for
+    #: agents tied to one version, e.g. a policy trained on it
+    all_versions: bool = True
 
     def build(self, **kwargs: Any) -> Agent:
         """Instantiate the agent."""
@@ -107,8 +112,15 @@ _ORDER: dict[str, list[str]] = {}
 
 
 def register_agent(spec: AgentSpec) -> None:
-    """Register ``spec`` under its name for each of its env ids (re-registering replaces)."""
-    for env_id in spec.env_ids:
+    """Register ``spec`` under its name for each of its env ids (re-registering replaces).
+
+    With ``spec.all_versions`` an id stands for every registered version of its family
+    (:func:`~selenv.envs.versions.version_ids`).
+    """
+    ids = spec.env_ids
+    if spec.all_versions:
+        ids = tuple(dict.fromkeys(v for env_id in ids for v in version_ids(env_id)))
+    for env_id in ids:
         AGENTS.setdefault(spec.name, {})[env_id] = spec
         names = _ORDER.setdefault(env_id, [])
         if spec.name not in names:

@@ -1,4 +1,4 @@
-"""Agents for ``selenv/CLScheduling-v0`` (baselines to test against).
+"""Agents for ``selenv/CLScheduling-v1`` (baselines to test against).
 
 | name | what |
 |---|---|
@@ -20,7 +20,7 @@ from selenv.envs.cl_scheduling import CLSchedulingEnv
 
 __all__ = ["CL_ENV_ID", "GreedySchedule", "RoundRobinSchedule"]
 
-CL_ENV_ID = "selenv/CLScheduling-v0"
+CL_ENV_ID = "selenv/CLScheduling-v1"
 
 
 def _env(env: gym.Env[Any, Any], name: str) -> CLSchedulingEnv:
@@ -105,5 +105,6 @@ register_agent(
         "selenv.learned.rl.agent:make_ppo_agent",
         "MaskablePPO pair-scoring policy (checkpoints/cl_scheduling_ppo.zip)",
         kwargs={"env_id": CL_ENV_ID},
+        all_versions=False,  # the shipped checkpoint was trained on this version
     )
 )

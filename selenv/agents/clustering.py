@@ -1,4 +1,4 @@
-"""Agents for ``selenv/ReceiverClustering-v0`` (Greiff et al. 2022 and baselines to test against).
+"""Agents for ``selenv/ReceiverClustering-v1`` (Greiff et al. 2022 and baselines to test against).
 
 All act on the env's oracle view ``env.unwrapped.bank`` (a
 :class:`~selenv.scenarios.clustering_filters.ClusterFilterBank`: current clustering, time,
@@ -47,11 +47,11 @@ __all__ = [
     "clustering_env",
 ]
 
-CLUSTERING_ENV_ID = "selenv/ReceiverClustering-v0"
+CLUSTERING_ENV_ID = "selenv/ReceiverClustering-v1"
 
 
 def clustering_env(env: gym.Env[Any, Any], name: str, modes: tuple[str, ...]) -> Any:
-    """``env.unwrapped`` if it is ``ReceiverClustering-v0`` in one of ``modes``, else ValueError."""
+    """``env.unwrapped`` if it is ``ReceiverClustering-v1`` in one of ``modes``, else ValueError."""
     base = env.unwrapped
     if not isinstance(base, ReceiverClusteringEnv):
         raise ValueError(f"agent {name!r} needs {CLUSTERING_ENV_ID}, got {type(base).__name__}")
@@ -322,6 +322,7 @@ register_agent(
         "selenv.learned.rl.agent:make_ppo_agent",
         "edit-ranking policy, its top edit (checkpoints/receiver_clustering_ppo.zip)",
         kwargs={"env_id": CLUSTERING_ENV_ID},
+        all_versions=False,  # the shipped checkpoint was trained on this version
     )
 )
 for _k in (4, 8):
@@ -332,5 +333,6 @@ for _k in (4, 8):
             "selenv.learned.rl.agent:make_ppo_agent",
             f"edit-ranking policy's {_k} best edits costed, best improving one played",
             kwargs={"env_id": CLUSTERING_ENV_ID, "verify_top_k": _k},
+            all_versions=False,
         )
     )

@@ -1,4 +1,4 @@
-"""``rollout``: a non-myopic reference for ``selenv/ReceiverClustering-v0`` (Bertsekas rollout).
+"""``rollout``: a non-myopic reference for ``selenv/ReceiverClustering-v1`` (Bertsekas rollout).
 
 At each decision (every ``every`` steps, like ``greedy``) the agent costs every allowed local
 edit of the current clustering by Algorithm 1 (:func:`~selenv.envs.receiver_clustering.

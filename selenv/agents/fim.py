@@ -1,4 +1,4 @@
-"""Agents for ``selenv/FIMSelection-v0``: the classic selection heuristics as env agents.
+"""Agents for ``selenv/FIMSelection-v1``: the classic selection heuristics as env agents.
 
 Each agent plans on the env's oracle view (the current information and the whitened pool) with
 the plain solvers of :mod:`selenv.agents.fim_solvers`, then plays the plan one pick per step.
@@ -6,7 +6,7 @@ Picks already made in the episode become part of the prior (``Q0 <- FIM(selected
 agent can also take over in the middle of an episode.
 
 The solvers optimise the env's objective (:func:`env_objective`: ``env.solver_objective`` and
-``env.interest``, e.g. ``FIMSelection-v0(objective="trace")`` scores the target position), so
+``env.interest``, e.g. ``FIMSelection-v1(objective="trace")`` scores the target position), so
 ``selenv bench ... --env-kwargs '{"objective": "trace"}'`` runs greedy, swap and brute force
 on the trace; ``lazy_greedy`` refuses a non-log-det objective (it needs submodularity).
 """
@@ -36,7 +36,7 @@ __all__ = [
     "env_objective",
 ]
 
-FIM_ENV_ID = "selenv/FIMSelection-v0"
+FIM_ENV_ID = "selenv/FIMSelection-v1"
 
 
 def env_objective(env: Any) -> dict[str, Any]:
@@ -144,6 +144,7 @@ register_agent(
         "selenv.learned.rl.agent:make_ppo_agent",
         "MaskablePPO candidate-scoring policy (checkpoints/fim_selection_ppo.zip)",
         kwargs={"env_id": FIM_ENV_ID},
+        all_versions=False,  # the shipped checkpoint was trained on this version
     )
 )
 

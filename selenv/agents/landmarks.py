@@ -1,6 +1,6 @@
-"""Agents for ``selenv/LandmarkSelection-v0`` (Soubaras & Chahbazian 2023 and baselines).
+"""Agents for ``selenv/LandmarkSelection-v1`` (Soubaras & Chahbazian 2023 and baselines).
 
-The env exposes the same oracle view as ``FIMSelection-v0`` (``state``: the log-det gain state
+The env exposes the same oracle view as ``FIMSelection-v1`` (``state``: the log-det gain state
 of the current filter step with prior information ``P_pred^-1``; ``budget_left``: picks left in
 the step), so the log-det subset solvers apply unchanged: each agent plans the ``K`` landmarks
 of a filter step at its first pick and plays them.
@@ -41,7 +41,7 @@ from selenv.agents.vns import DEFAULT_M, vns_whitened
 
 __all__ = ["LANDMARK_ENV_ID", "AllLandmarksAgent", "VNSAgent"]
 
-LANDMARK_ENV_ID = "selenv/LandmarkSelection-v0"
+LANDMARK_ENV_ID = "selenv/LandmarkSelection-v1"
 
 
 class VNSAgent(PlanAgent):
@@ -149,5 +149,6 @@ register_agent(
         "selenv.learned.rl.agent:make_ppo_agent",
         "MaskablePPO candidate-scoring policy (checkpoints/landmark_selection_ppo.zip)",
         kwargs={"env_id": LANDMARK_ENV_ID},
+        all_versions=False,  # the shipped checkpoint was trained on this version
     )
 )

@@ -12,10 +12,10 @@ decision-maker knows: the current ``x_hat`` and ``P``, the models, the noise sta
 measurement schedule, with the last measured input held. It never sees the true state, the
 future inputs or any noise realisation, and never changes the env (tested).
 
-* ``selenv/CLScheduling-v0`` (:class:`CLRolloutAgent`): a decision is one pair or stop;
+* ``selenv/CLScheduling-v1`` (:class:`CLRolloutAgent`): a decision is one pair or stop;
   candidates are stop and the ``top_k`` pairs by ``preview_gain``; base ``greedy``; score: the
   drop of the objective (``log det`` or trace) over the trajectory, propagations included.
-* ``selenv/LandmarkSelection-v0`` (:class:`LandmarkRolloutAgent`): a decision is the K-subset
+* ``selenv/LandmarkSelection-v1`` (:class:`LandmarkRolloutAgent`): a decision is the K-subset
   of a filter step; candidates are the ``top_k`` K-subsets by one-step gain (and the base's);
   base ``brute_force``; score: minus the cost eq. (11) summed over the filter updates.
 
@@ -43,8 +43,8 @@ from selenv.envs.landmark_selection import LandmarkSelectionEnv
 
 __all__ = ["CLRolloutAgent", "LandmarkRolloutAgent"]
 
-CL_ENV_ID = "selenv/CLScheduling-v0"
-LANDMARK_ENV_ID = "selenv/LandmarkSelection-v0"
+CL_ENV_ID = "selenv/CLScheduling-v1"
+LANDMARK_ENV_ID = "selenv/LandmarkSelection-v1"
 CL_BASES = ("greedy", "all")
 LANDMARK_BASES = ("brute_force", "greedy")
 
@@ -71,7 +71,7 @@ def _best(scores: list[float]) -> int:
 
 
 class CLRolloutAgent(Agent):
-    """Rollout of the greedy schedule in ``CLScheduling-v0`` (one decision per env step).
+    """Rollout of the greedy schedule in ``CLScheduling-v1`` (one decision per env step).
 
     Candidates: stop and the ``top_k`` open pairs by previewed gain. For each, a forecast plays
     the candidate, finishes the current filter step with the base policy (up to the budget;
@@ -204,7 +204,7 @@ def _subset_gains(
 
 
 class LandmarkRolloutAgent(PlanAgent):
-    """Rollout of a myopic selector in ``LandmarkSelection-v0``, one plan per filter step.
+    """Rollout of a myopic selector in ``LandmarkSelection-v1``, one plan per filter step.
 
     At the first pick of a filter step, candidates are the ``top_k`` K-subsets of the open
     landmarks by one-step gain in the env's objective (``log det(I + W_S)``, or the decrease of

@@ -147,7 +147,7 @@ def write_json(
 def plot_filename(env_id: str) -> str:
     """PNG file name of an env's plot: the id without its namespace or package.
 
-    ``selenv/FIMSelection-v0`` -> ``FIMSelection-v0.png``,
+    ``selenv/FIMSelection-v1`` -> ``FIMSelection-v1.png``,
     ``selenv.multiagent.fim_selection_v0`` -> ``fim_selection_v0.png``.
     """
     return env_id.rsplit("/", 1)[-1].rsplit(".", 1)[-1] + ".png"

@@ -9,7 +9,7 @@ module of :mod:`selenv.multiagent`) and derives the comparison of :mod:`selenv.b
 * the **normalised score** ``(R - R_random) / (R_best - R_random)`` of the mean return
   (:meth:`EnvBenchResult.normalized_score`), where ``R_random`` is the mean return of the agent
   ``random`` (or ``fixed_random`` where that is the random baseline, as in
-  ``ReceiverClustering-v0``) if it ran, and ``R_best`` the best mean return among the agents
+  ``ReceiverClustering-v1``) if it ran, and ``R_best`` the best mean return among the agents
   that ran. A reference agent (``rollout``, ``brute_force``, ``centralized_greedy``,
   ``centralized_swap``) is not treated specially: if it has the best mean return it is the
   best agent. ``None`` when no random agent ran.
@@ -99,7 +99,7 @@ class AgentResult:
             PettingZoo env).
         cost_evaluations: objective evaluations the agent's searches made, summed over the
             episodes, for envs that count them (``info["cost_evaluations"]`` after the last
-            step, e.g. Algorithm 1 calls of ``ReceiverClustering-v0``); ``None`` otherwise.
+            step, e.g. Algorithm 1 calls of ``ReceiverClustering-v1``); ``None`` otherwise.
         skipped: why the agent was not run (``None`` when it ran).
     """
 

@@ -1,4 +1,4 @@
-"""``selenv/CLScheduling-v0``: which relative measurements to process (cooperative localization)."""
+"""``selenv/CLScheduling-v1``: which relative measurements to process (cooperative localization)."""
 
 from __future__ import annotations
 
@@ -163,7 +163,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     its 2-sigma ellipse, the beacons, and the links processed in the current step.
 
     ## Arguments
-    ``gymnasium.make("selenv/CLScheduling-v0", preset="benchmark", n_agents=None,
+    ``gymnasium.make("selenv/CLScheduling-v1", preset="benchmark", n_agents=None,
     budget=None, fusion="dmv", horizon=None, objective=None, topology=None, model="ins",
     invalid_action="noop", invalid_action_penalty=0.0, render_mode=None)``; ``None`` takes the
     preset's value (benchmark: 6 agents, budget 1, horizon 60, ``"trace"``, ``"all"``).
@@ -179,9 +179,12 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     out of range a ``ValueError`` naming it and the range.
 
     ## Version History
-    * v0: initial version (``invalid_action`` modes and rendering added without changing
-      valid trajectories; the default configuration became ``preset="benchmark"``, the former
-      defaults are ``preset="dense"``).
+    * v1: the default configuration is ``preset="benchmark"`` (6 agents, budget 1, horizon
+      60, trace); ``invalid_action`` modes, rendering, presets, ``topology`` and every
+      registered ``objective``.
+    * v0: release 0.1 (4 agents, budget 2, horizon 200, log det): ``CLScheduling-v0`` is this
+      class with ``preset="dense"`` by default, replaying 0.1's episodes (tested against
+      recordings); deprecated in favour of v1.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
@@ -205,7 +208,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         check_known_keywords(
             config,
             fields - {"n_agents", "horizon"},
-            "CLScheduling-v0",
+            "CLScheduling-v1",
             named_parameters(type(self)),
         )
         self.render_mode = check_render_mode(render_mode, self.metadata)
@@ -340,7 +343,7 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the team (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         sim, done = self.sim, sorted(self._done_pairs)
-        title = f"CLScheduling-v0 ({self.fusion})"
+        title = f"CLScheduling-v1 ({self.fusion})"
         return self._renderer.render(
             lambda fig: draw_cl_scheduling(fig, sim, self.pairs, done, title)
         )

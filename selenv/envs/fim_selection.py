@@ -1,4 +1,4 @@
-"""``selenv/FIMSelection-v0``: heterogeneous measurement selection by Fisher information."""
+"""``selenv/FIMSelection-v1``: heterogeneous measurement selection by Fisher information."""
 
 from __future__ import annotations
 
@@ -161,7 +161,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     position under the current information.
 
     ## Arguments
-    ``gymnasium.make("selenv/FIMSelection-v0", preset="example2_moving", n_candidates=100,
+    ``gymnasium.make("selenv/FIMSelection-v1", preset="example2_moving", n_candidates=100,
     budget=10, sensors=None, n_agents=None, camera_sigma_px=None, toa_sigma_m=None,
     doppler_sigma_mps=None, randomize=True, invalid_action="noop", invalid_action_penalty=0.0,
     render_mode=None)``; ``None`` keeps the preset's value. Presets: ``example1`` (one
@@ -180,8 +180,13 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     (see Rewards; an unknown name is a ``ValueError`` listing the known ones).
 
     ## Version History
-    * v0: initial version (``invalid_action`` modes, rendering and ``objective`` added without
-      changing valid trajectories of the default).
+    * v1: ``preset="example1" / "example2" / "example3"`` are Kirchner et al.'s stationary
+      examples (the moving-target ones are ``example*_moving``; the default,
+      ``example2_moving``, is v0's default scenario); ``invalid_action`` modes, rendering and
+      every registered ``objective``.
+    * v0: release 0.1: ``preset="example2"`` (the default) and ``"example3"`` meant the
+      moving-target scenarios; ``FIMSelection-v0`` maps them so (tested against recordings of
+      0.1's episodes); deprecated in favour of v1.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 4}  # noqa: RUF012
@@ -301,7 +306,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the scene (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         state, problem = self.state, self.problem
-        title = "FIMSelection-v0"
+        title = "FIMSelection-v1"
         return self._renderer.render(
             lambda fig: draw_fim_selection(fig, problem, state.selected, state.information, title)
         )

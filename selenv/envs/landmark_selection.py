@@ -1,4 +1,4 @@
-"""``selenv/LandmarkSelection-v0``: pick K of N angle-of-arrival landmarks for each EKF update."""
+"""``selenv/LandmarkSelection-v1``: pick K of N angle-of-arrival landmarks for each EKF update."""
 
 from __future__ import annotations
 
@@ -112,7 +112,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     episode. A non-integer or out-of-range action is a ``TypeError`` / ``ValueError``.
 
     ## Observation Space
-    The ``FIMSelection-v0`` layout over the landmarks of the current filter step:
+    The ``FIMSelection-v1`` layout over the landmarks of the current filter step:
 
     | key | shape | meaning |
     |---|---|---|
@@ -150,7 +150,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     landmarks with the ones picked now and in the last update, the 2-sigma position ellipse.
 
     ## Arguments
-    ``gymnasium.make("selenv/LandmarkSelection-v0", n_landmarks=30, k=2, horizon=300,
+    ``gymnasium.make("selenv/LandmarkSelection-v1", n_landmarks=30, k=2, horizon=300,
     objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
     render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout; ``objective`` is
     ``"logdet"``, ``"det"``, ``"trace"``, ``"max_eig"`` or any objective registered with
@@ -162,9 +162,11 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     keyword raises ``TypeError``; a bad value a ``TypeError`` / ``ValueError`` naming it.
 
     ## Version History
-    * v0: initial version (``invalid_action`` modes and rendering added without changing
-      valid trajectories); ``objective="trace"`` and ``"max_eig"`` added later, the default
+    * v1: the current id; valid trajectories as v0's. ``invalid_action`` modes, rendering and
+      every registered ``objective`` (``"trace"``, ``"max_eig"``, ...) added, the default
       unchanged.
+    * v0: release 0.1 (the same episodes for valid actions, tested against recordings);
+      deprecated in favour of v1.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
@@ -186,7 +188,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         check_known_keywords(
             config,
             fields - {"n_landmarks", "horizon", "landmarks"},
-            "LandmarkSelection-v0",
+            "LandmarkSelection-v1",
             named_parameters(type(self)),
         )
         self.render_mode = check_render_mode(render_mode, self.metadata)
@@ -315,7 +317,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the flight (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         ekf, problem = self.ekf, self.problem
-        title = "LandmarkSelection-v0"
+        title = "LandmarkSelection-v1"
         picks, last = tuple(self.picks), self.last_selection
         return self._renderer.render(
             lambda fig: draw_landmark_selection(

@@ -1,4 +1,4 @@
-"""``selenv/ReceiverClustering-v0``: dynamic clustering of GNSS receivers with a shared bias."""
+"""``selenv/ReceiverClustering-v1``: dynamic clustering of GNSS receivers with a shared bias."""
 
 from __future__ import annotations
 
@@ -398,7 +398,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
     17-19), then (2) runs one prediction and update of every cluster filter, ``k -> k + 1``.
 
     ## Arguments
-    ``gymnasium.make("selenv/ReceiverClustering-v0", n_agents=30, n_max_states=14, sigma=None,
+    ``gymnasium.make("selenv/ReceiverClustering-v1", n_agents=30, n_max_states=14, sigma=None,
     noise_correlation=0.9, dt=0.1, tau=20, weights=(1, 1, 1), horizon=500,
     prior_std=(1, 1, 1), action_mode="assignment", initial="random", invalid_action="noop",
     invalid_action_penalty=0.0, render_mode=None, preset="multipath", p_enter=None,
@@ -414,9 +414,11 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
     multipath model and are a ``ValueError`` with ``preset="paper"``.
 
     ## Version History
-    * v0: initial version (``invalid_action`` modes and rendering added without changing
-      valid trajectories). Time-varying noise (``preset="multipath"``) became the default;
-      ``preset="paper"`` keeps the earlier trajectories bit for bit.
+    * v1: time-varying noise (``preset="multipath"``) is the default; ``invalid_action`` modes
+      and rendering.
+    * v0: release 0.1: fixed receiver noise; ``ReceiverClustering-v0`` is this class with
+      ``preset="paper"`` by default, replaying 0.1's episodes (tested against recordings);
+      deprecated in favour of v1.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
@@ -541,7 +543,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
 
     def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
         """A frame of the clustering (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
-        return render_clustering(self._renderer, self.bank, self.max_size, "ReceiverClustering-v0")
+        return render_clustering(self._renderer, self.bank, self.max_size, "ReceiverClustering-v1")
 
     def close(self) -> None:
         """Close the render window, if any."""

@@ -14,7 +14,7 @@ own pool; all picks go to the fusion centre, whose information is
 | Agents | ``agent_0 ... agent_{n-1}`` (``n`` from the preset, 2 for ``example3*``), all live |
 | | from ``reset`` until the episode ends |
 | Action | ``Discrete(N_i)``: index into the agent's own pool (masked once selected) |
-| Observation | ``Dict`` as in ``selenv/FIMSelection-v0`` over the agent's own pool, plus |
+| Observation | ``Dict`` as in ``selenv/FIMSelection-v1`` over the agent's own pool, plus |
 | | ``on_turn (1,)``: 1 if the agent's pick counts this step |
 | Reward | shared: the fusion centre's log-det gain over the step (nats) |
 | State | ``Box``: centre gains and selection of every candidate, budgets left, turns |

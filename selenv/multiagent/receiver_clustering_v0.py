@@ -5,7 +5,7 @@ clusters, each running one Kalman filter on its members, with at most ``N_max`` 
 cluster, i.e. ``max_size = (N_max - 2) // 4`` receivers (Problem 1). Here every receiver is an
 agent that chooses its own cluster each step; the filters, the cost eq. (10) and the
 re-initialisation of new clusters (Algorithm 2, lines 17-19) are those of
-``selenv/ReceiverClustering-v0`` (:class:`~selenv.scenarios.clustering_filters.ClusterFilterBank`).
+``selenv/ReceiverClustering-v1`` (:class:`~selenv.scenarios.clustering_filters.ClusterFilterBank`).
 
 | | |
 |---|---|
@@ -14,7 +14,7 @@ re-initialisation of new clusters (Algorithm 2, lines 17-19) are those of
 | | wrappers), ``raw_env(...)`` (unwrapped AEC), as in PettingZoo's own parallel modules |
 | Agents | ``receiver_0 ... receiver_{n-1}`` (``n = n_agents``), all live until the horizon |
 | Action | ``Discrete(n)``: a cluster label of the current canonical labelling (masked) |
-| Observation | ``Dict``: as in ``selenv/ReceiverClustering-v0`` + ``self``, ``action_mask`` |
+| Observation | ``Dict``: as in ``selenv/ReceiverClustering-v1`` + ``self``, ``action_mask`` |
 | Reward | shared: ``-J`` after the filter step (eq. 10) |
 | State | ``Box(2n)``: canonical assignment and per-receiver position variance |
 
@@ -75,21 +75,21 @@ Per agent, ``assignment (n,)``, ``cluster_size (n,)``, ``sigma (n, 2)``, ``posit
 single-agent env), ``self (n,)`` the one-hot index of the agent and ``action_mask (n,)``.
 
 ## Noise model
-As ``selenv/ReceiverClustering-v0`` (its docstring has the table): ``preset="multipath"``
+As ``selenv/ReceiverClustering-v1`` (its docstring has the table): ``preset="multipath"``
 (default) switches each receiver between open sky and multipath / urban-canyon conditions (a
 two-state Markov chain: ``p_enter = 0.01``, ``p_leave = 0.05`` per step, noise std x
 ``degraded_factor = 5`` while degraded), the path drawn at reset; ``preset="paper"`` keeps
 ``sigma`` fixed. ``obs["sigma"]`` holds the current levels, never the future ones.
 
 ## Starting State and Episode End
-As ``selenv/ReceiverClustering-v0``: ``sigma ~ U(0, 1]`` unless given (then the regime path),
+As ``selenv/ReceiverClustering-v1``: ``sigma ~ U(0, 1]`` unless given (then the regime path),
 filters at the prior, a random feasible clustering (``initial="singletons"``: all singletons)
 or ``reset(options={"clustering": labels})``; other option keys are ignored. The same seed
 draws the same ``sigma``, regime path and initial clustering as the single-agent env. All
 agents terminate together after ``horizon`` filter steps and leave ``env.agents``.
 
 ## Rendering
-``render_mode="rgb_array"`` / ``"human"``: the frame of ``selenv/ReceiverClustering-v0``.
+``render_mode="rgb_array"`` / ``"human"``: the frame of ``selenv/ReceiverClustering-v1``.
 
 ## Arguments
 ``parallel_env(n_agents=30, n_max_states=14, sigma=None, noise_correlation=0.9, dt=0.1, tau=20,

@@ -177,7 +177,7 @@ _CD = ("camera", "doppler")
 #: are known (after eq. 18) and only the position (plus the sensors' nuisance parameters) is
 #: estimated. ``*_moving`` are the same pools with a moving target (velocity and curvature
 #: estimated too); ``example2_moving`` / ``example3_moving`` are the earlier ``example2`` /
-#: ``example3``, kept as the defaults of ``FIMSelection-v0`` / ``fim_selection_v0`` so that
+#: ``example3``, kept as the defaults of ``FIMSelection-v1`` / ``fim_selection_v0`` so that
 #: their v0 trajectories do not change.
 PRESETS: dict[str, FIMScenarioConfig] = {
     "example1": FIMScenarioConfig(preset="example1", sensors=("camera",), stationary=True),

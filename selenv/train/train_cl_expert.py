@@ -1,4 +1,4 @@
-"""Expert iteration on ``CLScheduling-v0``: distil the non-myopic ``rollout`` into the policy.
+"""Expert iteration on ``CLScheduling-v1``: distil the non-myopic ``rollout`` into the policy.
 
 Rounds of DAgger (:mod:`selenv.learned.rl.expert`): round 0 labels the states the ``rollout``
 reference visits, every later round the states the current policy visits; every labelled

@@ -1,4 +1,4 @@
-"""Train MaskablePPO on ``selenv/CLScheduling-v0`` (which relative measurements to fuse).
+"""Train MaskablePPO on ``selenv/CLScheduling-v1`` (which relative measurements to fuse).
 
 The env's observation is rewritten by :class:`selenv.learned.rl.views.CLView`: the directed pairs
 (and the stop action) become candidates with the pair's gain and the two agents'
@@ -29,7 +29,7 @@ from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
-ENV_ID = "selenv/CLScheduling-v0"
+ENV_ID = "selenv/CLScheduling-v1"
 SCRIPT = "selenv.train.train_cl_ppo"
 
 

@@ -1,4 +1,4 @@
-"""One DAgger round for a ranking-trained ``ReceiverClustering-v0`` policy (Ross et al. 2011).
+"""One DAgger round for a ranking-trained ``ReceiverClustering-v1`` policy (Ross et al. 2011).
 
 The ranking stage of :mod:`selenv.train.train_clustering_ppo` labels states that the greedy expert
 visits; the policy then meets states of its own. Here the policy (acting as
@@ -33,7 +33,7 @@ from selenv.learned.rl.safe_load import model_from_checkpoint
 from selenv.learned.rl.training import evaluate_checkpoint
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
-ENV_ID = "selenv/ReceiverClustering-v0"
+ENV_ID = "selenv/ReceiverClustering-v1"
 SCRIPT = "selenv.train.train_clustering_dagger"
 
 
@@ -42,7 +42,7 @@ class Config:
     """Every field is a ``--kebab-case`` option."""
 
     checkpoint: str = arg(
-        str(DEFAULT_CHECKPOINTS[ENV_ID]), "the policy to improve (a ReceiverClustering-v0 .zip)"
+        str(DEFAULT_CHECKPOINTS[ENV_ID]), "the policy to improve (a ReceiverClustering-v1 .zip)"
     )
     out: str = arg(
         "runs/train_clustering_dagger/policy.zip",

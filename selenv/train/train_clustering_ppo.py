@@ -1,4 +1,4 @@
-"""Train an edit-ranking policy for ``selenv/ReceiverClustering-v0`` (Greiff et al. 2022).
+"""Train an edit-ranking policy for ``selenv/ReceiverClustering-v1`` (Greiff et al. 2022).
 
 The policy plays the env's ``action_mode="edit"`` encoding (one masked edit per filter step:
 no-op, move, leave, swap) through :class:`selenv.learned.rl.views.ClusteringEditView`, which
@@ -40,7 +40,7 @@ from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
 from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
-ENV_ID = "selenv/ReceiverClustering-v0"
+ENV_ID = "selenv/ReceiverClustering-v1"
 SCRIPT = "selenv.train.train_clustering_ppo"
 
 

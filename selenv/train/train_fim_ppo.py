@@ -1,4 +1,4 @@
-"""Train MaskablePPO on ``selenv/FIMSelection-v0`` and compare it with greedy and random.
+"""Train MaskablePPO on ``selenv/FIMSelection-v1`` and compare it with greedy and random.
 
 CleanRL-style: :class:`Config` (the command line, with this env's defaults) then
 :func:`selenv.learned.rl.training.train` (envs, model, tqdm + TensorBoard, checkpoint + JSON,
@@ -22,7 +22,7 @@ import gymnasium as gym
 from selenv.learned.config import parse_config
 from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 
-ENV_ID = "selenv/FIMSelection-v0"
+ENV_ID = "selenv/FIMSelection-v1"
 SCRIPT = "selenv.train.train_fim_ppo"
 
 

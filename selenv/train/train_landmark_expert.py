@@ -1,4 +1,4 @@
-"""Expert iteration on ``LandmarkSelection-v0``: distil the landmark ``rollout`` reference.
+"""Expert iteration on ``LandmarkSelection-v1``: distil the landmark ``rollout`` reference.
 
 The same DAgger loop as :mod:`selenv.train.train_cl_expert`, with
 :func:`selenv.learned.rl.expert.collect_landmark_rollout_labels`: every pick is labelled by the

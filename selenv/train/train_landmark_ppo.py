@@ -1,4 +1,4 @@
-"""Train MaskablePPO on ``selenv/LandmarkSelection-v0`` (Soubaras & Chahbazian 2023).
+"""Train MaskablePPO on ``selenv/LandmarkSelection-v1`` (Soubaras & Chahbazian 2023).
 
 The env already observes candidates (per-landmark gain, whitened Jacobian rows, features), so
 the candidate-scoring policy reads it as is. The return is the sum over the flight of
@@ -25,7 +25,7 @@ import gymnasium as gym
 from selenv.learned.config import parse_config
 from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 
-ENV_ID = "selenv/LandmarkSelection-v0"
+ENV_ID = "selenv/LandmarkSelection-v1"
 SCRIPT = "selenv.train.train_landmark_ppo"
 
 

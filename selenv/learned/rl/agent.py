@@ -6,8 +6,8 @@ written by the ``train/*_ppo.py`` scripts: the env id it was trained on, the can
 layout. The policy's weights do not depend on the number of candidates, so one checkpoint
 plays any instance of its env with the same per-candidate width::
 
-    agent = selenv.agents.make("ppo", "selenv/LandmarkSelection-v0")  # shipped checkpoint
-    agent = SB3PolicyAgent("my_run.zip", env_id="selenv/LandmarkSelection-v0")
+    agent = selenv.agents.make("ppo", "selenv/LandmarkSelection-v1")  # shipped checkpoint
+    agent = SB3PolicyAgent("my_run.zip", env_id="selenv/LandmarkSelection-v1")
     obs, info = env.reset(seed=0)
     agent.reset(env, seed=0)
     action = agent.act(obs, info)
@@ -45,14 +45,14 @@ __all__ = [
     "make_ppo_agent",
 ]
 
-FIM_ENV_ID = "selenv/FIMSelection-v0"
+FIM_ENV_ID = "selenv/FIMSelection-v1"
 CHECKPOINT_DIR = checkpoint_dir()
 #: env id -> the shipped checkpoint the ``ppo`` agent loads by default
 DEFAULT_CHECKPOINTS = {
     FIM_ENV_ID: CHECKPOINT_DIR / "fim_selection_ppo.zip",
-    "selenv/LandmarkSelection-v0": CHECKPOINT_DIR / "landmark_selection_ppo.zip",
-    "selenv/CLScheduling-v0": CHECKPOINT_DIR / "cl_scheduling_ppo.zip",
-    "selenv/ReceiverClustering-v0": CHECKPOINT_DIR / "receiver_clustering_ppo.zip",
+    "selenv/LandmarkSelection-v1": CHECKPOINT_DIR / "landmark_selection_ppo.zip",
+    "selenv/CLScheduling-v1": CHECKPOINT_DIR / "cl_scheduling_ppo.zip",
+    "selenv/ReceiverClustering-v1": CHECKPOINT_DIR / "receiver_clustering_ppo.zip",
 }
 
 
@@ -96,7 +96,7 @@ class SB3PolicyAgent(Agent):
         verify_top_k: 0 (default) plays the policy's action. ``k > 0`` uses the policy as a
             proposal: its ``k`` highest-scoring allowed actions are costed exactly by the
             view's :meth:`~selenv.learned.rl.views.CandidateView.verify` (only
-            ``ReceiverClustering-v0``: ``k`` Algorithm 1 evaluations per decision) and the
+            ``ReceiverClustering-v1``: ``k`` Algorithm 1 evaluations per decision) and the
             best improving one is played.
         lean: with ``deterministic``, take the action through
             :class:`~selenv.learned.rl.lean.LeanScorer` (the scorer's forward under

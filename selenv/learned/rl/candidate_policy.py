@@ -55,7 +55,7 @@ __all__ = [
     "obs_layout",
 ]
 
-#: observation keys the scorer reads (the ``FIMSelection-v0`` layout)
+#: observation keys the scorer reads (the ``FIMSelection-v1`` layout)
 OBS_KEYS = ("gain", "whitened", "features", "selected", "budget_left", "action_mask")
 #: static per-candidate features per candidate (one-hot sensor x3, time in window)
 N_STATIC_FEATURES = 4
@@ -66,13 +66,13 @@ MASKED_LOGIT = -1e8
 
 
 def obs_layout(observation_space: spaces.Space) -> dict[str, int]:
-    """Pool size and per-candidate widths of a ``FIMSelection-v0`` observation space.
+    """Pool size and per-candidate widths of a ``FIMSelection-v1`` observation space.
 
     Returns:
         ``{"n": N, "whitened_dim": m d, "n_features": 4}``.
 
     Raises:
-        ValueError: not a ``Dict`` with the ``FIMSelection-v0`` keys and consistent shapes.
+        ValueError: not a ``Dict`` with the ``FIMSelection-v1`` keys and consistent shapes.
     """
     if not isinstance(observation_space, spaces.Dict):
         raise ValueError(f"expected a Dict observation space, got {observation_space}")
@@ -119,7 +119,7 @@ class CandidateScorer(BaseFeaturesExtractor):
     No weight depends on ``N``.
 
     Args:
-        observation_space: a ``FIMSelection-v0`` ``Dict`` space.
+        observation_space: a ``FIMSelection-v1`` ``Dict`` space.
         hidden: widths of the shared per-candidate MLP.
         activation: ``"tanh"`` or ``"relu"``.
         gain_skip_init: initial weight ``w`` of the skip ``w r_k`` (relative log gain) added to

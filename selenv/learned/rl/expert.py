@@ -16,7 +16,7 @@ Only decisions whose evaluated actions differ are labelled: stop-only steps carr
 and early in an episode every pair's fused update is a no-op (DMV's ``w* = 1``), so stop and
 the pairs tie exactly (about the first ten steps of the benchmark preset).
 
-``LandmarkSelection-v0`` (:func:`collect_landmark_rollout_labels`) works the same way with
+``LandmarkSelection-v1`` (:func:`collect_landmark_rollout_labels`) works the same way with
 the landmark ``rollout``; both share one collection loop (``_collect``).
 
 Seeds: training episodes are seeded ``10**6 * (seed + 1) + k`` (``k = 0, 1, ...`` per
@@ -48,8 +48,8 @@ __all__ = [
     "train_seed",
 ]
 
-CL_ID = "selenv/CLScheduling-v0"
-LANDMARK_ID = "selenv/LandmarkSelection-v0"
+CL_ID = "selenv/CLScheduling-v1"
+LANDMARK_ID = "selenv/LandmarkSelection-v1"
 #: training episode seeds start at ``TRAIN_SEED_BASE * (seed + 1)``
 TRAIN_SEED_BASE = 10**6
 
@@ -228,7 +228,7 @@ def collect_cl_rollout_labels(
     """Label ``n_states`` CL decisions with the ``rollout`` reference's scores.
 
     Args:
-        env_kwargs: ``CLScheduling-v0`` keyword arguments (``{}``: the benchmark preset).
+        env_kwargs: ``CLScheduling-v1`` keyword arguments (``{}``: the benchmark preset).
         n_states: labelled decisions to collect (each with actions of different scores).
         seed: training seed (episode seeds: :func:`train_seed`).
         view: candidate view of the policy; ``cl_pairs_fused_top3`` allows exactly the
@@ -272,7 +272,7 @@ def collect_landmark_rollout_labels(
     workers: int = 1,
     progress: bool = True,
 ) -> RankingData:
-    """Label ``LandmarkSelection-v0`` picks with the landmark ``rollout`` reference's scores.
+    """Label ``LandmarkSelection-v1`` picks with the landmark ``rollout`` reference's scores.
 
     At every pick the labeller scores its candidate subsets of the picks left in the filter
     step (``top_k`` by one-step gain plus brute force's own); a landmark's ``dJ`` is minus the

@@ -97,7 +97,7 @@ class TopMScorer:
     """Approximate deterministic action: the network scores only the ``m`` best-gain candidates.
 
     The policy's scores are dominated by the gain skip (``w r_k``) and the network refines
-    the order among near-greedy candidates, so on large pools (``FIMSelection-v0`` at
+    the order among near-greedy candidates, so on large pools (``FIMSelection-v1`` at
     N = 1000) evaluating it on the ``m`` allowed candidates of largest ``gain`` -- in numpy,
     float32, the DeepSets context taken over those ``m`` -- gives nearly the full policy's
     choice at a fraction of its cost. Unlike :class:`LeanScorer` this is *not* the trained

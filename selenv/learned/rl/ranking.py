@@ -1,7 +1,7 @@
 """Pre-training a candidate-scoring policy to rank actions by their exact one-step value.
 
 Where an env has a cheap exact oracle of the objective after each candidate action (the
-Algorithm 1 cost of every local edit in ``ReceiverClustering-v0``), the oracle's values are
+Algorithm 1 cost of every local edit in ``ReceiverClustering-v1``), the oracle's values are
 a far denser training signal than PPO's return: one labelled state scores *every* candidate.
 This module collects such labels along an expert's trajectories and fits the policy's logits
 to them with a listwise (ListNet, Cao et al. 2007) cross-entropy
@@ -42,7 +42,7 @@ __all__ = [
     "listnet_targets",
 ]
 
-CLUSTERING_ID = "selenv/ReceiverClustering-v0"
+CLUSTERING_ID = "selenv/ReceiverClustering-v1"
 
 
 @dataclass
@@ -167,7 +167,7 @@ def collect_clustering_ranking(
     behaviour: str | None = None,
     behaviour_top_k: int = 0,
 ) -> RankingData:
-    """Label ``n_states`` states of ``ReceiverClustering-v0`` with every edit's ``dJ``.
+    """Label ``n_states`` states of ``ReceiverClustering-v1`` with every edit's ``dJ``.
 
     States come from the greedy expert's trajectories (the best improving edit every
     ``label_every`` steps, keep in between) or, with ``behaviour`` (a checkpoint path), from

@@ -68,7 +68,7 @@ CLUSTERING_MODULE = "selenv.multiagent.receiver_clustering_v0"
 class TurnView:
     """``fim_selection_v0``: the agent's observation without ``on_turn`` (already candidates).
 
-    The ``Dict`` is ``FIMSelection-v0``'s over the agent's own pool (``N_i`` candidates,
+    The ``Dict`` is ``FIMSelection-v1``'s over the agent's own pool (``N_i`` candidates,
     ``W = m d``); only acting agents are shown, so ``on_turn`` would always be 1.
     """
 

@@ -8,7 +8,7 @@ RLlib's ``TorchRLModule`` + ``ValueFunctionAPI``, so RLlib's PPO trains it with 
 sharing (every agent of a PettingZoo env maps to the one module id :data:`SHARED_MODULE_ID`).
 
 Input: one agent's **candidate view** (:mod:`selenv.learned.rl.rllib_env`), a ``Dict`` with one row
-per action, the ``FIMSelection-v0`` layout (:data:`~selenv.learned.rl.candidate_policy.OBS_KEYS`)::
+per action, the ``FIMSelection-v1`` layout (:data:`~selenv.learned.rl.candidate_policy.OBS_KEYS`)::
 
     gain (B, N)  whitened (B, N, W)  features (B, N, 4)  selected (B, N)
     budget_left (B, 1)  action_mask (B, N)

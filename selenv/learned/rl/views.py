@@ -2,7 +2,7 @@
 
 :class:`~selenv.learned.rl.candidate_policy.CandidateScoringPolicy` reads a ``Dict`` observation
 with
-one row per action (the ``FIMSelection-v0`` layout)::
+one row per action (the ``FIMSelection-v1`` layout)::
 
     gain        (N,)      a non-negative marginal gain of taking the action now (0: unknown)
     whitened    (N, W)    per-candidate numeric features (symlog-squashed by the policy)
@@ -11,9 +11,9 @@ one row per action (the ``FIMSelection-v0`` layout)::
     budget_left (1,)      fraction of the decision budget left
     action_mask (N,)      allowed actions
 
-``FIMSelection-v0`` and ``LandmarkSelection-v0`` already observe this layout (identity view).
-``CLScheduling-v0`` is rewritten by :class:`CLView`: the ``P`` directed pairs plus the stop
-action are the candidates; ``ReceiverClustering-v0`` by :class:`ClusteringEditView`: the local
+``FIMSelection-v1`` and ``LandmarkSelection-v1`` already observe this layout (identity view).
+``CLScheduling-v1`` is rewritten by :class:`CLView`: the ``P`` directed pairs plus the stop
+action are the candidates; ``ReceiverClustering-v1`` by :class:`ClusteringEditView`: the local
 edits (move, leave, swap, no-op) of the current clustering. A view is a pure function of the
 observation, so the same view is applied in training (:class:`CandidateViewWrapper`) and when
 a checkpoint acts (:mod:`selenv.learned.rl.agent`).
@@ -87,7 +87,7 @@ class CandidateView:
 
 
 class IdentityView(CandidateView):
-    """The env already observes candidates (``FIMSelection-v0``, ``LandmarkSelection-v0``)."""
+    """The env already observes candidates (``FIMSelection-v1``, ``LandmarkSelection-v1``)."""
 
     name = "identity"
 
@@ -101,7 +101,7 @@ class IdentityView(CandidateView):
 
 
 class CLView(CandidateView):
-    """``CLScheduling-v0``: candidates = the ``P`` directed pairs ``(i, j)`` + stop (last).
+    """``CLScheduling-v1``: candidates = the ``P`` directed pairs ``(i, j)`` + stop (last).
 
     Pair ``p = (i, j)``: ``gain`` = the env's ``pair_gain`` (naive-EKF information gain, a
     proxy of the fused one) or, with ``previewer`` (view ``"cl_pairs_fused"``), the exact
@@ -179,7 +179,7 @@ class CLView(CandidateView):
 
 
 class ClusteringEditView(CandidateView):
-    """``ReceiverClustering-v0``: candidates = the local edits of the current clustering.
+    """``ReceiverClustering-v1``: candidates = the local edits of the current clustering.
 
     The ``1 + n^2 + n(n-1)/2`` edits of the env's ``action_mode="edit"`` (no-op; receiver
     ``i`` joins ``j``'s cluster, or leaves to a singleton when ``i = j``; swap ``i < j``), each
@@ -291,16 +291,16 @@ class ClusteringEditView(CandidateView):
 
 #: env id -> {view name -> factory of the view from the env}; the first name is the default
 VIEWS: dict[str, dict[str, Callable[[Any], CandidateView]]] = {
-    "selenv/FIMSelection-v0": {"identity": lambda env: IdentityView()},
-    "selenv/LandmarkSelection-v0": {"identity": lambda env: IdentityView()},
-    "selenv/CLScheduling-v0": {
+    "selenv/FIMSelection-v1": {"identity": lambda env: IdentityView()},
+    "selenv/LandmarkSelection-v1": {"identity": lambda env: IdentityView()},
+    "selenv/CLScheduling-v1": {
         "cl_pairs": lambda env: CLView(env.unwrapped.pairs),
         "cl_pairs_fused": lambda env: CLView(env.unwrapped.pairs, env.unwrapped.preview_gain),
         "cl_pairs_fused_top3": lambda env: CLView(
             env.unwrapped.pairs, env.unwrapped.preview_gain, top_k=3
         ),
     },
-    "selenv/ReceiverClustering-v0": {
+    "selenv/ReceiverClustering-v1": {
         "clustering_edits": lambda env: ClusteringEditView(
             env.unwrapped.n, env.unwrapped.max_size, env.unwrapped.action_mode
         )

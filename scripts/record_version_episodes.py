@@ -1,0 +1,115 @@
+r"""Record short seeded episodes of the registered env ids, to pin what an env version does.
+
+Run against a checkout of the release that defines a version, e.g. for ``-v0`` (release 0.1,
+commit ``c70af56``)::
+
+    git worktree add /tmp/selenv-0.1 c70af56
+    PYTHONPATH=/tmp/selenv-0.1 python scripts/record_version_episodes.py --version v0 \
+        --out tests/data/episodes_v0.json --source "release 0.1, commit c70af56"
+
+The episodes use only the public API that every release has (``reset(seed=...)``,
+``action_masks()``, ``step``) and a seeded policy over the *valid* actions, so the record is
+what the version does with valid actions; ``tests/test_env_versions.py`` replays the same
+actions on today's ids and compares decisions (the valid action sets, as digests of their int
+indices) exactly and rewards to ``rtol = 1e-9``.
+The output is written atomically (temporary file, then rename).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import selenv
+
+#: (family id without version, gymnasium.make keywords) of every recorded case
+CASES: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("selenv/CLScheduling", {}),
+    ("selenv/FIMSelection", {}),
+    ("selenv/FIMSelection", {"preset": "example1", "n_candidates": 30}),
+    ("selenv/FIMSelection", {"preset": "example3"}),
+    ("selenv/LandmarkSelection", {}),
+    ("selenv/ReceiverClustering", {}),
+    ("selenv/ReceiverClustering", {"n_agents": 12, "horizon": 40}),
+)
+SEEDS = (0, 1, 2)
+STEPS = 12
+
+
+def policy_action(env: gym.Env[Any, Any], rng: np.random.Generator) -> Any:
+    """A seeded valid action: a uniform valid index, or for an assignment action one move."""
+    base = env.unwrapped
+    mask = np.asarray(base.action_masks(), dtype=bool)
+    if isinstance(env.action_space, gym.spaces.Discrete):
+        return int(rng.choice(np.flatnonzero(mask)))
+    labels = np.array(base.bank.labels, dtype=np.int64)  # assignment mode: move one receiver
+    n = labels.size
+    i = int(rng.integers(n))
+    labels[i] = int(rng.choice(np.flatnonzero(mask.reshape(n, n)[i])))
+    return labels
+
+
+def mask_digest(mask: Any) -> str:
+    """The valid action indices of a mask as a short SHA-256 of int64 (a decision, no floats)."""
+    idx = np.flatnonzero(np.asarray(mask, dtype=bool)).astype(np.int64)
+    return hashlib.sha256(idx.tobytes()).hexdigest()[:16]
+
+
+def record_episode(env_id: str, kwargs: dict[str, Any], seed: int) -> dict[str, Any]:
+    """Actions, masks and rewards of one episode of at most :data:`STEPS` steps."""
+    env = gym.make(env_id, **kwargs)
+    rng = np.random.default_rng(1000 + seed)
+    env.reset(seed=seed)
+    actions, masks, rewards, ends = [], [], [], []
+    for _ in range(STEPS):
+        masks.append(mask_digest(env.unwrapped.action_masks()))
+        action = policy_action(env, rng)
+        _, reward, terminated, truncated, _ = env.step(action)
+        actions.append(np.asarray(action).tolist())
+        rewards.append(float(reward))
+        ends.append([bool(terminated), bool(truncated)])
+        if terminated or truncated:
+            break
+    env.close()
+    return {"seed": seed, "actions": actions, "masks": masks, "rewards": rewards, "ends": ends}
+
+
+def write_atomic(path: Path, payload: dict[str, Any]) -> None:
+    """Write JSON to ``path`` through a temporary file in the same folder and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(payload, f, indent=None, separators=(",", ":"))
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--version", required=True, help="the id suffix to record, e.g. v0")
+    parser.add_argument("--out", type=Path, required=True, help="JSON file to write")
+    parser.add_argument("--source", default="", help="what was checked out (release, commit)")
+    args = parser.parse_args(argv)
+    cases = []
+    for family, kwargs in CASES:
+        env_id = f"{family}-{args.version}"
+        episodes = [record_episode(env_id, kwargs, s) for s in SEEDS]
+        cases.append({"env_id": env_id, "kwargs": kwargs, "episodes": episodes})
+    meta = {"selenv_version": selenv.__version__, "source": args.source}
+    write_atomic(args.out, {"recorded_with": meta, "steps": STEPS, "cases": cases})
+
+
+if __name__ == "__main__":
+    main()
