@@ -176,6 +176,9 @@ class EnvBenchResult:
         baseline: the baseline of the paired comparison; ``None``: the best by mean return.
         kind: ``"gymnasium"`` or ``"pettingzoo"``.
         timestamp: UTC time the run started (ISO 8601).
+        env_config: the resolved configuration of the env the episodes ran on (every
+            constructor keyword with its value, :func:`~selenv.envs.resolved.resolved_env_config`);
+            ``None`` if no env was built.
     """
 
     env_id: str
@@ -188,6 +191,7 @@ class EnvBenchResult:
     timestamp: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
     )
+    env_config: dict[str, Any] | None = None
 
     def _ran(self) -> dict[str, AgentResult]:
         return {n: r for n, r in self.agents.items() if r.skipped is None}
@@ -284,6 +288,7 @@ class EnvBenchResult:
             "env_id": self.env_id,
             "kind": self.kind,
             "env_kwargs": _jsonable(self.env_kwargs),
+            "env_config": self.env_config,
             "seed": self.seed,
             "episodes": self.episodes,
             "baseline": self.baseline_name,

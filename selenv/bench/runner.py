@@ -44,7 +44,8 @@ from selenv.bench.results import (
     EnvBenchResult,
     EnvKwargsError,
 )
-from selenv.envs import ENV_IDS
+from selenv.envs import ALL_ENV_IDS
+from selenv.envs.resolved import resolved_env_config
 from selenv.parallel import Executor, LocalExecutor
 
 __all__ = [
@@ -114,7 +115,7 @@ def check_env_id(env_id: str) -> str:
         return "pettingzoo"
     kind = "PettingZoo module" if "." in env_id and "/" not in env_id else "env id"
     raise BenchError(
-        f"unknown {kind} {env_id!r}; Gymnasium ids: {', '.join(ENV_IDS)}; "
+        f"unknown {kind} {env_id!r}; Gymnasium ids: {', '.join(ALL_ENV_IDS)}; "
         f"PettingZoo modules: {', '.join(multiagent_modules())}"
     )
 
@@ -147,7 +148,7 @@ def _check_agents(
 
 def _build_env(env_id: str, env_kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
     """The bench's env: selenv's with ``invalid_action="raise"`` unless given otherwise."""
-    strict = {"invalid_action": "raise"} if env_id in ENV_IDS else {}
+    strict = {"invalid_action": "raise"} if env_id in ALL_ENV_IDS else {}
     try:
         return gym.make(env_id, **{**strict, **env_kwargs})
     except (TypeError, ValueError) as exc:
@@ -330,6 +331,8 @@ def run_bench(
         )
     build, _ = _env_factory(env_id, kind, kwargs)
     first_env = build() if names else None  # bad kwargs fail before the bar
+    if first_env is not None:
+        out.env_config = resolved_env_config(first_env)
     seeds = [seed + e for e in range(episodes)]
     named = agent_names is not None
     if executor is None or isinstance(executor, LocalExecutor):

@@ -65,34 +65,22 @@ class EnvVersion:
 _VERSIONED = re.compile(r"(?P<family>.+)-v(?P<version>\d+)")
 _F = "selenv.envs.factories"
 
+
+def _family(name: str, factory: str, v0_kwargs: Mapping[str, Any]) -> tuple[EnvVersion, ...]:
+    """``-v0`` (release 0.1, ``<factory>_v0`` with ``v0_kwargs``) and ``-v1`` of a family."""
+    v0, v1 = f"selenv/{name}-v0", f"selenv/{name}-v1"
+    return (
+        EnvVersion(env_id=v0, entry_point=f"{_F}:{factory}_v0", kwargs=v0_kwargs, superseded_by=v1),
+        EnvVersion(env_id=v1, entry_point=f"{_F}:{factory}"),
+    )
+
+
 #: every registered id, oldest version of each family first
 ENV_VERSIONS: tuple[EnvVersion, ...] = (
-    EnvVersion(
-        env_id="selenv/CLScheduling-v0",
-        entry_point=f"{_F}:cl_scheduling_v0",
-        kwargs={"preset": "dense"},
-        superseded_by="selenv/CLScheduling-v1",
-    ),
-    EnvVersion(env_id="selenv/CLScheduling-v1", entry_point=f"{_F}:cl_scheduling"),
-    EnvVersion(
-        env_id="selenv/FIMSelection-v0",
-        entry_point=f"{_F}:fim_selection_v0",
-        superseded_by="selenv/FIMSelection-v1",
-    ),
-    EnvVersion(env_id="selenv/FIMSelection-v1", entry_point=f"{_F}:fim_selection"),
-    EnvVersion(
-        env_id="selenv/LandmarkSelection-v0",
-        entry_point=f"{_F}:landmark_selection_v0",
-        superseded_by="selenv/LandmarkSelection-v1",
-    ),
-    EnvVersion(env_id="selenv/LandmarkSelection-v1", entry_point=f"{_F}:landmark_selection"),
-    EnvVersion(
-        env_id="selenv/ReceiverClustering-v0",
-        entry_point=f"{_F}:receiver_clustering_v0",
-        kwargs={"preset": "paper"},
-        superseded_by="selenv/ReceiverClustering-v1",
-    ),
-    EnvVersion(env_id="selenv/ReceiverClustering-v1", entry_point=f"{_F}:receiver_clustering"),
+    *_family("CLScheduling", "cl_scheduling", {"preset": "dense"}),
+    *_family("FIMSelection", "fim_selection", {}),  # the factory maps v0's preset names
+    *_family("LandmarkSelection", "landmark_selection", {}),
+    *_family("ReceiverClustering", "receiver_clustering", {"preset": "paper"}),
 )
 
 _BY_ID = {v.env_id: v for v in ENV_VERSIONS}

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
+from selenv.envs.resolved import resolved_env_config
 from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.expert import CL_ID, collect_cl_rollout_labels
@@ -186,6 +187,7 @@ def run_expert_iteration(
         **src,
         "view": view,
         "env_kwargs": kwargs,
+        "env_config": resolved_env_config(env),
         "obs_layout": {**src["obs_layout"], "n_candidates_trained": n},
         "expert_iteration": {
             **asdict(cfg),

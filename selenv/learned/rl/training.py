@@ -41,6 +41,7 @@ from tqdm.auto import tqdm
 import selenv
 from selenv.agents import Agent
 from selenv.bench.runner import AgentResult, run_episode
+from selenv.envs.resolved import resolved_env_config
 from selenv.learned.config import arg, check_outputs
 from selenv.learned.rl.candidate_policy import ALGORITHMS, make_ppo, obs_layout
 
@@ -294,9 +295,15 @@ def train(
 
     # 4. checkpoint + metadata (rollout buffers and episode stats are not needed to act)
     model.save(out, exclude=["_last_obs", "_last_original_obs", "ep_info_buffer"])
+    env_config = None  # the configuration trained on, resolved (Gymnasium ids)
+    if env_id in gym.registry:
+        probe = gym.make(env_id, **cfg.kwargs())
+        env_config = resolved_env_config(probe)
+        probe.close()
     meta: dict[str, Any] = {
         "env_id": env_id,
         "env_kwargs": cfg.kwargs(),
+        "env_config": env_config,
         "view": view,
         "obs_layout": {
             "whitened_dim": layout["whitened_dim"],
