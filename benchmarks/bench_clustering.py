@@ -44,18 +44,18 @@ import numpy as np
 
 import selenv  # noqa: F401  (registers the env and agents)
 from selenv.agents import make as make_agent
-from selenv.agents.clustering_ga import GAConfig, GeneticClustering
 from selenv.core.kalman import kf_predict, kf_update
 from selenv.core.riccati import riccati_pass
-from selenv.scenarios.clustering import (
+from selenv.families.clustering.filters import ClusterFilterBank, cluster_keys
+from selenv.families.clustering.ga import GAConfig, GeneticClustering
+from selenv.families.clustering.labels import canonical_labels, random_feasible_clustering
+from selenv.families.clustering.scenario import (
     ClusteringConfig,
     ClusteringProblem,
     axis_to_full,
     clustering_cost,
     make_clustering_problem,
 )
-from selenv.scenarios.clustering_filters import ClusterFilterBank, cluster_keys
-from selenv.scenarios.clustering_labels import canonical_labels, random_feasible_clustering
 
 
 def naive_full(problem: ClusteringProblem, bank: ClusterFilterBank, cands: np.ndarray) -> list:

@@ -42,8 +42,8 @@ from selenv.agents.vns import vns_whitened
 from selenv.core.information import whiten
 from selenv.core.kalman import kf_update
 from selenv.core.linalg import cholesky_spd
-from selenv.scenarios.landmark_models import wrap_angle
-from selenv.scenarios.landmarks import (
+from selenv.families.landmarks.models import wrap_angle
+from selenv.families.landmarks.scenario import (
     LandmarkConfig,
     LandmarkEKF,
     make_landmark_problem,

@@ -1,6 +1,6 @@
 """The receiver-clustering GA before issue 19 (speed), kept only as the benchmark's reference.
 
-A verbatim copy of ``selenv/agents/clustering_ga.py`` (operators, :class:`GeneticClustering`)
+A verbatim copy of ``selenv/families/clustering/ga.py`` (operators, :class:`GeneticClustering`)
 as it was before issue 19, with the label helpers of that time (``canonical_labels`` by
 ``np.unique``, ``cluster_keys`` by a stable argsort) and :func:`old_evaluate`, the
 ``ClusterFilterBank.evaluate`` of that time (one ``check_clustering`` and ``cluster_keys`` per
@@ -22,8 +22,8 @@ from scipy.optimize import linear_sum_assignment
 
 from selenv.core.linalg import FloatArray
 from selenv.core.riccati import riccati_pass
-from selenv.scenarios.clustering_filters import ClusterFilterBank
-from selenv.scenarios.clustering_labels import (
+from selenv.families.clustering.filters import ClusterFilterBank
+from selenv.families.clustering.labels import (
     IntArray,
     as_labels,
     check_int,

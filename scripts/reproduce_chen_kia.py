@@ -3,7 +3,7 @@
 Two pedestrians with 9-state INS (agent 1 accurate and ranging to beacons, agent 2 less
 accurate), relative ranges both ways every 0.5 s, each agent processing them with
 ``dead_reckoning`` (no updates: the paper's "ZUPT-only"), ``naive``, ``ci``, ``dmv`` or
-``pecmv`` (:mod:`selenv.scenarios.cooperative`). Monte Carlo over seeds (the same noise for
+``pecmv`` (:mod:`selenv.families.cooperative.scenario`). Monte Carlo over seeds (the same noise for
 every method), position RMSE per agent (Table III) and the horizontal-position NEES with its
 95 % chi-square band (Fig. 8).
 
@@ -38,8 +38,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy.stats import chi2
 
+from selenv.families.cooperative.scenario import CLConfig, CLSimulation, make_cl_problem
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
-from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 
 METHODS = (
     "dead_reckoning", "naive", "ci", "dmv", "pecmv", "ldmv", "lpecmv", "lpecmv_full",

@@ -48,10 +48,10 @@ from matplotlib.figure import Figure
 
 import selenv  # noqa: F401  (registers the env and the agents)
 from selenv.agents import make as make_agent
-from selenv.agents.clustering_ga import align_labels
+from selenv.families.clustering.ga import align_labels
+from selenv.families.clustering.labels import random_feasible_clustering
+from selenv.families.clustering.scenario import ClusteringConfig, make_clustering_problem
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
-from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
-from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 #: the paper's noise model: ``sigma`` fixed per realisation (the env's default is time-varying)

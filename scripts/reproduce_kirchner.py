@@ -45,8 +45,8 @@ from tqdm import tqdm
 from selenv.agents.fim_solvers import cooperative_greedy, greedy_whitened
 from selenv.core.estimation import gauss_newton_map
 from selenv.core.information import information_matrix, logdet_objective
-from selenv.scenarios import kirchner_models as km
-from selenv.scenarios.fim_selection import (
+from selenv.families.fim import models as km
+from selenv.families.fim.scenario import (
     CAMERA,
     DOPPLER,
     FIMProblem,

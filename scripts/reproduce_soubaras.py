@@ -7,7 +7,8 @@ layout, IMU noise, initial error, measurement noise) shared by every method, so 
 comparisons are paired. Methods:
 
 * ``all``: every landmark at every step (the lower bound). Driven directly on
-  :class:`~selenv.scenarios.landmarks.LandmarkEKF` with ``update(range(N))``: through the env
+  :class:`~selenv.families.landmarks.scenario.LandmarkEKF` with ``update(range(N))``: through the
+  env
   it would take ``N`` masked picks per filter step (each updating the observation), ~15x slower
   for the same filter (``tests/test_reproduce_soubaras.py`` checks that the two agree).
 * ``brute_force`` (Algorithm 1), ``vns`` (Algorithm 2, warm-started from the previous step),
@@ -62,8 +63,8 @@ from selenv.agents.fim_solvers import brute_force_whitened, greedy_whitened
 from selenv.agents.vns import vns_whitened
 from selenv.core.information import logdet_objective
 from selenv.core.linalg import logdet_spd
+from selenv.families.landmarks.scenario import LandmarkEKF, LandmarkProblem, crlb_reference
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
-from selenv.scenarios.landmarks import LandmarkEKF, LandmarkProblem, crlb_reference
 
 ENV_ID = "selenv/LandmarkSelection-v1"
 METHODS = ("all", "brute_force", "vns", "greedy", "random")

@@ -1,13 +1,15 @@
 """selenv: hard decision problems of state estimation as reinforcement-learning environments.
 
-``import selenv`` registers the Gymnasium ids (``selenv/FIMSelection-v1``, ...) and the
-baseline agents. See the README for the quick start.
+``import selenv`` registers the Gymnasium ids (``selenv/FIMSelection-v1``, ...; see
+:mod:`selenv.families`) and the baseline agents. See the README for the quick start.
 """
 
 from __future__ import annotations
 
-from selenv import agents, envs
-from selenv.envs import ENV_IDS
+from selenv import _compat, agents, envs, families
+from selenv.families import ENV_IDS
+
+_compat.install()  # the module paths that moved into the family folders stay importable
 
 __version__ = "0.1.0"
-__all__ = ["ENV_IDS", "__version__", "agents", "envs"]
+__all__ = ["ENV_IDS", "__version__", "agents", "envs", "families"]

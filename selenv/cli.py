@@ -33,7 +33,7 @@ import gymnasium as gym
 
 from selenv import __version__
 from selenv.agents import AGENTS, agents_for, parse_spec
-from selenv.envs import ENV_IDS
+from selenv.families import ENV_IDS
 from selenv.parallel import ExecutorError, add_executor_arguments, executor_from_args
 
 if TYPE_CHECKING:

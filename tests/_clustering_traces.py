@@ -11,7 +11,7 @@ import hashlib
 
 import numpy as np
 
-from selenv.agents.clustering_ga import GAConfig, GeneticClustering, random_feasible_clustering
+from selenv.families.clustering.ga import GAConfig, GeneticClustering, random_feasible_clustering
 
 
 class ToyCost:

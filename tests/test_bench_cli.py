@@ -435,8 +435,8 @@ def test_python_dash_m_selenv() -> None:
 # -- the real env ------------------------------------------------------------------------------
 def test_real_fim_bench_greedy_beats_random(tmp_path: Path) -> None:
     pytest.importorskip(
-        "selenv.scenarios.fim_selection",
-        reason="selenv.scenarios.fim_selection (the FIM scenario) is not written yet",
+        "selenv.families.fim.scenario",
+        reason="selenv.families.fim.scenario (the FIM scenario) is not written yet",
     )
     out = tmp_path / "fim.json"
     kwargs = '{"n_candidates": 20, "budget": 4}'

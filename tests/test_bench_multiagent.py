@@ -18,16 +18,12 @@ from selenv.agents.fim_solvers import (
     partition_greedy_whitened,
     partition_swap_whitened,
 )
-from selenv.agents.multiagent import (
-    CLUSTERING_MODULE,
-    FIM_MODULE,
-    CentralizedFIMPolicy,
-    ClusteringGreedyPolicy,
-    FIMGreedyPolicy,
-)
+from selenv.agents.multiagent import CLUSTERING_MODULE, FIM_MODULE
 from selenv.bench import multiagent_modules, plot_filename, run_bench
 from selenv.cli import main
 from selenv.core.information import as_candidates, logdet_objective
+from selenv.families.clustering.multiagent_agents import ClusteringGreedyPolicy
+from selenv.families.fim.multiagent_agents import CentralizedFIMPolicy, FIMGreedyPolicy
 from selenv.multiagent import fim_selection_v0, receiver_clustering_v0
 from selenv.multiagent.receiver_clustering_v0 import resolve_moves
 

@@ -10,13 +10,13 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import selenv  # noqa: F401
 from selenv.agents import agents_for, make
-from selenv.scenarios.cooperative import (
+from selenv.families.cooperative.models import MODELS, relative_bearing, relative_range
+from selenv.families.cooperative.scenario import (
     CLConfig,
     CLSimulation,
     fuse_relative,
     make_cl_problem,
 )
-from selenv.scenarios.cooperative_models import MODELS, relative_bearing, relative_range
 
 ENV_ID = "selenv/CLScheduling-v1"
 

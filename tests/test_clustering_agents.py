@@ -9,10 +9,10 @@ from conftest import load_script
 
 import selenv  # noqa: F401
 from selenv.agents import agents_for, make
-from selenv.agents.clustering_ga import GAConfig, GeneticClustering
-from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
-from selenv.scenarios.clustering_filters import ClusterFilterBank
-from selenv.scenarios.clustering_labels import random_feasible_clustering
+from selenv.families.clustering.filters import ClusterFilterBank
+from selenv.families.clustering.ga import GAConfig, GeneticClustering
+from selenv.families.clustering.labels import random_feasible_clustering
+from selenv.families.clustering.scenario import ClusteringConfig, make_clustering_problem
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from selenv.agents import make
-from selenv.agents.clustering import GreedyMoveAgent, best_edit
-from selenv.envs.receiver_clustering import edit_cost_changes, edit_mask
+from selenv.families.clustering.agents import GreedyMoveAgent, best_edit
+from selenv.families.clustering.env import edit_cost_changes, edit_mask
 
 ENV = "selenv/ReceiverClustering-v1"
 

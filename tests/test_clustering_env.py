@@ -11,14 +11,14 @@ from hypothesis import strategies as st
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import selenv  # noqa: F401
-from selenv.envs.receiver_clustering import (
+from selenv.families.clustering.env import (
     apply_edit,
     edit_action_count,
     edit_cost_changes,
     edit_mask,
 )
-from selenv.scenarios.clustering import canonical_labels
-from selenv.scenarios.clustering_labels import random_feasible_clustering
+from selenv.families.clustering.labels import random_feasible_clustering
+from selenv.families.clustering.scenario import canonical_labels
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 
@@ -188,3 +188,19 @@ def test_edit_cost_changes_equal_full_evaluations_of_every_allowed_edit(preset: 
     assert d[0] == 0.0 and actions.size > 30
     full = bank.evaluate(np.stack([apply_edit(bank.labels, int(a)) for a in actions[1:]]))
     np.testing.assert_allclose(d[1:], full - bank.cost().J, rtol=1e-9, atol=1e-13)
+
+
+def test_assignment_mode_observes_its_mask_and_v0_does_not() -> None:
+    env = gym.make("selenv/ReceiverClustering-v1", n_agents=8, horizon=5)
+    obs, info = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    np.testing.assert_array_equal(obs["action_mask"], env.unwrapped.action_masks())
+    np.testing.assert_array_equal(obs["action_mask"], info["action_mask"])
+    obs, *_ = env.step(obs["assignment"])
+    np.testing.assert_array_equal(obs["action_mask"], env.unwrapped.action_masks())
+    with pytest.warns(DeprecationWarning):
+        old = gym.make("selenv/ReceiverClustering-v0", n_agents=8, horizon=5)
+    obs0, _ = old.reset(seed=0)
+    assert "action_mask" not in obs0 and "action_mask" not in old.observation_space.spaces
+    with pytest.raises(TypeError, match="obs_mask"):
+        gym.make("selenv/ReceiverClustering-v1", obs_mask=1)

@@ -18,7 +18,7 @@ from _clustering_traces import ToyCost, assert_trace_matches, ga_trace  # tests/
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from selenv.agents.clustering_ga import (
+from selenv.families.clustering.ga import (
     VARIANTS,
     GAConfig,
     GeneticClustering,

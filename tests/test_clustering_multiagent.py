@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, state_test
 
 import selenv  # noqa: F401  (registers the Gymnasium ids)
+from selenv.families.clustering.labels import random_feasible_clustering
+from selenv.families.clustering.scenario import canonical_labels
 from selenv.multiagent import receiver_clustering_v0 as rc
-from selenv.scenarios.clustering import canonical_labels
-from selenv.scenarios.clustering_labels import random_feasible_clustering
 
 SMALL: dict[str, Any] = {"n_agents": 7, "n_max_states": 14, "horizon": 10, "tau": 5}  # max_size 3
 FREE: dict[str, Any] = {

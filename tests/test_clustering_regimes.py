@@ -12,13 +12,13 @@ import pytest
 import selenv  # noqa: F401
 from selenv.agents import make
 from selenv.core.riccati import riccati_pass, riccati_step
-from selenv.multiagent import receiver_clustering_v0 as rc
-from selenv.scenarios.clustering import (
+from selenv.families.clustering.filters import ClusterFilterBank
+from selenv.families.clustering.scenario import (
     ClusteringConfig,
     MultipathRegimes,
     make_clustering_problem,
 )
-from selenv.scenarios.clustering_filters import ClusterFilterBank
+from selenv.multiagent import receiver_clustering_v0 as rc
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 

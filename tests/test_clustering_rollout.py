@@ -11,7 +11,7 @@ import pytest
 
 import selenv  # noqa: F401
 from selenv.agents import agents_for, make
-from selenv.agents.clustering_rollout import ClusteringRolloutAgent
+from selenv.families.clustering.rollout import ClusteringRolloutAgent
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 #: small and fast-switching, so that the regimes change within the rollout horizon

@@ -10,7 +10,8 @@ from scipy.linalg import solve_discrete_are
 
 from selenv.core.kalman import kf_predict, kf_update
 from selenv.core.riccati import riccati_pass, riccati_step
-from selenv.scenarios.clustering import (
+from selenv.families.clustering.filters import ClusterFilterBank, cluster_keys
+from selenv.families.clustering.scenario import (
     ClusteringConfig,
     MultipathRegimes,
     axis_to_full,
@@ -18,7 +19,6 @@ from selenv.scenarios.clustering import (
     clustering_cost,
     make_clustering_problem,
 )
-from selenv.scenarios.clustering_filters import ClusterFilterBank, cluster_keys
 
 
 def _problem(n=6, n_max=14, seed=0, **kw):

@@ -24,7 +24,8 @@ from _clustering_traces import assert_trace_matches, ga_trace  # tests/ helper
 
 import selenv  # noqa: F401  (registers the env and agents)
 from selenv.agents import make as make_agent
-from selenv.agents.clustering_ga import (
+from selenv.families.clustering.filters import ClusterFilterBank, cluster_keys
+from selenv.families.clustering.ga import (
     GAConfig,
     GeneticClustering,
     o1c_literal,
@@ -33,9 +34,8 @@ from selenv.agents.clustering_ga import (
     o2m_literal,
     o3m,
 )
-from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
-from selenv.scenarios.clustering_filters import ClusterFilterBank, cluster_keys
-from selenv.scenarios.clustering_labels import canonical_labels, random_feasible_clustering
+from selenv.families.clustering.labels import canonical_labels, random_feasible_clustering
+from selenv.families.clustering.scenario import ClusteringConfig, make_clustering_problem
 
 
 # ----------------------------------------------------------------------------- references
@@ -341,7 +341,7 @@ def test_ga_episode_matches_the_recorded_curve(variant: str, seed: int) -> None:
 
 # ----------------------------------------------------------------------------- internals
 def test_canonicalize_rows_equals_the_row_loop() -> None:
-    from selenv.scenarios.clustering_labels import canonicalize_rows
+    from selenv.families.clustering.labels import canonicalize_rows
 
     rng = np.random.default_rng(3)
     for n in (1, 2, 7, 30):
@@ -356,7 +356,7 @@ def test_canonicalize_rows_equals_the_row_loop() -> None:
 @pytest.mark.parametrize("s", [1, 2, 3])
 def test_window_pass_is_bit_identical_to_riccati_pass(per_step: bool, s: int) -> None:
     from selenv.core.riccati import riccati_pass
-    from selenv.scenarios.clustering_filters import window_pass
+    from selenv.families.clustering.filters import window_pass
 
     rng = np.random.default_rng(s)
     problem = make_clustering_problem(ClusteringConfig(), rng)
@@ -406,7 +406,9 @@ def _env_run(agent_spec: str, preset: str, seed: int = 0, steps: int = 120):
     sizes, masks, counters, flags; exact) and the episode length. Values: per key, the sum over
     all steps of the float entries (info floats and rewards in float64, float32 observations).
     """
-    env = gym.make("selenv/ReceiverClustering-v1", preset=preset, horizon=steps)
+    # the recordings predate obs["action_mask"] in the assignment mode (obs_mask=False leaves it
+    # out); info["action_mask"] holds the same mask and is hashed with the decisions
+    env = gym.make("selenv/ReceiverClustering-v1", preset=preset, horizon=steps, obs_mask=False)
     obs, info = env.reset(seed=seed)
     agent = make_agent(agent_spec, "selenv/ReceiverClustering-v1")
     agent.reset(env, seed=seed)

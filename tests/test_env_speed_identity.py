@@ -26,14 +26,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-import selenv.scenarios.cooperative as coop
-import selenv.scenarios.landmarks as landmarks_mod
+import selenv.families.cooperative.scenario as coop
+import selenv.families.landmarks.scenario as landmarks_mod
 from selenv.core.linalg import FloatArray, logdet_spd
-from selenv.envs.cl_scheduling import CLSchedulingEnv, agent_objective
-from selenv.envs.landmark_selection import LandmarkSelectionEnv
-from selenv.scenarios import landmark_models as lm
-from selenv.scenarios.landmark_flight import fly
-from selenv.scenarios.landmarks import LandmarkConfig, make_landmark_problem
+from selenv.families.cooperative.env import CLSchedulingEnv, agent_objective
+from selenv.families.landmarks import models as lm
+from selenv.families.landmarks.env import LandmarkSelectionEnv
+from selenv.families.landmarks.flight import fly
+from selenv.families.landmarks.scenario import LandmarkConfig, make_landmark_problem
 
 # ------------------------------------------------------------------ previous implementation
 

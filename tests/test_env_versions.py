@@ -19,8 +19,7 @@ import pytest
 
 import selenv
 from selenv.agents import agents_for
-from selenv.envs import ALL_ENV_IDS, ENV_IDS
-from selenv.envs.versions import ENV_VERSIONS, family_of, version_ids
+from selenv.families import ALL_ENV_IDS, ENV_IDS, ENV_VERSIONS, family_of, version_ids
 
 DATA = Path(__file__).parent / "data" / "episodes_v0.json"
 RECORD = json.loads(DATA.read_text())

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from selenv.agents.rollout import CLRolloutAgent
+from selenv.families.cooperative.rollout import CLRolloutAgent
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from selenv.learned.rl.expert import CL_ID, TRAIN_SEED_BASE, collect_cl_rollout_labels, train_seed
 from selenv.train import train_cl_expert

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test
 
-from selenv.agents.fim import CooperativeGreedyPolicy
 from selenv.agents.fim_solvers import cooperative_greedy, greedy_whitened
 from selenv.core.information import logdet_objective
+from selenv.families.fim.agents import CooperativeGreedyPolicy
 from selenv.multiagent import fim_selection_v0
 
 KW = {"n_candidates": 10, "budgets": 3}

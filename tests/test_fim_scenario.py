@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from selenv.core.information import logdet_objective
-from selenv.scenarios import kirchner_models as km
-from selenv.scenarios.fim_selection import (
+from selenv.families.fim import models as km
+from selenv.families.fim.scenario import (
     PRESETS,
     SENSOR_NAMES,
     FIMProblem,

@@ -40,11 +40,11 @@ from conftest import fuzz_settings
 from hypothesis import given, note
 from hypothesis import strategies as st
 
-from selenv.agents import clustering_ga as ga
 from selenv.agents import fim_solvers
 from selenv.agents.vns import vns
 from selenv.core import fusion, kalman, linalg
 from selenv.core.information import as_candidates, logdet_objective
+from selenv.families.clustering import ga as ga
 
 pytestmark = pytest.mark.fuzz
 

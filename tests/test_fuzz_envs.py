@@ -614,8 +614,8 @@ def test_unknown_keyword_is_a_type_error_naming_it(name: str, keyword: str, valu
 
 @functools.cache
 def _constructor_parameters(name: str) -> set[str]:
-    from selenv.scenarios.cooperative import CLConfig
-    from selenv.scenarios.landmarks import LandmarkConfig
+    from selenv.families.cooperative.scenario import CLConfig
+    from selenv.families.landmarks.scenario import LandmarkConfig
 
     if name in MODULES:
         cls: Any = type(MODULES[name].parallel_env(**ENVS[name][0]))

@@ -10,7 +10,7 @@ from scipy.stats import chi2
 from selenv.core.crlb import pcrlb_step_covariance, pcrlb_step_information
 from selenv.core.kalman import kf_update
 from selenv.core.riccati import riccati_step
-from selenv.scenarios.landmark_models import (
+from selenv.families.landmarks.models import (
     C_NED_TO_ENU,
     aoa_angles,
     body_rates_from_euler_rates,
@@ -28,7 +28,7 @@ from selenv.scenarios.landmark_models import (
     state_difference,
     wrap_angle,
 )
-from selenv.scenarios.landmarks import (
+from selenv.families.landmarks.scenario import (
     LandmarkConfig,
     LandmarkEKF,
     check_selection,

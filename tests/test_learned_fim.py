@@ -14,7 +14,7 @@ from gymnasium import spaces
 
 import selenv  # noqa: F401  (registers the env ids and baseline agents)
 from selenv.agents import agents_for, make
-from selenv.envs.fim_selection import fim_observation_space
+from selenv.families.fim.env import fim_observation_space
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, make_ppo_agent
 from selenv.learned.rl.candidate_policy import CandidateScoringPolicy, make_maskable_ppo
 from selenv.train import train_fim_ppo

@@ -68,8 +68,8 @@ def test_einsum_fast_equals_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _callers(seed: int) -> dict[str, np.ndarray]:
     from selenv.core.riccati import riccati_pass
-    from selenv.scenarios.clustering import ClusteringConfig, make_clustering_problem
-    from selenv.scenarios.clustering_filters import window_pass
+    from selenv.families.clustering.filters import window_pass
+    from selenv.families.clustering.scenario import ClusteringConfig, make_clustering_problem
 
     rng = np.random.default_rng(seed)
     out: dict[str, np.ndarray] = {}

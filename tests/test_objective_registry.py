@@ -36,8 +36,8 @@ from selenv.core.objectives import (
     subset_criteria,
     swap_criteria,
 )
-from selenv.envs.cl_scheduling import agent_objective
-from selenv.envs.landmark_selection import landmark_cost, landmark_interest
+from selenv.families.cooperative.env import agent_objective
+from selenv.families.landmarks.env import landmark_cost, landmark_interest
 
 assert selenv  # registers the env ids
 

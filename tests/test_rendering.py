@@ -11,16 +11,11 @@ import numpy as np
 import pytest
 
 import selenv.envs  # noqa: F401  (registers the ids)
-from selenv.envs.rendering import (
-    Renderer,
-    _ellipse,
-    _ellipse_label,
-    _marginal_cov,
-    draw_cl_scheduling,
-    draw_fim_selection,
-    draw_landmark_selection,
-    draw_receiver_clustering,
-)
+from selenv.envs.rendering import Renderer, ellipse, ellipse_label, marginal_cov
+from selenv.families.clustering.rendering import draw_receiver_clustering
+from selenv.families.cooperative.rendering import draw_cl_scheduling
+from selenv.families.fim.rendering import draw_fim_selection
+from selenv.families.landmarks.rendering import draw_landmark_selection
 
 
 def first_allowed(info: dict) -> int:
@@ -89,12 +84,12 @@ def test_marginal_covariance_and_ellipse():
     rng = np.random.default_rng(0)
     B = rng.normal(size=(5, 5))
     A = B @ B.T + np.eye(5)
-    cov = _marginal_cov(A, (0, 1))
+    cov = marginal_cov(A, (0, 1))
     np.testing.assert_allclose(cov, np.linalg.inv(A)[:2, :2], rtol=1e-10)
-    e = _ellipse(np.diag([4.0, 1.0]), (1.0, 2.0), n_sigma=2.0)
+    e = ellipse(np.diag([4.0, 1.0]), (1.0, 2.0), n_sigma=2.0)
     assert (e.width, e.height) == pytest.approx((8.0, 4.0))
     assert abs(np.cos(np.radians(e.angle))) == pytest.approx(1.0)  # major axis along x
-    e = _ellipse(np.array([[1.0, 0.0], [0.0, 9.0]]), (0.0, 0.0))
+    e = ellipse(np.array([[1.0, 0.0], [0.0, 9.0]]), (0.0, 0.0))
     assert (e.width, e.height) == pytest.approx((12.0, 4.0))
     assert abs(np.sin(np.radians(e.angle))) == pytest.approx(1.0)  # major axis along y
 
@@ -104,11 +99,11 @@ def test_ellipse_label_flags_off_scale():
     ax = fig.add_subplot()
     ax.set_xlim(0, 10)
     ax.set_ylim(0, 10)
-    small = _ellipse(np.eye(2), (5, 5))
-    big = _ellipse(100 * np.eye(2), (5, 5))
-    assert "exceeds view" not in _ellipse_label("2σ", [small], ax)
-    assert "exceeds view" in _ellipse_label("2σ", [small, big], ax)
-    assert "20 × 20 m" in _ellipse_label("2σ", [big], ax)
+    small = ellipse(np.eye(2), (5, 5))
+    big = ellipse(100 * np.eye(2), (5, 5))
+    assert "exceeds view" not in ellipse_label("2σ", [small], ax)
+    assert "exceeds view" in ellipse_label("2σ", [small, big], ax)
+    assert "20 × 20 m" in ellipse_label("2σ", [big], ax)
 
 
 # -- one frame per env ----------------------------------------------------------------------------

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import load_script
 
-from selenv.scenarios.fim_selection import CAMERA, DOPPLER, config_from, make_problem
+from selenv.families.fim.scenario import CAMERA, DOPPLER, config_from, make_problem
 
 PAPER = ("example1", "example2", "example3")
 MOVING = ("example1_moving", "example2_moving", "example3_moving")

@@ -13,7 +13,7 @@ from conftest import load_script
 
 import selenv  # noqa: F401
 from selenv.agents import make
-from selenv.scenarios.landmarks import LandmarkEKF
+from selenv.families.landmarks.scenario import LandmarkEKF
 
 ENV_ID = "selenv/LandmarkSelection-v1"
 

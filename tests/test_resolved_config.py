@@ -12,8 +12,8 @@ import pytest
 
 import selenv
 from selenv.cli import main
-from selenv.envs import ALL_ENV_IDS
 from selenv.envs.resolved import jsonable, resolved_env_config
+from selenv.families import ALL_ENV_IDS
 
 assert selenv
 

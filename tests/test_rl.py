@@ -14,7 +14,7 @@ from gymnasium import spaces
 from pettingzoo.test import parallel_api_test  # noqa: F401  (the wrapped env passes it)
 
 from selenv.agents import make
-from selenv.agents.fim import CooperativeGreedyPolicy
+from selenv.families.fim.agents import CooperativeGreedyPolicy
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from selenv.learned.rl.candidate_policy import (
     MASKED_LOGIT,
@@ -94,7 +94,7 @@ def test_cl_fused_view_carries_greedys_previewed_gains() -> None:
 
 def test_clustering_view_matches_the_edit_encoding() -> None:
     """The view's mask is the env's edit mask; in assignment mode its actions are the edits."""
-    from selenv.envs.receiver_clustering import apply_edit
+    from selenv.families.clustering.env import apply_edit
 
     edit = gym.make(CLU_ID, n_agents=9, horizon=5, action_mode="edit")
     obs, _ = edit.reset(seed=2)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from selenv.agents import make
-from selenv.envs.receiver_clustering import apply_edit, edit_mask
+from selenv.families.clustering.env import apply_edit, edit_mask
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from selenv.learned.rl.candidate_policy import make_maskable_ppo
 from selenv.learned.rl.ranking import (

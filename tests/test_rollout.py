@@ -12,7 +12,8 @@ import pytest
 
 import selenv  # noqa: F401
 from selenv.agents import agents_for, make
-from selenv.agents.rollout_models import CLForecast, LandmarkForecast
+from selenv.families.cooperative.forecast import CLForecast
+from selenv.families.landmarks.forecast import LandmarkForecast
 
 CL = "selenv/CLScheduling-v1"
 LM = "selenv/LandmarkSelection-v1"

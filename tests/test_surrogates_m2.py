@@ -23,16 +23,16 @@ import selenv  # noqa: F401  (registers the envs)
 from selenv.core.fusion import dmv_update, pecmv_update
 from selenv.core.fusion import surrogate as fusion_surrogate
 from selenv.core.fusion.surrogate import load_surrogate, same_R
-from selenv.learned.resources import checkpoint_path
-from selenv.learned.surrogate_data import GenerationConfig, SurrogateDataset, generate_dataset
-from selenv.learned.surrogates import Surrogate, shipped, shipped_catalogue
-from selenv.scenarios.cooperative import (
+from selenv.families.cooperative.scenario import (
     CLConfig,
     CLSimulation,
     check_learned_fusion,
     make_cl_problem,
     relative_noise_cov,
 )
+from selenv.learned.resources import checkpoint_path
+from selenv.learned.surrogate_data import GenerationConfig, SurrogateDataset, generate_dataset
+from selenv.learned.surrogates import Surrogate, shipped, shipped_catalogue
 from selenv.train import train_surrogate
 
 ENV_ID = "selenv/CLScheduling-v1"

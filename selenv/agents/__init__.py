@@ -1,18 +1,16 @@
 """Classic heuristics behind one agent protocol; importing registers them by name.
 
 ``selenv.agents.make(name, env_id)`` builds one; ``AGENTS`` lists them; the solvers in
-:mod:`selenv.agents.fim_solvers` work on raw arrays without any env.
+:mod:`selenv.agents.fim_solvers` work on raw arrays without any env. Each family's agents live
+in its folder (its record's ``agent_modules``) and are imported here; the ``ppo`` agent of every
+family with a shipped checkpoint is registered from the record.
 """
 
 from __future__ import annotations
 
-from selenv.agents import cl as _cl  # noqa: F401  (registers the CL scheduling agents)
-from selenv.agents import clustering as _clustering  # noqa: F401  (registers clustering agents)
-from selenv.agents import clustering_rollout as _clustering_rollout  # noqa: F401
-from selenv.agents import fim as _fim  # noqa: F401  (registers the FIM agents)
-from selenv.agents import landmarks as _landmarks  # noqa: F401  (registers landmark agents)
-from selenv.agents import multiagent as _multiagent  # noqa: F401  (registers the PettingZoo agents)
-from selenv.agents import rollout as _rollout  # noqa: F401  (registers the rollout agents)
+import importlib
+
+from selenv.agents import multiagent as _multiagent  # noqa: F401  (protocol, random, rllib)
 from selenv.agents.base import (
     AGENTS,
     Agent,
@@ -23,6 +21,7 @@ from selenv.agents.base import (
     parse_spec,
     register_agent,
 )
+from selenv.families import FAMILIES
 
 __all__ = [
     "AGENTS",
@@ -34,3 +33,31 @@ __all__ = [
     "parse_spec",
     "register_agent",
 ]
+
+for _family in FAMILIES:
+    for _module in _family.agent_modules:
+        importlib.import_module(_module)  # registers the family's agents
+    if _family.checkpoint is not None:  # the learned policy lives above this layer: lazy
+        register_agent(
+            AgentSpec(
+                "ppo",
+                (_family.current_id,),
+                "selenv.learned.rl.agent:make_ppo_agent",
+                f"{_family.ppo_description} (checkpoints/{_family.checkpoint})",
+                kwargs={"env_id": _family.current_id},
+                all_versions=False,  # the shipped checkpoint was trained on this version
+            )
+        )
+# an RLlib-trained shared module (selenv.learned.rl.rllib_agent, lazy: selenv never imports ray)
+for _family in FAMILIES:
+    if _family.multiagent_module is not None:
+        register_agent(
+            AgentSpec(
+                "rllib",
+                (_family.multiagent_module,),
+                "selenv.learned.rl.rllib_agent:make_rllib_policy",
+                "RLlib-trained shared module on each agent's own candidate view "
+                "(rllib:path=runs/rllib_<env>/policy.json; selenv/train/train_rllib_marl.py)",
+                kwargs={"env_id": _family.multiagent_module},
+            )
+        )

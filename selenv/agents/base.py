@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from selenv.envs.versions import version_ids
+from selenv.families import version_ids
 
 __all__ = [
     "AGENTS",
@@ -115,7 +115,7 @@ def register_agent(spec: AgentSpec) -> None:
     """Register ``spec`` under its name for each of its env ids (re-registering replaces).
 
     With ``spec.all_versions`` an id stands for every registered version of its family
-    (:func:`~selenv.envs.versions.version_ids`).
+    (:func:`~selenv.families.version_ids`).
     """
     ids = spec.env_ids
     if spec.all_versions:

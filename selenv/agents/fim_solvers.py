@@ -81,7 +81,7 @@ from selenv.core.objectives import (
     subset_criteria,
     swap_criteria,
 )
-from selenv.scenarios.clustering_labels import check_int
+from selenv.families.clustering.labels import check_int
 
 __all__ = [
     "MAX_BRUTE_FORCE_SUBSETS",

@@ -7,61 +7,60 @@ the base heuristic's own action is among the candidates, rollout improves on the
 the simulated model (the cost-improvement property; exactly so when the lookahead reaches the
 end of the episode).
 
-The simulation runs on a forecast (:mod:`selenv.agents.rollout_models`) of what the
+The simulation runs on a forecast (each family's ``forecast`` module) of what the
 decision-maker knows: the current ``x_hat`` and ``P``, the models, the noise statistics and the
 measurement schedule, with the last measured input held. It never sees the true state, the
 future inputs or any noise realisation, and never changes the env (tested).
 
-* ``selenv/CLScheduling-v1`` (:class:`CLRolloutAgent`): a decision is one pair or stop;
+* ``selenv/CLScheduling-v1``
+  (:class:`~selenv.families.cooperative.rollout.CLRolloutAgent`): a decision is one pair or stop;
   candidates are stop and the ``top_k`` pairs by ``preview_gain``; base ``greedy``; score: the
   drop of the objective (``log det`` or trace) over the trajectory, propagations included.
-* ``selenv/LandmarkSelection-v1`` (:class:`LandmarkRolloutAgent`): a decision is the K-subset
+* ``selenv/LandmarkSelection-v1``
+  (:class:`~selenv.families.landmarks.rollout.LandmarkRolloutAgent`): a decision is the K-subset
   of a filter step; candidates are the ``top_k`` K-subsets by one-step gain (and the base's);
   base ``brute_force``; score: minus the cost eq. (11) summed over the filter updates.
 
 ``horizon = 0`` scores only the immediate reward: it is the myopic choice (CL: ``greedy``;
 landmarks: ``brute_force``'s optimal subset).
+
+A forecast is built from what is known at decision time and nothing else: the current estimate
+``x_hat`` and covariance ``P`` (copies: the env is never touched); the models (dynamics and
+Jacobians, measurement Jacobians at the *predicted* estimate, noise covariances as statistics,
+the landmark and beacon geometry, the measurement schedule); and the **last measured input**,
+held over the lookahead (:func:`held_input`). The covariance recursions do not depend on
+measurement values, so every update is applied with a zero innovation. The families'
+``forecast`` modules reuse their scenario's math, checked step by step against the simulators.
+
+This module holds what the families' rollout agents share: option checks and the held input.
 """
 
 from __future__ import annotations
 
-import itertools
-import math
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
-from selenv.agents.base import Agent, AgentSpec, PlanAgent, register_agent
-from selenv.agents.fim_solvers import greedy_whitened
-from selenv.agents.rollout_models import CLForecast, LandmarkForecast
-from selenv.core.information import block_logdet_gains
-from selenv.core.linalg import FloatArray, cholesky_spd
-from selenv.core.objectives import make_gain_state, subset_criteria
-from selenv.envs.cl_scheduling import CLSchedulingEnv
-from selenv.envs.landmark_selection import LandmarkSelectionEnv
+from selenv.core.linalg import FloatArray
 
-__all__ = ["CLRolloutAgent", "LandmarkRolloutAgent"]
-
-CL_ENV_ID = "selenv/CLScheduling-v1"
-LANDMARK_ENV_ID = "selenv/LandmarkSelection-v1"
-CL_BASES = ("greedy", "all")
-LANDMARK_BASES = ("brute_force", "greedy")
+__all__ = ["best_index", "choice_option", "held_input", "int_option"]
 
 
-def _int_option(value: Any, name: str, low: int) -> int:
+def int_option(value: Any, name: str, low: int) -> int:
+    """``value`` if it is an int ``>= low`` (bools refused), else ``ValueError`` naming it."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
         raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
     return int(value)
 
 
-def _choice_option(value: Any, name: str, allowed: Any) -> str:
+def choice_option(value: Any, name: str, allowed: Any) -> str:
+    """``value`` if it is one of the strings ``allowed``, else ``ValueError`` naming it."""
     if not isinstance(value, str) or value not in allowed:
         raise ValueError(f"{name} must be one of {tuple(allowed)}, got {value!r}")
     return value
 
 
-def _best(scores: list[float]) -> int:
+def best_index(scores: list[float]) -> int:
     """Index of the first maximal score (ties keep the earlier candidate)."""
     best = 0
     for c, s in enumerate(scores):
@@ -70,290 +69,8 @@ def _best(scores: list[float]) -> int:
     return best
 
 
-class CLRolloutAgent(Agent):
-    """Rollout of the greedy schedule in ``CLScheduling-v1`` (one decision per env step).
-
-    Candidates: stop and the ``top_k`` open pairs by previewed gain. For each, a forecast plays
-    the candidate, finishes the current filter step with the base policy (up to the budget;
-    greedy stops when no pair lowers the objective), closes it (propagation with the held input,
-    ZUPT and beacon covariance updates on their schedule), then plays ``horizon`` more filter
-    steps the same way (pairs available on the ``relative_every`` schedule). The score is the
-    drop of the env's objective over that trajectory; ties keep stop, then the larger
-    one-step gain, so ``horizon = 0`` (immediate reward only) is the greedy agent's choice.
-    When stop is the only candidate (no open pair) nothing is simulated and its score is 0.
-
-    Args:
-        top_k: pairs evaluated per decision (>= 1), besides stop.
-        horizon: filter steps simulated after the current one (>= 0; 0: myopic).
-        base: base policy of the simulation: ``"greedy"`` or ``"all"`` (open pairs in index
-            order up to the budget).
-    """
-
-    name = "rollout"
-
-    def __init__(self, top_k: int = 3, horizon: int = 5, base: str = "greedy") -> None:
-        self.top_k = _int_option(top_k, "top_k", 1)
-        self.horizon = _int_option(horizon, "horizon", 0)
-        self.base_policy = _choice_option(base, "base", CL_BASES)
-
-    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
-        super().reset(env, seed)
-        base = env.unwrapped
-        if not isinstance(base, CLSchedulingEnv):
-            raise ValueError(f"agent 'rollout' needs {CL_ENV_ID} here, got {type(base).__name__}")
-        self.cl = base
-
-    def act(self, obs: Any, info: dict[str, Any]) -> int:
-        """The first action of the best simulated trajectory (a pair index, or stop ``P``)."""
-        choice, _ = self.scores()
-        return choice
-
-    def scores(self) -> tuple[int, dict[int, float]]:
-        """The choice and every candidate's score (stop is ``P``), from the env's state now."""
-        env = self.cl
-        stop = env.n_pairs
-        root = CLForecast.from_env(env)
-        open_ = [int(p) for p in np.flatnonzero(env.action_masks()[:-1])]
-        gains = {p: root.gain(p) for p in open_}
-        ranked = sorted(open_, key=lambda p: (-gains[p], p))[: self.top_k]
-        candidates = [stop, *ranked]
-        if self.horizon == 0 or not ranked:  # immediate reward: the greedy choice
-            scores = [0.0, *(gains[p] for p in ranked)]
-        else:
-            start = root.objective_value()
-            scores = [
-                start - self._simulate(root, c, open_, gains, env.budget_left) for c in candidates
-            ]
-        return candidates[_best(scores)], dict(zip(candidates, scores, strict=True))
-
-    def _simulate(
-        self, root: CLForecast, first: int, open_: list[int], gains: dict[int, float], slots: int
-    ) -> float:
-        """Objective at the end of the simulated trajectory that starts with ``first``."""
-        f = root.copy()
-        pending, g = list(open_), dict(gains)
-        if first != self.cl.n_pairs:
-            self._process(f, first, pending, g)
-            self._base_step(f, pending, g, slots - 1)
-        for _ in range(self.horizon):
-            if f.k >= self.cl.horizon:  # the episode ends when this step closes
-                return f.objective_value()
-            f.advance()
-            pending = f.available()
-            g = {p: f.gain(p) for p in pending} if self.base_policy == "greedy" else {}
-            self._base_step(f, pending, g, self.cl.budget)
-        if f.k < self.cl.horizon:
-            f.advance()
-        return f.objective_value()
-
-    def _process(self, f: CLForecast, p: int, pending: list[int], g: dict[int, float]) -> None:
-        """Fuse pair ``p``; refresh the cached gains of the pairs that involve its agent."""
-        f.relative_update(p)
-        pending.remove(p)
-        if self.base_policy == "greedy":
-            i = f.pairs[p][0]
-            for q in pending:
-                if i in f.pairs[q]:
-                    g[q] = f.gain(q)
-
-    def _base_step(
-        self, f: CLForecast, pending: list[int], g: dict[int, float], slots: int
-    ) -> None:
-        """The base policy's picks for the rest of a filter step (``slots`` left)."""
-        while slots > 0 and pending:
-            if self.base_policy == "all":
-                p = pending[0]
-            else:  # greedy: the largest previewed drop (first index on ties), stop if none > 0
-                p = max(pending, key=lambda q: (g[q], -q))
-                if not g[p] > 0.0:
-                    return
-            self._process(f, p, pending, g)
-            slots -= 1
-
-
-def _combinations(n: int, k: int) -> np.ndarray:
-    """All ``k``-subsets of ``range(n)`` in lexicographic order, ``(C(n, k), k)``."""
-    return np.array(list(itertools.combinations(range(n), k)), dtype=np.intp).reshape(-1, k)
-
-
-def _subset_gains(
-    P: FloatArray,
-    G: FloatArray,
-    combos: np.ndarray,
-    objective: str = "logdet",
-    interest: tuple[int, ...] | None = None,
-) -> FloatArray:
-    """One-step gain of each subset, ``(C,)``, higher is better.
-
-    ``"logdet"``: ``log det(I + G_S P G_S^T)`` (the dual identity), ``G_S P G_S^T`` gathered from
-    ``S = G P G^T`` over all rows (one ``Nm x Nm`` product). ``"trace"`` / ``"max_eig"``: minus
-    the trace / largest eigenvalue of the ``interest`` block of the posterior
-    ``(P^-1 + G_S^T G_S)^-1``
-    (:func:`~selenv.core.objectives.subset_criteria`, batched Cholesky).
-    """
-    if objective != "logdet":
-        Linv = np.linalg.inv(cholesky_spd(P, "P"))
-        Qk = np.einsum("kmi,kmj->kij", G, G)
-        idx = None if interest is None else np.asarray(interest, dtype=np.intp)
-        return -subset_criteria(Linv.T @ Linv, Qk, combos, objective, idx)
-    N, m, d = G.shape
-    Gf = G.reshape(N * m, d)
-    S = Gf @ P @ Gf.T  # S = G P G^T, every pair of rows
-    rows = (combos[:, :, None] * m + np.arange(m)).reshape(combos.shape[0], -1)  # (C, K m)
-    return block_logdet_gains(S[rows[:, :, None], rows[:, None, :]])  # log det(I + W_S)
-
-
-class LandmarkRolloutAgent(PlanAgent):
-    """Rollout of a myopic selector in ``LandmarkSelection-v1``, one plan per filter step.
-
-    At the first pick of a filter step, candidates are the ``top_k`` K-subsets of the open
-    landmarks by one-step gain in the env's objective (``log det(I + W_S)``, or the decrease of
-    the position trace / largest position variance with ``objective="trace"`` / ``"max_eig"``)
-    (all ``C(N, K)`` subsets ranked when there
-    are at most ``max_subsets``; otherwise each of the ``top_k`` best single landmarks completed
-    greedily), plus the base policy's own subset. For each, a forecast applies the update, then
-    ``horizon`` future filter steps (prediction with the held IMU sample, the base policy's
-    subset at the predicted covariance, update); the score is minus the env's cost eq. (11)
-    summed over those updates. The best subset is played over the next K env steps.
-    ``horizon = 0`` scores only the current update: ``brute_force``'s optimal subset. A lone
-    candidate is played without simulation (score 0).
-
-    Args:
-        top_k: K-subsets evaluated per filter step (>= 1).
-        horizon: future filter steps simulated (>= 0; 0: myopic).
-        base: base policy of the simulation, ``"brute_force"`` or ``"greedy"``.
-        max_subsets: largest ``C(N, K)`` ranked exhaustively.
-    """
-
-    name = "rollout"
-
-    def __init__(
-        self,
-        top_k: int = 4,
-        horizon: int = 10,
-        base: str = "brute_force",
-        max_subsets: int = 20_000,
-    ) -> None:
-        self.top_k = _int_option(top_k, "top_k", 1)
-        self.horizon = _int_option(horizon, "horizon", 0)
-        self.base_policy = _choice_option(base, "base", LANDMARK_BASES)
-        self.max_subsets = _int_option(max_subsets, "max_subsets", 1)
-        self._combos: dict[tuple[int, int], np.ndarray] = {}
-
-    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
-        """Bind to the env; refuse (``ValueError``) a brute-force base over too many subsets."""
-        super().reset(env, seed)
-        base = env.unwrapped
-        if not isinstance(base, LandmarkSelectionEnv):
-            raise ValueError(
-                f"agent 'rollout' needs {LANDMARK_ENV_ID} here, got {type(base).__name__}"
-            )
-        n_sub = math.comb(base.n, base.k)
-        if self.base_policy == "brute_force" and n_sub > self.max_subsets:
-            raise ValueError(
-                f"rollout with base='brute_force' refuses C({base.n}, {base.k}) = {n_sub:,} "
-                f"subsets per simulated step (max_subsets={self.max_subsets:,}); use base='greedy'"
-            )
-        self.lm = base
-
-    def _subsets(self, n: int, k: int) -> np.ndarray:
-        key = (n, k)
-        combos = self._combos.get(key)
-        if combos is None:
-            combos = self._combos[key] = _combinations(n, k)
-        return combos
-
-    def _base_choice(self, P: FloatArray, G: FloatArray, budget: int) -> tuple[int, ...]:
-        """The base policy's subset (indices into ``G``, ascending) for the covariance ``P``.
-
-        ``brute_force``: the best subset by the dual identity ``log det(I + G_S P G_S^T)`` (the
-        optimum of :func:`~selenv.agents.fim_solvers.brute_force_whitened`, on ``2K x 2K``
-        determinants);
-        ``greedy``: :func:`greedy_whitened` with the prior ``P^-1``. Both on the env's
-        one-step objective (``solver_objective``: log det, or the position trace / max eig).
-        """
-        objective, interest = self.lm.solver_objective, self.lm.interest
-        if self.base_policy == "brute_force":
-            combos = self._subsets(G.shape[0], budget)
-            gains = _subset_gains(P, G, combos, objective, interest)
-            return tuple(int(i) for i in combos[int(np.argmax(gains))])
-        Linv = np.linalg.inv(cholesky_spd(P, "P"))
-        Q0 = Linv.T @ Linv  # P^-1 from its Cholesky factor
-        sel = greedy_whitened(0.5 * (Q0 + Q0.T), G, budget, objective=objective, interest=interest)
-        return tuple(sorted(sel.indices))
-
-    def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
-        """The best candidate subset for the picks left in this filter step."""
-        best, _ = self.scores()
-        return list(best)
-
-    def candidates(self) -> list[tuple[int, ...]]:
-        """Candidate subsets (landmark indices, ascending), best one-step gain first."""
-        env = self.lm
-        state, budget = env.state, env.budget_left
-        remaining = np.flatnonzero(~state.selected)
-        G = state.G[remaining]
-        prior = state.information  # P_pred^-1 plus this step's picks so far
-        out: list[tuple[int, ...]] = []
-        if math.comb(remaining.size, budget) <= self.max_subsets:
-            combos = self._subsets(remaining.size, budget)
-            gains = _subset_gains(state.P, G, combos, env.solver_objective, env.interest)
-            for c in np.argsort(-gains, kind="stable")[: self.top_k]:
-                out.append(tuple(int(remaining[i]) for i in combos[c]))
-            if self.base_policy == "brute_force":  # the top subset is the base's own choice
-                return out
-        else:
-            assert state.gains is not None  # the env tracks them
-            singles = np.argsort(-state.gains[remaining], kind="stable")[: self.top_k]
-            for j in singles:  # greedy completion of each of the best single landmarks
-                st = make_gain_state(
-                    prior, G, env.solver_objective, interest=env.interest, track_gains=True
-                )
-                st.add(int(j))
-                for _ in range(budget - 1):
-                    st.add(int(np.argmax(st.masked_gains())))
-                out.append(tuple(sorted(int(remaining[i]) for i in st.order)))
-            out = list(dict.fromkeys(out))  # two singles may complete to the same subset
-        own = tuple(int(remaining[i]) for i in self._base_choice(state.P, G, budget))
-        return out if own in out else [*out, own]
-
-    def scores(self) -> tuple[tuple[int, ...], dict[tuple[int, ...], float]]:
-        """The chosen subset and every candidate's score (minus the summed cost)."""
-        env = self.lm
-        cands = self.candidates()
-        root = LandmarkForecast.from_env(env)
-        H0 = root.jacobians()
-        picked = list(env.picks)
-        steps = min(self.horizon, env.horizon - root.k)  # future filter updates in the episode
-        scores = []
-        for sel in cands if len(cands) > 1 else ():  # a lone candidate needs no score
-            f = root.copy()
-            f.update([*picked, *sel], H0)
-            total = -f.cost()
-            for _ in range(steps):
-                f.predict()
-                H = f.jacobians()
-                f.update(self._base_choice(f.P, f.whitened(H), env.k), H)
-                total -= f.cost()
-            scores.append(total)
-        if not scores:
-            return cands[0], {cands[0]: 0.0}
-        return cands[_best(scores)], dict(zip(cands, scores, strict=True))
-
-
-register_agent(
-    AgentSpec(
-        "rollout",
-        (CL_ENV_ID,),
-        CLRolloutAgent,
-        "rollout: top-3 pairs + stop, 5 filter steps of greedy ahead (no future noise)",
-    )
-)
-register_agent(
-    AgentSpec(
-        "rollout",
-        (LANDMARK_ENV_ID,),
-        LandmarkRolloutAgent,
-        "rollout: top-4 K-subsets, 10 filter steps of brute force ahead (no future noise)",
-    )
-)
+def held_input(inputs: FloatArray, k: int) -> FloatArray:
+    """The last input used by the filter (sample ``k - 1``), copied: the held forecast input."""
+    if k < 1:
+        raise ValueError("a forecast needs one propagation done (the held input), got k = 0")
+    return np.array(inputs[k - 1], dtype=np.float64)

@@ -20,8 +20,6 @@ Gymnasium bench; ``env_kwargs`` may override it) and plays every episode with a
 from __future__ import annotations
 
 import importlib
-import pkgutil
-import re
 import time
 from types import ModuleType
 from typing import Any
@@ -29,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from selenv.bench.results import AgentRefused, AgentResult, BenchError, EnvKwargsError
+from selenv.families import FAMILIES
 
 __all__ = [
     "MULTIAGENT_PACKAGE",
@@ -43,10 +42,11 @@ MULTIAGENT_PACKAGE = "selenv.multiagent"
 
 
 def multiagent_modules() -> list[str]:
-    """Full names of selenv's PettingZoo modules (``selenv.multiagent.<name>_v<N>``), sorted."""
-    package = importlib.import_module(MULTIAGENT_PACKAGE)
-    names = (m.name for m in pkgutil.iter_modules(package.__path__))
-    return sorted(f"{MULTIAGENT_PACKAGE}.{n}" for n in names if re.fullmatch(r"\w+_v\d+", n))
+    """Full names of selenv's PettingZoo modules (``selenv.multiagent.<name>_v<N>``), sorted.
+
+    Read from the family records (:data:`selenv.families.FAMILIES`, ``multiagent_module``).
+    """
+    return sorted(f.multiagent_module for f in FAMILIES if f.multiagent_module is not None)
 
 
 def is_multiagent_module(env_id: str) -> bool:

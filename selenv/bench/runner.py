@@ -44,8 +44,8 @@ from selenv.bench.results import (
     EnvBenchResult,
     EnvKwargsError,
 )
-from selenv.envs import ALL_ENV_IDS
 from selenv.envs.resolved import resolved_env_config
+from selenv.families import ALL_ENV_IDS
 from selenv.parallel import Executor, LocalExecutor
 
 __all__ = [

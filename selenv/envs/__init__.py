@@ -1,30 +1,20 @@
-"""Gymnasium environments; importing this module registers every ``selenv/...`` id.
+"""What every env shares: action rules, conventions, rendering, candidate views, versions.
 
-The ids, their entry points and each version's keyword defaults are in
-:mod:`selenv.envs.versions` (one table); ``-v0`` reproduces release 0.1, ``-v1`` is current.
+The envs themselves live in their family folders (:mod:`selenv.families`), which also registers
+the Gymnasium ids; ``ENV_IDS`` and ``ALL_ENV_IDS`` are read from there (kept here for
+compatibility).
 """
 
 from __future__ import annotations
 
-import gymnasium as gym
-
-from selenv.envs.versions import ENV_VERSIONS, latest_ids
+from typing import Any
 
 __all__ = ["ALL_ENV_IDS", "ENV_IDS"]
 
-#: the current id of every family, in the order ``selenv list`` and ``selenv bench`` use them
-ENV_IDS: tuple[str, ...] = latest_ids()
 
-#: every registered Gymnasium id, older versions included
-ALL_ENV_IDS: tuple[str, ...] = tuple(v.env_id for v in ENV_VERSIONS)
+def __getattr__(name: str) -> Any:
+    if name in __all__:  # the ids come from the family records (a layer above this one)
+        import selenv.families
 
-# factory functions, not the classes: ``gymnasium.make`` would otherwise pre-check
-# ``render_mode`` itself and crash on a non-str value (see :mod:`selenv.envs.factories`)
-for _v in ENV_VERSIONS:
-    if _v.env_id not in gym.registry:
-        gym.register(
-            id=_v.env_id,
-            entry_point=_v.entry_point,
-            kwargs=dict(_v.kwargs),
-            disable_env_checker=False,
-        )
+        return getattr(selenv.families, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

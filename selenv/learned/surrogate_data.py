@@ -1,7 +1,8 @@
 """Datasets for the learned fusion surrogates LDMV and LPECMV (Chen & Kia 2022, Sec. III-IV).
 
 A sample is one relative-range update of the cooperative-localisation simulator
-(:class:`~selenv.scenarios.cooperative.CLSimulation`, ``model="ins"``: n = 9, m = 1): the two
+(:class:`~selenv.families.cooperative.scenario.CLSimulation`, ``model="ins"``: n = 9, m = 1): the
+two
 agents' beliefs after a single-step propagation, the Jacobians and the noise,
 ``(P_i, P_j, H_i, H_j, R)``, labelled by the exact batched solvers of ``selenv.core``:
 
@@ -48,8 +49,8 @@ import numpy as np
 import selenv
 from selenv.core.fusion.batch import dmv_omega_batch, pecmv_batch
 from selenv.core.linalg import FloatArray
+from selenv.families.cooperative.scenario import CLConfig, CLSimulation, make_cl_problem
 from selenv.parallel import Executor, LocalExecutor, ProcessExecutor
-from selenv.scenarios.cooperative import CLConfig, CLSimulation, make_cl_problem
 
 __all__ = [
     "ARRAYS",

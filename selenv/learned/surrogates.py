@@ -660,7 +660,7 @@ def shipped(kind: str, *, R: Any = None, n: int | None = None) -> Surrogate:
     is given, whose ``n`` matches, is returned. ``R=None``: the range-only (m = 1) checkpoint,
     as before the m = 2 ones existed.
 
-    This is the hook ``selenv.scenarios.cooperative`` calls for ``fusion="ldmv"`` /
+    This is the hook ``selenv.families.cooperative.scenario`` calls for ``fusion="ldmv"`` /
     ``"lpecmv"`` (through a lazy ``"module:attr"`` reference, so ``selenv`` never imports
     ``learned`` at import time).
 

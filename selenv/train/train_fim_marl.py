@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from selenv.agents.fim import CooperativeGreedyPolicy
+from selenv.families.fim.agents import CooperativeGreedyPolicy
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.rl.marl import SharedPolicyEnv
 from selenv.learned.rl.safe_load import load_policy

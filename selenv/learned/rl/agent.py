@@ -27,6 +27,7 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.agents.base import Agent
+from selenv.families import FAMILIES
 from selenv.learned.resources import checkpoint_dir
 from selenv.learned.rl.candidate_policy import (
     CandidateScoringPolicy,
@@ -49,10 +50,7 @@ FIM_ENV_ID = "selenv/FIMSelection-v1"
 CHECKPOINT_DIR = checkpoint_dir()
 #: env id -> the shipped checkpoint the ``ppo`` agent loads by default
 DEFAULT_CHECKPOINTS = {
-    FIM_ENV_ID: CHECKPOINT_DIR / "fim_selection_ppo.zip",
-    "selenv/LandmarkSelection-v1": CHECKPOINT_DIR / "landmark_selection_ppo.zip",
-    "selenv/CLScheduling-v1": CHECKPOINT_DIR / "cl_scheduling_ppo.zip",
-    "selenv/ReceiverClustering-v1": CHECKPOINT_DIR / "receiver_clustering_ppo.zip",
+    f.current_id: CHECKPOINT_DIR / f.checkpoint for f in FAMILIES if f.checkpoint is not None
 }
 
 

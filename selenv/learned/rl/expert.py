@@ -1,6 +1,7 @@
 """Expert iteration: the non-myopic ``rollout`` references (CL scheduling, landmarks) as labellers.
 
-The ``rollout`` agent (:class:`selenv.agents.rollout.CLRolloutAgent`) scores stop and the
+The ``rollout`` agent (:class:`selenv.families.cooperative.rollout.CLRolloutAgent`) scores stop and
+the
 ``top_k`` open pairs of a decision by simulating ``horizon`` filter steps of greedy on the
 forecast covariance recursion (no truth, no future noise). Its scores are a dense label of a
 state: each evaluated action gets ``dJ = -score`` (the objective drop, negated, so lower is
@@ -112,7 +113,8 @@ def _landmark_label(labeller: Any, view: Any, obs: dict[str, Any], n: int) -> _L
 
 
 def _labeller(job: _Job) -> tuple[Any, Any]:
-    from selenv.agents.rollout import CLRolloutAgent, LandmarkRolloutAgent
+    from selenv.families.cooperative.rollout import CLRolloutAgent
+    from selenv.families.landmarks.rollout import LandmarkRolloutAgent
 
     if job.env_id == CL_ID:
         return CLRolloutAgent(top_k=job.top_k, horizon=job.horizon), _cl_label

@@ -85,7 +85,7 @@ def clustering_edit_deltas(env: gym.Env[Any, Any]) -> np.ndarray:
     greedy search compares); 0 for the no-op, ``+inf`` for masked edits. Costs one
     evaluation per allowed edit (counted by the env's filter bank).
     """
-    from selenv.envs.receiver_clustering import edit_cost_changes, edit_mask
+    from selenv.families.clustering.env import edit_cost_changes, edit_mask
 
     base = env.unwrapped
     bank = base.bank  # type: ignore[attr-defined]

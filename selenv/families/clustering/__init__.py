@@ -1,0 +1,30 @@
+"""The ``ReceiverClustering`` family.
+
+Clustering GNSS receivers with a shared bias (Greiff et al. 2022).
+
+:data:`SPEC` is its record; the folder's modules are listed in :mod:`selenv.families.spec`.
+"""
+
+from __future__ import annotations
+
+from selenv.families.spec import FamilySpec, env_factories
+
+__all__ = ["SPEC", "make_env", "make_env_v0"]
+
+SPEC = FamilySpec(
+    name="clustering",
+    env_name="ReceiverClustering",
+    title="clustering GNSS receivers with a shared bias (Greiff et al. 2022)",
+    env_class="selenv.families.clustering.env:ReceiverClusteringEnv",
+    v0_kwargs={"preset": "paper", "obs_mask": False},
+    views="selenv.families.clustering.view:VIEWS",
+    checkpoint="receiver_clustering_ppo.zip",
+    ppo_description="edit-ranking policy, its top edit",
+    agent_modules=(
+        "selenv.families.clustering.agents",
+        "selenv.families.clustering.rollout",
+        "selenv.families.clustering.multiagent_agents",
+    ),
+    multiagent_module="selenv.multiagent.receiver_clustering_v0",
+)
+make_env, make_env_v0 = env_factories(SPEC)

@@ -1,0 +1,28 @@
+"""The ``CLScheduling`` family.
+
+Cooperative localization: which relative measurements to fuse (Chen & Kia 2022).
+
+:data:`SPEC` is its record; the folder's modules are listed in :mod:`selenv.families.spec`.
+"""
+
+from __future__ import annotations
+
+from selenv.families.spec import FamilySpec, env_factories
+
+__all__ = ["SPEC", "make_env", "make_env_v0"]
+
+SPEC = FamilySpec(
+    name="cooperative",
+    env_name="CLScheduling",
+    title="cooperative localization: which relative measurements to fuse (Chen & Kia 2022)",
+    env_class="selenv.families.cooperative.env:CLSchedulingEnv",
+    v0_kwargs={"preset": "dense"},
+    views="selenv.families.cooperative.view:VIEWS",
+    checkpoint="cl_scheduling_ppo.zip",
+    ppo_description="MaskablePPO pair-scoring policy",
+    agent_modules=(
+        "selenv.families.cooperative.agents",
+        "selenv.families.cooperative.rollout",
+    ),
+)
+make_env, make_env_v0 = env_factories(SPEC)

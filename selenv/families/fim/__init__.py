@@ -1,0 +1,29 @@
+"""The ``FIMSelection`` family.
+
+Heterogeneous measurement selection by Fisher information (Kirchner et al. 2020).
+
+:data:`SPEC` is its record; the folder's modules are listed in :mod:`selenv.families.spec`.
+"""
+
+from __future__ import annotations
+
+from selenv.families.spec import FamilySpec, env_factories
+
+__all__ = ["SPEC", "make_env", "make_env_v0"]
+
+SPEC = FamilySpec(
+    name="fim",
+    env_name="FIMSelection",
+    title="heterogeneous measurement selection by Fisher information (Kirchner et al. 2020)",
+    env_class="selenv.families.fim.env:FIMSelectionEnv",
+    v0_presets={"example2": "example2_moving", "example3": "example3_moving"},
+    views="selenv.envs.views:IDENTITY_VIEWS",
+    checkpoint="fim_selection_ppo.zip",
+    ppo_description="MaskablePPO candidate-scoring policy",
+    agent_modules=(
+        "selenv.families.fim.agents",
+        "selenv.families.fim.multiagent_agents",
+    ),
+    multiagent_module="selenv.multiagent.fim_selection_v0",
+)
+make_env, make_env_v0 = env_factories(SPEC)

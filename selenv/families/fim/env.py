@@ -1,0 +1,333 @@
+"""``selenv/FIMSelection-v1``: heterogeneous measurement selection by Fisher information."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from selenv.core.objectives import GainState, get_objective, make_gain_state, objective_names
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
+from selenv.envs.rendering import Renderer
+from selenv.families.fim.rendering import draw_fim_selection
+from selenv.families.fim.scenario import (
+    SENSOR_NAMES,
+    FIMProblem,
+    config_from,
+    make_problem,
+)
+from selenv.scenarios.validation import ArgumentTypeError, check_choice, check_integer, describe
+
+__all__ = [
+    "FIMSelectionEnv",
+    "candidate_features",
+    "check_sensors",
+    "fim_observation",
+    "fim_observation_space",
+    "parse_action",
+]
+
+
+def check_sensors(sensors: Any) -> tuple[Any, ...] | None:
+    """``sensors`` keyword: ``None`` (the preset's) or a tuple / list, returned as a tuple."""
+    if sensors is not None and not isinstance(sensors, tuple | list):
+        raise ArgumentTypeError(
+            f"sensors must be None or a sequence of names from {SENSOR_NAMES}, "
+            f"got {describe(sensors)}"
+        )
+    return None if sensors is None else tuple(sensors)
+
+
+def parse_action(action: Any, n: int, mask: np.ndarray, name: str = "action") -> int:
+    """Validate a ``Discrete(n)`` action against ``mask``; return it as ``int`` (strict).
+
+    Raises:
+        TypeError: not an integer (bools and floats are rejected, never rounded).
+        ValueError: out of ``[0, n)`` or masked, with the reason.
+    """
+    k = check_discrete(action, n, name)
+    if not mask[k]:
+        raise ValueError(f"{name} {k} is masked: candidate {k} is already selected")
+    return k
+
+
+def fim_observation_space(n: int, m: int, d: int) -> spaces.Dict:
+    """The ``Dict`` observation space over a pool of ``n`` candidates (``m`` rows, ``d`` params)."""
+    return spaces.Dict(
+        {
+            "gain": spaces.Box(0.0, np.inf, (n,), np.float32),
+            "whitened": spaces.Box(-np.inf, np.inf, (n, m * d), np.float32),
+            "features": spaces.Box(0.0, 1.0, (n, 4), np.float32),
+            "selected": spaces.MultiBinary(n),
+            "budget_left": spaces.Box(0.0, 1.0, (1,), np.float32),
+            "action_mask": spaces.MultiBinary(n),
+        }
+    )
+
+
+def candidate_features(problem: FIMProblem) -> np.ndarray:
+    """Static per-candidate features ``(N, 4)``: one-hot sensor, time in the window in [0, 1]."""
+    t = problem.times
+    span = float(np.ptp(t)) or 1.0
+    feats = np.zeros((len(t), 4), np.float32)
+    feats[np.arange(len(t)), problem.sensor] = 1.0
+    feats[:, 3] = (t - t.min()) / span
+    return feats
+
+
+def fim_observation(
+    gains: np.ndarray,
+    Z: np.ndarray,
+    selected: np.ndarray,
+    features: np.ndarray,
+    budget_fraction: float,
+) -> dict[str, np.ndarray]:
+    """Assemble one observation from a gain state's ``gains (n,)`` and ``Z (n, m, d)``."""
+    return {
+        "gain": np.where(selected, 0.0, gains).astype(np.float32),
+        "whitened": Z.reshape(len(gains), -1).astype(np.float32),
+        "features": features.copy(),
+        "selected": selected.astype(np.int8),
+        "budget_left": np.array([budget_fraction], np.float32),
+        "action_mask": (~selected).astype(np.int8),
+    }
+
+
+class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
+    r"""Pick measurements one at a time to maximise the log det of the Fisher information.
+
+    ## Description
+    The heterogeneous measurement-selection problem of Kirchner, Hespanha & Garagić (2020).
+    Sensing agents move along paths and collect a pool of candidate measurements of a vehicle
+    (camera image coordinates eq. 23, time of arrival eq. 20, Doppler shift eq. 22). Only
+    ``budget`` of them can be sent to the fusion centre. Each step the agent picks one more
+    candidate; the objective is eq. (9),
+    ``f(F) = log det(Q0 + sum_{k in F} Q_k) - log det Q0`` with ``Q_k = J_k^T Sigma_k^-1 J_k``.
+    ``f`` is monotone submodular, so greedy (always taking the largest current gain) is within
+    ``1 - 1/e`` of the optimum; swap search and brute force do better on small pools.
+
+    ## Action Space
+    ``Discrete(N)``: the index of the candidate to select, ``N = n_candidates x sensors x
+    agents``. Already-selected candidates are masked (:meth:`action_masks`,
+    ``info["action_mask"]``, ``obs["action_mask"]``). Picking a masked candidate is handled by
+    ``invalid_action`` (:mod:`selenv.envs.actions`): ``"noop"`` (default) spends the budget
+    slot without selecting anything (``info["invalid_action"]``, ``info["invalid_reason"]``),
+    ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode. A non-integer or
+    out-of-range action is a ``TypeError`` / ``ValueError`` in every mode.
+
+    ## Observation Space
+    ``Dict`` (``m`` = rows per candidate, 2 with cameras else 1; ``d`` = parameters):
+
+    | key | shape | meaning |
+    |---|---|---|
+    | ``gain`` | ``(N,)`` | current marginal gain in ``objective`` (0 once selected) |
+    | ``whitened`` | ``(N, m d)`` | ``G_k L^-T``: candidate whitened in the current FIM ``L L^T`` |
+    | ``features`` | ``(N, 4)`` | one-hot sensor (camera, toa, doppler), time in window [0, 1] |
+    | ``selected`` | ``(N,)`` | 1 if selected |
+    | ``budget_left`` | ``(1,)`` | fraction of the budget still to spend |
+    | ``action_mask`` | ``(N,)`` | 1 where the action is allowed |
+
+    ``gain`` alone lets a policy reproduce greedy (its argmax); ``whitened`` holds every
+    cross term (``Z_k Z_l^T``), so a policy can also anticipate redundancy between candidates.
+    ``gain`` by ``objective``: ``"logdet"`` ``log det(I + S_k)`` (nats); ``"trace"`` the
+    decrease of the target-position MSE bound ``tr(E P E^T)`` (m^2) if ``k`` were added;
+    ``"max_eig"`` the decrease of ``lambda_max(E P E^T)`` (m^2). ``whitened`` does not depend on
+    ``objective``.
+
+    ## Rewards
+    The gain of the pick in ``log det FIM`` (nats), so the undiscounted return is ``f(F)``.
+    ``info["objective"]`` is ``f`` after the step, ``info["objective_name"]`` its name.
+    ``objective="trace"`` (A-optimal, eq. 6) or ``"max_eig"`` (E-optimal, eq. 7) score the
+    target position ``(x, y)`` instead (``E`` selects them; :mod:`selenv.core.objectives`):
+    ``f(F) = tr(E P0 E^T) - tr(E P_F E^T)`` (the decrease of the position MSE bound, m^2) or
+    ``lambda_max(E P0 E^T) - lambda_max(E P_F E^T)``, ``P_F`` the CRLB; the reward is the
+    step's increase of ``f``, so the return is again ``f(F)``. Neither is submodular: greedy has
+    no guarantee there and the ``lazy_greedy`` agent refuses them.
+
+    ## Starting State
+    A new scenario per ``reset``: the truth is drawn from the prior ``p(theta)`` and, when
+    ``randomize`` is true, the geometry (path rotation, range, candidate times) is drawn too.
+    Nothing is selected.
+
+    ## Episode End
+    Terminates after ``budget`` steps (``env.spec.max_episode_steps``), i.e. when the budget
+    is spent, or at an invalid action with ``invalid_action="terminate"``. Never truncates.
+
+    ## Rendering
+    ``render_mode="rgb_array"`` or ``"human"``: the sensing agents' paths, the target, every
+    candidate by sensor type with the picked ones bold, and the 2-sigma ellipse of the target
+    position under the current information.
+
+    ## Arguments
+    ``gymnasium.make("selenv/FIMSelection-v1", preset="example2_moving", n_candidates=100,
+    budget=10, sensors=None, n_agents=None, camera_sigma_px=None, toa_sigma_m=None,
+    doppler_sigma_mps=None, randomize=True, invalid_action="noop", invalid_action_penalty=0.0,
+    render_mode=None)``; ``None`` keeps the preset's value. Presets: ``example1`` (one
+    camera), ``example2`` (camera + Doppler), ``example3`` (two agents), each with the paper's
+    stationary target, and ``example1_moving``, ``example2_moving``, ``example3_moving`` (same
+    pools, moving target: velocity and curvature estimated too). The default
+    ``example2_moving`` is the v0 benchmark (what ``example2`` was before the paper's
+    stationary reading; kept so v0 trajectories do not change). Ranges (an error
+    naming the keyword and its range outside them): ``n_candidates`` an int in ``[1, 5000]``,
+    ``n_agents`` in ``[1, 8]``, ``budget`` in ``[1, N]``, ``camera_sigma_px`` in
+    ``[1e-3, 1e3]`` px, ``toa_sigma_m`` in ``[1e-3, 1e5]`` m, ``doppler_sigma_mps`` in
+    ``[1e-3, 1e5]`` m/s, ``invalid_action_penalty`` in ``[-1e6, 1e6]``
+    (:class:`~selenv.families.fim.scenario.FIMScenarioConfig` lists all fields).
+    ``objective="logdet"`` (default), ``"trace"``, ``"max_eig"``, ``"det"`` or any objective
+    registered with :func:`~selenv.core.objective_registry.register_objective` chooses ``f``
+    (see Rewards; an unknown name is a ``ValueError`` listing the known ones).
+
+    ## Version History
+    * v1: ``preset="example1" / "example2" / "example3"`` are Kirchner et al.'s stationary
+      examples (the moving-target ones are ``example*_moving``; the default,
+      ``example2_moving``, is v0's default scenario); ``invalid_action`` modes, rendering and
+      every registered ``objective``.
+    * v0: release 0.1: ``preset="example2"`` (the default) and ``"example3"`` meant the
+      moving-target scenarios; ``FIMSelection-v0`` maps them so (tested against recordings of
+      0.1's episodes); deprecated in favour of v1.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 4}  # noqa: RUF012
+
+    def __init__(
+        self,
+        *,
+        preset: str = "example2_moving",
+        n_candidates: int = 100,
+        budget: int = 10,
+        sensors: tuple[str, ...] | list[str] | None = None,
+        n_agents: int | None = None,
+        camera_sigma_px: float | None = None,
+        toa_sigma_m: float | None = None,
+        doppler_sigma_mps: float | None = None,
+        randomize: bool = True,
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
+        objective: str = "logdet",
+        render_mode: str | None = None,
+    ) -> None:
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.objective = check_choice(objective, "objective", objective_names())
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
+        overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
+        check_integer(budget, "budget", 1)  # the type first; the pool size bounds it below
+        for key, val in (
+            ("sensors", check_sensors(sensors)),
+            ("n_agents", n_agents),
+            ("camera_sigma_px", camera_sigma_px),
+            ("toa_sigma_m", toa_sigma_m),
+            ("doppler_sigma_mps", doppler_sigma_mps),
+        ):
+            if val is not None:
+                overrides[key] = val
+        self.config = config_from(preset, **overrides)
+        probe = make_problem(self.config, np.random.default_rng(0))  # shapes only
+        self.n, self.m, self.d = probe.G.shape
+        #: ``(x, y)`` indices scored by objectives that are not unit-invariant (trace, max_eig);
+        #: ``None`` (all parameters) for unit-invariant ones (log det, det)
+        self.interest: tuple[int, ...] | None = (
+            None
+            if get_objective(self.objective).unit_invariant
+            else tuple(probe.param_names.index(name) for name in ("x", "y"))
+        )
+        self.budget = check_integer(budget, f"budget (at most the pool size {self.n})", 1, self.n)
+        self.max_episode_steps = self.budget
+        self.action_space = spaces.Discrete(self.n)
+        self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment, unused-ignore]
+        self.problem: FIMProblem | None = None
+        self._state: GainState | None = None
+        self._steps = 0
+        self._done = False
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
+
+    # -- oracle view used by heuristic agents ---------------------------------------------
+    @property
+    def state(self) -> GainState:
+        """The live gain state (information, gains, selection); requires :meth:`reset`."""
+        if self._state is None:
+            raise RuntimeError("call reset() before using the env")
+        return self._state
+
+    @property
+    def solver_objective(self) -> str:
+        """The objective the oracle agents optimise: ``objective`` or its ``solver_proxy``.
+
+        ``"det"`` -> ``"logdet"``: the same picks without under- / overflow of ``det``;
+        :attr:`interest` holds its indices.
+        """
+        return get_objective(self.objective).solver_name
+
+    @property
+    def budget_left(self) -> int:
+        """Number of picks still to make (an invalid no-op pick spends one too)."""
+        return self.budget - self._steps
+
+    def action_masks(self) -> np.ndarray:
+        """Boolean ``(N,)`` mask of allowed actions (MaskablePPO protocol)."""
+        return ~self.state.selected
+
+    # -- gymnasium API -----------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Draw a new scenario from ``np_random`` and clear the selection."""
+        super().reset(seed=seed)
+        self.problem = make_problem(self.config, self.np_random)
+        self._state = make_gain_state(
+            self.problem.Q0,
+            self.problem.G,
+            self.objective,
+            interest=self.interest,
+            track_gains=True,
+            track_whitened=True,
+        )
+        self._features = candidate_features(self.problem)
+        self._steps, self._done = 0, False
+        return self._obs(), self._info()
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Select candidate ``action``; reward is its gain in ``objective`` (log det: nats)."""
+        state = self.state
+        if self._done:
+            raise RuntimeError("episode is over: call reset()")
+        k = check_discrete(action, self.n)
+        reason = f"masked: candidate {k} is already selected" if state.selected[k] else None
+        rule = self.invalid_rule
+        if rule.check(f"action {k}", reason) and rule.terminates:
+            self._done = True
+            return self._obs(), rule.penalty, True, False, self._info(reason)
+        reward = rule.penalty if reason else float(state.add(k))
+        self._steps += 1
+        self._done = self.budget_left == 0
+        return self._obs(), reward, self._done, False, self._info(reason)
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
+        """A frame of the scene (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        state, problem = self.state, self.problem
+        title = "FIMSelection-v1"
+        return self._renderer.render(
+            lambda fig: draw_fim_selection(fig, problem, state.selected, state.information, title)
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        s = self.state
+        assert s.gains is not None and s.Z is not None
+        frac = self.budget_left / self.budget
+        return fim_observation(s.gains, s.Z, s.selected, self._features, frac)
+
+    def _info(self, reason: str | None = None) -> dict[str, Any]:
+        s = self.state
+        return {
+            "objective": float(s.objective),
+            "objective_name": self.objective,
+            "action_mask": ~s.selected,
+            "n_selected": len(s.order),
+            **self.invalid_rule.info(reason),
+        }

@@ -1,0 +1,466 @@
+"""Heterogeneous measurement selection by Fisher information (Kirchner et al. 2020, Sec. 6).
+
+Agents fly curved approaches around a ground vehicle and collect pools of candidate camera
+(eq. 23), time-of-arrival (eq. 20) and Doppler (eq. 22) measurements; selecting ``F`` scores
+eq. (9), ``log det(Q0 + sum_{k in F} Q_k) - log det Q0`` (see :mod:`selenv.core.information`).
+Parameters ``theta``: ``[x, y, vx, vy, ax, ay]`` (eq. 18, at the window start), then per agent
+``cT[i], cT0[i]`` (TOA receiver) and ``lambdaDf[i]`` (Doppler receiver).
+
+Presets (:data:`PRESETS`): ``example1`` (one camera), ``example2`` (camera + Doppler) and
+``example3`` (two agents, camera + Doppler each) follow the paper with a stationary target
+(``x, y`` estimated); ``example1_moving``, ``example2_moving``, ``example3_moving`` are the same
+pools with a moving target (the defaults of the v0 RL envs).
+
+Modelling choices (documented defaults of :class:`FIMScenarioConfig`):
+
+* Prior ``p(theta)``: Gaussian, diagonal, centred on the nominal target (position (0, 0),
+  velocity (3, 1) m/s, curvature (0.05, -0.02) m/s^2; zeros when ``stationary``). Standard
+  deviations: position 25 m, velocity 0.5 m/s, curvature 0.01 m/s^2 (the paper's values are
+  not given; these keep the prior 1-sigma position error below ~45 m over a 60 s window, so the
+  linearisation at the prior mean stays meaningful and the target stays in front of every
+  camera), ``cT`` 1 m, ``cT0`` 1000 m, ``lambdaDf`` 300 m/s (1 ppm of the carrier).
+* ``Q0 = P0^-1`` (eq. 3 for a Gaussian prior). ``theta_true`` is a draw from the prior
+  (velocity and curvature exactly 0 when ``stationary``), redrawn in the rare case that it puts
+  the target behind a camera; ``H`` is evaluated at the prior mean (the selector never sees the
+  truth).
+* TOA: symbols are sent once per candidate period ``window_s / n_candidates`` and the receiver
+  removes the nominal schedule ``k c T_nom``, so ``cT`` is the period *error* (nominal 0) and
+  eq. (20) holds as written; Jacobians and ``Q_k`` are unaffected by that constant shift.
+  ``cT0`` and ``lambdaDf`` have nominal 0.
+* Agent ``i`` spirals in on the nominal target trajectory (``spiral_path``: range
+  ``start_radius_m -> end_radius_m``, bearing sweeping ``sweep_deg`` to ``90 + 360 i / n`` deg,
+  at ``altitude_m``; closest at the end, Fig. 2). Cameras are gimballed onto the nominal target.
+* ``randomize``: one uniform rotation of all paths about the target, a ``U(0.8, 1.2)`` range
+  scale per agent, camera/Doppler times jittered within their grid cells and a random phase of
+  the TOA symbol grid. Otherwise the geometry is fixed (times at cell midpoints).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from selenv.core.information import whiten
+from selenv.core.linalg import FloatArray, as_float_array, check_finite, check_shape
+from selenv.families.fim import models as km
+from selenv.scenarios.validation import (
+    ArgumentTypeError,
+    check_bool,
+    check_choice,
+    check_integer,
+    check_real,
+    describe,
+)
+
+__all__ = [
+    "MAX_AGENTS",
+    "MAX_CANDIDATES",
+    "PRESETS",
+    "RANGES",
+    "SENSOR_NAMES",
+    "FIMProblem",
+    "FIMScenarioConfig",
+    "config_from",
+    "make_problem",
+]
+
+#: sensor codes used in :attr:`FIMProblem.sensor` (index into this tuple)
+SENSOR_NAMES: tuple[str, ...] = ("camera", "toa", "doppler")
+CAMERA, TOA, DOPPLER = 0, 1, 2
+
+#: largest number of sensing agents and of candidates per sensor per agent
+MAX_AGENTS = 8
+MAX_CANDIDATES = 5000
+
+#: valid range of every real-valued field of :class:`FIMScenarioConfig`: ``(low, high, unit)``
+RANGES: dict[str, tuple[float, float, str]] = {
+    "window_s": (0.1, 3600.0, "s"),
+    "camera_sigma_px": (1e-3, 1e3, "px"),
+    "focal_px": (1.0, 1e5, "px"),
+    "toa_sigma_m": (1e-3, 1e5, "m"),
+    "doppler_sigma_mps": (1e-3, 1e5, "m/s"),
+    "prior_position_m": (1e-3, 1e4, "m"),
+    "prior_velocity_mps": (1e-4, 100.0, "m/s"),
+    "prior_curvature_mps2": (1e-6, 10.0, "m/s^2"),
+    "prior_cT_m": (1e-3, 1e5, "m"),
+    "prior_cT0_m": (1e-3, 1e7, "m"),
+    "prior_lambda_mps": (1e-3, 1e6, "m/s"),
+    "start_radius_m": (1.0, 1e5, "m"),
+    "end_radius_m": (1.0, 1e5, "m"),
+    "altitude_m": (1.0, 1e5, "m"),
+    "sweep_deg": (-3600.0, 3600.0, "deg"),
+}
+
+
+@dataclass(frozen=True, kw_only=True)
+class FIMScenarioConfig:
+    """Scenario parameters; every field is validated (an error naming the field and its range).
+
+    A value of the wrong type is a ``TypeError`` (which is also a ``ValueError``), a value out
+    of range a ``ValueError``. The ranges (:data:`RANGES`) keep every Fisher information and
+    log det finite in float64 while spanning several decades around the defaults.
+
+    Attributes:
+        preset: name of the preset this config came from (informational).
+        n_agents: number of sensing agents, an int in ``[1, MAX_AGENTS]`` (8).
+        sensors: subset of ``SENSOR_NAMES`` carried by every agent (stored in canonical order).
+        n_candidates: candidates per sensor per agent, an int in ``[1, MAX_CANDIDATES]`` (5000).
+        window_s: estimation window length (s), in ``[0.1, 3600]``.
+        camera_sigma_px, focal_px: image noise std in ``[1e-3, 1e3]`` and focal length in
+            ``[1, 1e5]`` (pixels).
+        toa_sigma_m: std of ``c T`` (m), in ``[1e-3, 1e5]``.
+        doppler_sigma_mps: std of ``lambda F`` (m/s), in ``[1e-3, 1e5]``; default 33 ppb of the
+            carrier times ``c``.
+        prior_*: prior standard deviations (see the module docstring and :data:`RANGES`).
+        start_radius_m, end_radius_m, altitude_m: agent path geometry (m), in ``[1, 1e5]``;
+            ``sweep_deg`` in ``[-3600, 3600]``.
+        stationary: target velocity and curvature are 0 and not estimated (Examples 1-3 as
+            in the paper: presets ``example1..3``; only ``x, y`` and the nuisance parameters
+            are estimated, e.g. d = 2 in Example 1, d = 3 with one Doppler receiver).
+        randomize: draw a new geometry per problem.
+    """
+
+    preset: str = "custom"
+    n_agents: int = 1
+    sensors: tuple[str, ...] = ("camera", "doppler")
+    n_candidates: int = 1000
+    window_s: float = 60.0
+    camera_sigma_px: float = 0.8
+    focal_px: float = 50.0
+    toa_sigma_m: float = 3.0
+    doppler_sigma_mps: float = 33e-9 * km.C_LIGHT
+    prior_position_m: float = 25.0
+    prior_velocity_mps: float = 0.5
+    prior_curvature_mps2: float = 0.01
+    prior_cT_m: float = 1.0
+    prior_cT0_m: float = 1000.0
+    prior_lambda_mps: float = 300.0
+    start_radius_m: float = 400.0
+    end_radius_m: float = 60.0
+    altitude_m: float = 50.0
+    sweep_deg: float = 180.0
+    stationary: bool = False
+    randomize: bool = False
+
+    def __post_init__(self) -> None:
+        put = object.__setattr__
+        if not isinstance(self.preset, str):
+            raise ArgumentTypeError(f"preset must be a str, got {describe(self.preset)}")
+        put(self, "n_agents", check_integer(self.n_agents, "n_agents", 1, MAX_AGENTS))
+        put(self, "n_candidates", check_integer(self.n_candidates, "n_candidates", 1,
+                                                MAX_CANDIDATES))  # fmt: skip
+        sensors = self.sensors
+        if isinstance(sensors, str) or not isinstance(sensors, tuple | list) or not sensors:
+            raise ArgumentTypeError(
+                f"sensors must be a non-empty tuple of distinct names from {SENSOR_NAMES}, "
+                f"got {describe(sensors)}"
+            )
+        if any(x not in SENSOR_NAMES for x in sensors) or len(set(sensors)) < len(sensors):
+            raise ValueError(f"sensors must be distinct names from {SENSOR_NAMES}, got {sensors!r}")
+        put(self, "sensors", tuple(s for s in SENSOR_NAMES if s in self.sensors))
+        for name, (low, high, unit) in RANGES.items():
+            put(self, name, check_real(getattr(self, name), name, low, high, unit=unit))
+        for name in ("stationary", "randomize"):
+            put(self, name, check_bool(getattr(self, name), name))
+
+
+_CD = ("camera", "doppler")
+
+#: Scenario presets. ``example1..3`` are Examples 1-3 of Sec. 6 as the paper states them: one
+#: stationary vehicle (Example 1: "a stationary vehicle"; Example 2 reuses Example 1's
+#: trajectories; every figure marks a single ground-truth location), so ``theta_2 = theta_3 = 0``
+#: are known (after eq. 18) and only the position (plus the sensors' nuisance parameters) is
+#: estimated. ``*_moving`` are the same pools with a moving target (velocity and curvature
+#: estimated too); ``example2_moving`` / ``example3_moving`` are the earlier ``example2`` /
+#: ``example3``, kept as the defaults of ``FIMSelection-v1`` / ``fim_selection_v0`` so that
+#: their v0 trajectories do not change.
+PRESETS: dict[str, FIMScenarioConfig] = {
+    "example1": FIMScenarioConfig(preset="example1", sensors=("camera",), stationary=True),
+    "example2": FIMScenarioConfig(preset="example2", sensors=_CD, stationary=True),
+    "example3": FIMScenarioConfig(preset="example3", n_agents=2, sensors=_CD, stationary=True),
+    "example1_moving": FIMScenarioConfig(preset="example1_moving", sensors=("camera",)),
+    "example2_moving": FIMScenarioConfig(preset="example2_moving", sensors=_CD),
+    "example3_moving": FIMScenarioConfig(preset="example3_moving", n_agents=2, sensors=_CD),
+}
+
+
+def config_from(preset: str = "example2", **overrides: Any) -> FIMScenarioConfig:
+    """A preset (a key of :data:`PRESETS`) with fields overridden, validated.
+
+    Raises:
+        ValueError: unknown preset or override key (lists the valid ones), or a bad value.
+    """
+    check_choice(preset, "preset", sorted(PRESETS))
+    valid = [f.name for f in dataclasses.fields(FIMScenarioConfig) if f.name != "preset"]
+    bad = sorted(set(overrides) - set(valid))
+    if bad:
+        raise ValueError(f"unknown config keys {bad}; valid keys: {valid}")
+    return dataclasses.replace(PRESETS[preset], **overrides)
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, kw_only=True)
+class FIMProblem:
+    """One drawn instance: prior, truth, candidate pool and its geometry (arrays read-only).
+
+    Attributes:
+        config: the scenario config.
+        theta_true, theta_prior_mean: ``(d,)``.
+        P0, Q0: ``(d, d)`` prior covariance and information ``Q0 = P0^-1`` (eq. 3).
+        H: ``(N, m, d)`` Jacobians at the prior mean; ``m = 2`` with cameras else 1; scalar
+            candidates are zero-padded (identity in ``R``).
+        R: ``(N, m, m)`` noise covariances; ``G``: ``(N, m, d)`` whitened, ``G_k^T G_k = Q_k``.
+        agent, sensor, rows: ``(N,)`` ints (``sensor`` indexes ``SENSOR_NAMES``; rows 1 or 2).
+        times: ``(N,)`` time since the window start (s).
+        positions, velocities: ``(N, 3)`` agent state at each candidate.
+        camera_rotation: ``(N, 3, 3)`` world-to-camera rotations (identity for non-cameras).
+        symbol: ``(N,)`` TOA symbol index ``k`` (-1 for non-TOA candidates).
+        nuisance: ``(N, 2)`` columns of the candidate's nuisance parameters (-1 if none), in
+            the full parameter vector.
+        intrinsics: ``(3, 3)`` camera matrix ``A``.
+        param_names: ``d`` names.
+        free: ``(d,)`` indices of the estimated parameters in the full vector
+            ``[x, y, vx, vy, ax, ay, nuisance...]``; a stationary target (``example1..3``)
+            estimates only the position of the motion parameters, ``theta_2 = theta_3 = 0``
+            (paper, after eq. 18), plus the nuisance parameters.
+        theta_fixed: full vector holding the values of the parameters not estimated.
+
+    Candidates are ordered agent-major, then by sensor code, then by time.
+    """
+
+    config: FIMScenarioConfig
+    theta_true: FloatArray
+    theta_prior_mean: FloatArray
+    P0: FloatArray
+    Q0: FloatArray
+    H: FloatArray
+    R: FloatArray
+    G: FloatArray
+    agent: np.ndarray
+    sensor: np.ndarray
+    rows: np.ndarray
+    times: FloatArray
+    positions: FloatArray
+    velocities: FloatArray
+    camera_rotation: FloatArray
+    symbol: np.ndarray
+    nuisance: np.ndarray
+    intrinsics: FloatArray
+    param_names: tuple[str, ...]
+    free: np.ndarray
+    theta_fixed: FloatArray
+
+    @property
+    def N(self) -> int:
+        """Number of candidates."""
+        return int(self.H.shape[0])
+
+    @property
+    def m(self) -> int:
+        """Rows per (padded) candidate."""
+        return int(self.H.shape[1])
+
+    @property
+    def d(self) -> int:
+        """Number of parameters."""
+        return int(self.H.shape[2])
+
+    def full_theta(self, theta: ArrayLike) -> FloatArray:
+        """Embed estimated parameters ``(d,)`` in the full vector (fixed entries filled in)."""
+        return self._theta(theta)
+
+    def _theta(self, theta: ArrayLike) -> FloatArray:
+        """Validate the estimated parameters ``(d,)`` and embed them in the full vector."""
+        th = check_shape(check_finite(as_float_array(theta, "theta"), "theta"), (self.d,), "theta")
+        full = np.array(self.theta_fixed, dtype=np.float64)
+        full[self.free] = th
+        return full
+
+    def _idx(self, idx: ArrayLike | None) -> np.ndarray:
+        if idx is None:
+            return np.arange(self.N)
+        ix = np.asarray(idx)
+        if ix.ndim != 1 or (ix.size and not np.issubdtype(ix.dtype, np.integer)):
+            raise ValueError(f"idx must be a 1-D array of integer indices, got {ix!r}")
+        ix = ix.astype(np.intp)
+        if ix.size and (ix.min() < 0 or ix.max() >= self.N):
+            raise ValueError(f"idx must lie in [0, {self.N}), got {ix.min()}..{ix.max()}")
+        return ix
+
+    def _groups(self, ix: np.ndarray) -> Iterator[tuple[Any, ...]]:
+        """Per sensor in ``ix``: code, positions in ``ix``, candidates, times, p, nuisance."""
+        for code in (CAMERA, TOA, DOPPLER):
+            sel = np.flatnonzero(self.sensor[ix] == code)
+            if sel.size:
+                c = ix[sel]
+                yield code, sel, c, self.times[c], self.positions[c], self.nuisance[c]
+
+    def measurement_mean(self, theta: ArrayLike, idx: ArrayLike | None = None) -> FloatArray:
+        """Means ``mu_k(theta)`` of candidates ``idx`` (all if ``None``), ``(len(idx), m)``.
+
+        Camera rows are eq. (23), TOA eq. (20), Doppler eq. (22); scalar means are zero-padded.
+        """
+        th, ix = self._theta(theta), self._idx(idx)
+        out = np.zeros((ix.size, self.m))
+        for code, sel, c, t, p, nu in self._groups(ix):
+            if code == CAMERA:
+                out[sel, :2] = km.camera_mean(th, t, p, self.camera_rotation[c], self.intrinsics)
+            elif code == TOA:
+                out[sel, 0] = km.toa_mean(th, t, p, self.symbol[c], th[nu[:, 0]], th[nu[:, 1]])
+            else:
+                out[sel, 0] = km.doppler_mean(th, t, p, self.velocities[c], th[nu[:, 0]])
+        return out
+
+    def measurement_jacobian(self, theta: ArrayLike, idx: ArrayLike | None = None) -> FloatArray:
+        """Jacobians ``d mu_k / d theta`` of candidates ``idx``, ``(len(idx), m, d)``."""
+        th, ix = self._theta(theta), self._idx(idx)
+        J = np.zeros((ix.size, self.m, th.size))
+        for code, sel, c, t, p, nu in self._groups(ix):
+            if code == CAMERA:
+                Jc = km.camera_jacobian(th, t, p, self.camera_rotation[c], self.intrinsics)
+                J[sel, :2, : km.N_MOTION] = Jc
+                continue
+            if code == TOA:
+                Jl = km.toa_jacobian(th, t, p, self.symbol[c])
+            else:
+                Jl = km.doppler_jacobian(th, t, p, self.velocities[c])
+            J[sel, 0, : km.N_MOTION] = Jl[:, : km.N_MOTION]
+            for j in range(Jl.shape[1] - km.N_MOTION):  # scatter the nuisance columns
+                J[sel, 0, nu[:, j]] = Jl[:, km.N_MOTION + j]
+        return J[:, :, self.free]
+
+    def sample_measurements(
+        self, rng: np.random.Generator, idx: ArrayLike | None = None
+    ) -> FloatArray:
+        """Noisy measurements ``mu_k(theta_true) + L_k z`` (``R_k = L_k L_k^T``), ``(n, m)``."""
+        ix = self._idx(idx)
+        L = np.linalg.cholesky(self.R[ix])
+        z = rng.standard_normal((ix.size, self.m))
+        return self.measurement_mean(self.theta_true, ix) + np.einsum("kij,kj->ki", L, z)
+
+    def pool(self, agent_index: int) -> np.ndarray:
+        """Indices (increasing) of the candidates of agent ``agent_index``."""
+        n = self.config.n_agents
+        if not 0 <= agent_index < n:
+            raise ValueError(f"agent_index must lie in [0, {n}), got {agent_index}")
+        return np.flatnonzero(self.agent == agent_index)
+
+
+# -- construction -------------------------------------------------------------------------------
+def _nominal(cfg: FIMScenarioConfig) -> tuple[FloatArray, FloatArray, list[str], np.ndarray]:
+    """Prior mean, prior std devs, parameter names and per-agent nuisance columns ``(n, 3)``."""
+    mean = [0.0] * 6 if cfg.stationary else [0.0, 0.0, 3.0, 1.0, 0.05, -0.02]
+    std = [cfg.prior_position_m, cfg.prior_velocity_mps, cfg.prior_curvature_mps2]
+    std, names = [v for v in std for _ in range(2)], ["x", "y", "vx", "vy", "ax", "ay"]
+    cols = -np.ones((cfg.n_agents, 3), dtype=np.intp)  # cT, cT0, lambdaDf
+    for i in range(cfg.n_agents):
+        for j, name, sd, on in (
+            (0, "cT", cfg.prior_cT_m, "toa"), (1, "cT0", cfg.prior_cT0_m, "toa"),
+            (2, "lambdaDf", cfg.prior_lambda_mps, "doppler"),
+        ):  # fmt: skip
+            if on in cfg.sensors:
+                cols[i, j] = len(names)
+                names.append(f"{name}[{i}]")
+                mean.append(0.0)  # nominal 0 (see the module docstring)
+                std.append(sd)
+    return np.array(mean), np.array(std), names, cols
+
+
+def _candidates(
+    cfg: FIMScenarioConfig, mean: FloatArray, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
+    """Candidate geometry, agent-major then sensor then time (geometry draws from ``rng``)."""
+    n, cell = cfg.n_candidates, cfg.window_s / cfg.n_candidates
+    rot = rng.uniform(0.0, 2.0 * np.pi) if cfg.randomize else 0.0
+    scales = rng.uniform(0.8, 1.2, cfg.n_agents) if cfg.randomize else np.ones(cfg.n_agents)
+    keys = ("agent", "sensor", "times", "positions", "velocities", "camera_rotation", "symbol")
+    parts: dict[str, list[np.ndarray]] = {key: [] for key in keys}
+    for i in range(cfg.n_agents):
+        end_bearing = rot + np.pi / 2 + 2.0 * np.pi * i / cfg.n_agents
+        for code in (SENSOR_NAMES.index(name) for name in cfg.sensors):
+            if not cfg.randomize:
+                off = np.full(n, 0.5)  # cell midpoints
+            elif code == TOA:  # regular symbol grid, random phase
+                off = np.full(n, rng.uniform(0.0, 1.0))
+            else:
+                off = rng.uniform(0.0, 1.0, n)  # jitter within each cell
+            s = (np.arange(n) + off) * cell
+            q, qdot = km.target_state(mean, s)
+            pos, vel = km.spiral_path(
+                s, q, qdot, window_s=cfg.window_s, start_radius=scales[i] * cfg.start_radius_m,
+                end_radius=scales[i] * cfg.end_radius_m, sweep_rad=np.deg2rad(cfg.sweep_deg),
+                end_bearing=end_bearing, altitude=cfg.altitude_m,
+            )  # fmt: skip
+            aim = np.column_stack([q, np.zeros(n)])
+            eye = np.broadcast_to(np.eye(3), (n, 3, 3))
+            parts["agent"].append(np.full(n, i))
+            parts["sensor"].append(np.full(n, code))
+            parts["times"].append(s)
+            parts["positions"].append(pos)
+            parts["velocities"].append(vel)
+            parts["camera_rotation"].append(
+                km.look_at_rotation(pos, aim) if code == CAMERA else eye
+            )
+            parts["symbol"].append(np.arange(n) if code == TOA else np.full(n, -1))
+    return {key: np.concatenate(val) for key, val in parts.items()}
+
+
+def make_problem(config: FIMScenarioConfig, rng: np.random.Generator) -> FIMProblem:
+    """Draw one problem: geometry (if ``randomize``), truth from the prior; build ``H, R, G``.
+
+    All randomness comes from ``rng`` (geometry first, then the truth).
+
+    Raises:
+        ValueError: if no truth in 100 prior draws keeps the target in front of every camera.
+    """
+    cfg = config
+    mean, std, names, cols = _nominal(cfg)
+    geo = _candidates(cfg, mean, rng)
+    agent, sensor = geo["agent"], geo["sensor"]
+    N, m, A = agent.size, 2 if "camera" in cfg.sensors else 1, km.intrinsics(cfg.focal_px)
+    nuisance = -np.ones((N, 2), dtype=np.intp)
+    nuisance[sensor == TOA] = cols[agent[sensor == TOA], :2]
+    nuisance[sensor == DOPPLER, 0] = cols[agent[sensor == DOPPLER], 2]
+    sigma = np.array([cfg.camera_sigma_px, cfg.toa_sigma_m, cfg.doppler_sigma_mps])[sensor]
+    R = np.broadcast_to(np.eye(m), (N, m, m)).copy()  # identity on padding rows
+    R[:, 0, 0] = sigma**2
+    if m == 2:
+        R[sensor == CAMERA, 1, 1] = cfg.camera_sigma_px**2
+    cam = sensor == CAMERA
+    for _ in range(100):
+        theta_true = mean + std * rng.standard_normal(mean.size)
+        if cfg.stationary:
+            theta_true[2:6] = 0.0
+        depth = km.camera_depth(
+            theta_true, geo["times"][cam], geo["positions"][cam], geo["camera_rotation"][cam], A
+        )
+        if np.all(depth > 0.0):
+            break
+    else:
+        raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
+    free = (
+        np.setdiff1d(np.arange(mean.size), np.arange(2, 6))
+        if cfg.stationary
+        else np.arange(mean.size)
+    )
+    sf = std[free]
+    arrays: dict[str, np.ndarray] = {
+        **geo, "rows": np.where(cam, 2, 1), "nuisance": nuisance, "intrinsics": A, "R": R,
+        "theta_true": theta_true[free], "theta_prior_mean": mean[free], "P0": np.diag(sf**2),
+        "Q0": np.diag(1.0 / sf**2), "H": np.zeros((N, m, free.size)), "free": free,
+        "theta_fixed": mean,
+    }  # fmt: skip
+    ro: dict[str, Any] = {key: _readonly(val) for key, val in arrays.items()}
+    draft = FIMProblem(config=cfg, param_names=tuple(names[i] for i in free), G=ro["H"], **ro)
+    H = draft.measurement_jacobian(mean[free])
+    return dataclasses.replace(draft, H=_readonly(H), G=_readonly(whiten(H, R)))

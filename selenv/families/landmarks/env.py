@@ -1,0 +1,380 @@
+"""``selenv/LandmarkSelection-v1``: pick K of N angle-of-arrival landmarks for each EKF update."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from selenv.core.information import whiten
+from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.core.objectives import GainState, get_objective, make_gain_state, objective_names
+from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import (
+    EpisodeLengthSpec,
+    check_known_keywords,
+    check_render_mode,
+    named_parameters,
+)
+from selenv.envs.rendering import Renderer
+from selenv.families.fim.env import fim_observation, fim_observation_space
+from selenv.families.landmarks.rendering import draw_landmark_selection
+from selenv.families.landmarks.scenario import (
+    LandmarkConfig,
+    LandmarkEKF,
+    LandmarkProblem,
+    make_landmark_problem,
+)
+from selenv.scenarios.validation import ArgumentTypeError, check_choice, describe
+
+__all__ = [
+    "OBJECTIVES",
+    "POSITION",
+    "LandmarkSelectionEnv",
+    "landmark_cost",
+    "landmark_features",
+    "landmark_interest",
+]
+
+#: the built-in objectives (every registered one is accepted: :func:`objective_names`)
+OBJECTIVES = ("logdet", "det", "trace", "max_eig")
+
+#: indices of the position ``p`` in the EKF state ``(p, v, theta)``: what objectives that are
+#: not unit-invariant (``"trace"``, ``"max_eig"``) score
+POSITION: tuple[int, ...] = (0, 1, 2)
+
+
+def landmark_interest(objective: str) -> tuple[int, ...] | None:
+    """State indices an objective scores: ``None`` (all) if unit-invariant, else the position.
+
+    ``logdet`` and ``det`` score the whole state; ``trace``, ``max_eig`` (and any registered
+    objective that is not unit-invariant) :data:`POSITION`, since velocity and attitude have
+    other units.
+
+    Raises:
+        TypeError, ValueError: ``objective`` not a registered name.
+    """
+    return None if get_objective(objective).unit_invariant else POSITION
+
+
+def landmark_cost(P: FloatArray, objective: str) -> float:
+    """The cost of a posterior covariance ``P`` (9, 9) under a registered objective.
+
+    ``"logdet"`` / ``"det"``: ``log det P`` or ``det P`` (eq. 11); ``"trace"``: the position
+    MSE ``tr(P[:3, :3])`` (m^2), the A-optimal criterion (Kirchner et al. 2020, eq. 6) on the
+    position block; ``"max_eig"``: ``lambda_max(P[:3, :3])`` (m^2), the variance along the
+    worst-determined direction of the position, the E-optimal criterion (eq. 7). Any other
+    registered objective scores the block :func:`landmark_interest` gives.
+
+    Raises:
+        TypeError, ValueError: ``objective`` not a registered name.
+    """
+    idx = landmark_interest(objective)
+    block = P if idx is None else P[np.ix_(idx, idx)]
+    return float(get_objective(objective).value(block))
+
+
+def landmark_features(h_pred: FloatArray, k: int, horizon: int) -> np.ndarray:
+    """Per-landmark features (N, 4): sin, cos of the predicted azimuth, elevation / (pi/2), time.
+
+    ``h_pred`` (N, 2) predicted (azimuth, elevation); time is ``k / horizon``.
+    """
+    az, el = h_pred[:, 0], h_pred[:, 1]
+    t = np.full_like(az, k / horizon)
+    return np.stack([np.sin(az), np.cos(az), el / (np.pi / 2), t], axis=1).astype(np.float32)
+
+
+class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
+    r"""Choose which K of N landmarks the EKF processes at each step of an angles-only UAV flight.
+
+    ## Description
+    The data-selection problem of Soubaras & Chahbazian (2023). A UAV navigates with an EKF on
+    position, velocity and Euler attitude (9 states), propagated with a noisy IMU at 10 Hz; it
+    can observe the azimuth and elevation of ``n_landmarks`` known landmarks (eqs. 16-18) but
+    processes only ``k`` of them per step (Algorithm 3: propagation, selection, update). The
+    paper's cost is eq. (11) on the approximate CRLB, i.e. the filter's posterior covariance:
+    ``det P`` (``objective="det"``) or ``log det P`` (``"logdet"``, default). For one step both
+    are minimised by the same selection, which maximises ``log det(I + W_S)`` with ``W`` the
+    selected rows whitened in the predicted covariance; the sequence matters through the
+    future (the Bellman eq. 13 the paper truncates to its first term). ``objective="trace"``
+    scores the position MSE ``tr(P[:3, :3])`` (m^2) instead (A-optimal, Kirchner et al. 2020
+    eq. 6, on the position block; not submodular), ``objective="max_eig"`` the largest
+    eigenvalue of that block (E-optimal, eq. 7; not submodular either).
+
+    ## Action Space
+    ``Discrete(N)``: one landmark per env step; the filter updates after the ``k``-th pick of
+    a filter step. Landmarks already picked in this filter step are masked
+    (:meth:`action_masks`, ``info["action_mask"]``, ``obs["action_mask"]``). A masked pick is
+    handled by ``invalid_action`` (:mod:`selenv.envs.actions`): ``"noop"`` (default) spends
+    the pick slot without adding a landmark (the filter still updates after ``k`` slots, with
+    the landmarks picked), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the
+    episode. A non-integer or out-of-range action is a ``TypeError`` / ``ValueError``.
+
+    ## Observation Space
+    The ``FIMSelection-v1`` layout over the landmarks of the current filter step:
+
+    | key | shape | meaning |
+    |---|---|---|
+    | ``gain`` | ``(N,)`` | marginal gain given this step's picks (see below) |
+    | ``whitened`` | ``(N, 18)`` | ``R^-1/2 H_n`` whitened in the current information |
+    | ``features`` | ``(N, 4)`` | sin, cos of the predicted azimuth, elevation / (pi/2), time |
+    | ``selected`` | ``(N,)`` | 1 if picked in this filter step |
+    | ``budget_left`` | ``(1,)`` | fraction of the ``k`` picks still to make |
+    | ``action_mask`` | ``(N,)`` | 1 where the action is allowed |
+
+    ``gain``: the marginal ``log det`` information gain (``"logdet"``, ``"det"``), or with
+    ``"trace"`` / ``"max_eig"`` the decrease of ``tr(P[:3, :3])`` / ``lambda_max(P[:3, :3])``
+    (m^2) of this step's posterior if the landmark were added.
+
+    ## Rewards
+    0 for the first ``k - 1`` picks of a filter step; at the ``k``-th the filter updates and the
+    reward is minus the cost eq. (11) of the posterior (``-log det P``, ``-det P`` or, with
+    ``"trace"`` / ``"max_eig"``, ``-tr(P[:3, :3])`` / ``-lambda_max(P[:3, :3])``), so the
+    return is minus the paper's objective eq. (12).
+    ``info["objective"]`` is that cost after the latest update, ``info["objective_name"]`` the
+    ``objective`` and ``info["position_error"]`` the true position error (m) of that posterior
+    estimate (``k`` is the index of the step whose picks are open).
+
+    ## Starting State
+    A new seeded flight per ``reset``: landmark layout, IMU noise, initial error (Table I),
+    measurement noise; the first propagation is done, so the first pick is for step 1.
+
+    ## Episode End
+    Terminates after ``horizon`` filter updates, i.e. ``k * horizon`` steps
+    (``env.spec.max_episode_steps``), or at an invalid action with
+    ``invalid_action="terminate"``. Never truncates.
+
+    ## Rendering
+    ``render_mode="rgb_array"`` or ``"human"``: the UAV's true track and estimate, the
+    landmarks with the ones picked now and in the last update, the 2-sigma position ellipse.
+
+    ## Arguments
+    ``gymnasium.make("selenv/LandmarkSelection-v1", n_landmarks=30, k=2, horizon=300,
+    objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
+    render_mode=None)``; ``landmarks`` is an optional (N, 3) ENU layout; ``objective`` is
+    ``"logdet"``, ``"det"``, ``"trace"``, ``"max_eig"`` or any objective registered with
+    :func:`~selenv.core.objective_registry.register_objective` (scored on the whole state if
+    it is unit-invariant, else on the position block). Any other
+    :class:`~selenv.families.landmarks.scenario.LandmarkConfig` field can be passed too (its
+    docstring
+    gives every range: ``n_landmarks`` an int in ``[1, 200]``, ``horizon`` in ``[1, 100000]``,
+    ``dt`` in ``[1e-3, 1]`` s, ...); ``k`` is an int in ``[1, n_landmarks]``. An unknown
+    keyword raises ``TypeError``; a bad value a ``TypeError`` / ``ValueError`` naming it.
+
+    ## Version History
+    * v1: the current id; valid trajectories as v0's. ``invalid_action`` modes, rendering and
+      every registered ``objective`` (``"trace"``, ``"max_eig"``, ...) added, the default
+      unchanged.
+    * v0: release 0.1 (the same episodes for valid actions, tested against recordings);
+      deprecated in favour of v1.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
+
+    def __init__(
+        self,
+        *,
+        n_landmarks: int = 30,
+        k: int = 2,
+        horizon: int = 300,
+        objective: str = "logdet",
+        landmarks: Any = None,
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
+        render_mode: str | None = None,
+        **config: Any,
+    ) -> None:
+        fields = {f.name for f in dataclasses.fields(LandmarkConfig)}
+        check_known_keywords(
+            config,
+            fields - {"n_landmarks", "horizon", "landmarks"},
+            "LandmarkSelection-v1",
+            named_parameters(type(self)),
+        )
+        self.render_mode = check_render_mode(render_mode, self.metadata)
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
+        check_choice(objective, "objective", objective_names())
+        if isinstance(k, bool | np.bool_) or not isinstance(k, int | np.integer):
+            raise ArgumentTypeError(f"k must be an int in [1, n_landmarks], got {describe(k)}")
+        self.config = LandmarkConfig(
+            n_landmarks=n_landmarks, horizon=horizon, landmarks=landmarks, **config
+        )
+        if not 1 <= k <= self.config.n_landmarks:
+            raise ValueError(f"k must lie in [1, n_landmarks={self.config.n_landmarks}], got {k}")
+        self.n = int(n_landmarks)
+        self.k = int(k)
+        self.objective = objective
+        self.horizon = int(horizon)
+        self.max_episode_steps = self.k * self.horizon
+        self.action_space = gym.spaces.Discrete(self.n)
+        space = fim_observation_space(self.n, 2, 9)
+        space.spaces["features"] = gym.spaces.Box(-1.0, 1.0, (self.n, 4), np.float32)
+        self.observation_space = space  # type: ignore[assignment, unused-ignore]
+        self.problem: LandmarkProblem | None = None
+        self._ekf: LandmarkEKF | None = None
+        self._state: GainState | None = None
+        self.picks: list[int] = []
+        self.last_selection: tuple[int, ...] | None = None
+        self._cost = float("nan")
+        self._error = float("nan")
+        self._done = False
+        self._slots = 0
+        self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
+
+    # -- oracle view for heuristics (same names as FIMSelectionEnv) --------------------------
+    @property
+    def ekf(self) -> LandmarkEKF:
+        """The filter (needs ``reset``)."""
+        if self._ekf is None:
+            raise RuntimeError("call reset() before using the environment")
+        return self._ekf
+
+    @property
+    def state(self) -> GainState:
+        """Gain state of the current filter step: prior ``P_pred^-1`` plus this step's picks."""
+        if self._state is None:
+            raise RuntimeError("call reset() before using the environment")
+        return self._state
+
+    @property
+    def solver_objective(self) -> str:
+        """What the one-step oracle agents maximise: the objective or its ``solver_proxy``.
+
+        ``det`` and ``log det`` of the posterior have the same minimiser, the maximiser of the
+        log-det gain, so ``"det"`` maps to ``"logdet"``; ``"trace"`` and ``"max_eig"`` are
+        scored on :data:`POSITION` (:attr:`interest`).
+        """
+        return get_objective(self.objective).solver_name
+
+    @property
+    def interest(self) -> tuple[int, ...] | None:
+        """State indices the objective scores (:func:`landmark_interest`).
+
+        The position for ``"trace"`` / ``"max_eig"``; ``None`` (the whole state) for
+        ``"logdet"`` / ``"det"``.
+        """
+        return landmark_interest(self.objective)
+
+    @property
+    def budget_left(self) -> int:
+        """Picks left in the current filter step (an invalid no-op pick spends one too)."""
+        return self.k - self._slots
+
+    def action_masks(self) -> np.ndarray:
+        """(N,) bool: landmarks not yet picked in this filter step."""
+        return ~self.state.selected
+
+    # -- Gymnasium API -----------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """New seeded flight; propagate to step 1 and open its selection."""
+        super().reset(seed=seed)
+        self.problem = make_landmark_problem(self.config, self.np_random)
+        self._ekf = LandmarkEKF(self.problem)
+        self.last_selection = None
+        self._done = False
+        self._cost = self._cost_of(self._ekf.P)
+        self._error = self._position_error()
+        self._ekf.predict()
+        self._open_step()
+        return self._obs(), self._info()
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Pick one landmark; after the ``k``-th pick, update the filter and propagate."""
+        ekf = self.ekf
+        if self._state is None or self._done:
+            raise RuntimeError("episode is over: call reset()")
+        a = check_discrete(action, self.n)
+        reason = (
+            f"masked: landmark {a} is already picked in this step"
+            if self.state.selected[a]
+            else None
+        )
+        rule = self.invalid_rule
+        if rule.check(f"action {a}", reason) and rule.terminates:
+            self._done = True
+            return self._obs(), rule.penalty, True, False, self._info(reason)
+        penalty = rule.penalty if reason else 0.0
+        if reason is None:
+            self.state.add(a)
+            self.picks.append(a)
+        self._slots += 1
+        if self._slots < self.k:
+            return self._obs(), penalty, False, False, self._info(reason)
+        ekf.update(self.picks)
+        self.last_selection = tuple(self.picks)
+        self._cost = self._cost_of(ekf.P)
+        self._error = self._position_error()  # of the posterior, before the next prediction
+        reward = penalty - self._cost
+        if ekf.k >= self.horizon:
+            self._done = True
+            return self._obs(), reward, True, False, self._info(reason)
+        ekf.predict()
+        self._open_step()
+        return self._obs(), reward, False, False, self._info(reason)
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
+        """A frame of the flight (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
+        ekf, problem = self.ekf, self.problem
+        title = "LandmarkSelection-v1"
+        picks, last = tuple(self.picks), self.last_selection
+        return self._renderer.render(
+            lambda fig: draw_landmark_selection(
+                fig, problem, ekf.x, ekf.P, ekf.k, picks, last, title
+            )
+        )
+
+    def close(self) -> None:
+        """Close the render window, if any."""
+        self._renderer.close()
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _cost_of(self, P: FloatArray) -> float:
+        return landmark_cost(P, self.objective)
+
+    def _open_step(self) -> None:
+        """Gain state over the landmarks at the new prediction: ``Q0 = P_pred^-1``."""
+        ekf = self.ekf
+        H, self._h_pred = ekf.candidates()
+        G = whiten(H, np.broadcast_to(ekf.problem.R_landmark, (self.n, 2, 2)))
+        L = cholesky_spd(ekf.P, "P_pred")
+        Linv = np.linalg.solve(L, np.eye(9))
+        Q0 = Linv.T @ Linv  # P_pred^-1 from its Cholesky factor
+        self._state = make_gain_state(
+            0.5 * (Q0 + Q0.T),
+            G,
+            self.solver_objective,
+            interest=self.interest,
+            track_gains=True,
+            track_whitened=True,
+        )
+        self.picks = []
+        self._slots = 0
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        st = self.state
+        assert st.gains is not None and st.Z is not None  # tracked by construction
+        feats = landmark_features(self._h_pred, self.ekf.k, self.horizon)
+        return fim_observation(st.gains, st.Z, st.selected, feats, self.budget_left / self.k)
+
+    def _position_error(self) -> float:
+        ekf = self.ekf
+        truth = self.problem.states[ekf.k]  # type: ignore[union-attr]
+        return float(np.linalg.norm(ekf.x[:3] - truth[:3]))
+
+    def _info(self, reason: str | None = None) -> dict[str, Any]:
+        ekf = self.ekf
+        mask = self.action_masks() if not self._done else np.ones(self.n, bool)
+        return {
+            "objective": self._cost,
+            "objective_name": self.objective,
+            "position_error": self._error,
+            "k": ekf.k,
+            "picks": tuple(self.picks),
+            "last_selection": self.last_selection,
+            "action_mask": mask,
+            **self.invalid_rule.info(reason),
+        }

@@ -1,0 +1,99 @@
+"""True flight and landmark layout of the landmark-selection scenario (Soubaras & Chahbazian).
+
+A Fig. 3-like guided flight (straight legs and coordinated level turns, see
+:mod:`selenv.families.landmarks.scenario`) whose true IMU drives the same strapdown model the filter
+uses, and a seeded uniform landmark layout that keeps every landmark away from the body z axis.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from selenv.core.linalg import FloatArray
+from selenv.families.landmarks.models import (
+    GRAVITY,
+    STATE_DIM,
+    body_rates_from_euler_rates,
+    euler_to_dcm,
+    propagate,
+    wrap_angle,
+)
+
+if TYPE_CHECKING:
+    from selenv.families.landmarks.scenario import LandmarkConfig
+
+__all__ = ["body_vectors_along", "draw_layout", "fly"]
+
+_DEG = np.pi / 180.0
+# guidance gains of the true flight (1/s, 1/s^2): roll, pitch, heading alignment, speed, altitude
+_K_ROLL, _K_PITCH, _K_HEAD, _K_SPEED, _K_ALT, _K_VZ = 2.0, 1.0, 0.5, 0.2, 0.04, 0.4
+
+
+def fly(cfg: LandmarkConfig) -> tuple[FloatArray, FloatArray]:
+    """True states (T + 1, 9) and true IMU (T, 6) of the guided flight (module docstring)."""
+    T, dt, V0 = int(cfg.horizon), float(cfg.dt), float(cfg.speed)
+    ends = np.cumsum([leg[0] for leg in cfg.legs])
+    rates = np.array([leg[1] * _DEG for leg in cfg.legs])
+    psi0 = cfg.heading_deg * _DEG
+    x = np.zeros(STATE_DIM)
+    x[0:3] = (0.0, 0.0, cfg.altitude)
+    x[3:6] = V0 * np.array([np.sin(psi0), np.cos(psi0), 0.0])
+    x[8] = psi0
+    states, imu = np.empty((T + 1, STATE_DIM)), np.empty((T, 6))
+    states[0] = x
+    max_roll_rate = cfg.max_roll_rate_deg * _DEG
+    for k in range(T):
+        leg = int(np.searchsorted(ends, (k * dt) % ends[-1], side="right"))
+        roll_cmd = np.arctan(V0 * rates[min(leg, len(rates) - 1)] / GRAVITY)
+        roll, pitch, yaw = x[6:9]
+        v = x[3:6]
+        Vh = float(np.hypot(v[0], v[1]))
+        chi = float(np.arctan2(v[0], v[1]))  # course, clockwise from North
+        fwd = np.array([np.sin(chi), np.cos(chi), 0.0])
+        right = np.array([np.cos(chi), -np.sin(chi), 0.0])
+        a = GRAVITY * np.tan(roll) * right + _K_SPEED * (V0 - Vh) * fwd  # coordinated turn
+        a[2] = -_K_ALT * (x[2] - cfg.altitude) - _K_VZ * v[2]  # altitude hold
+        theta_dot = np.array(
+            [
+                np.clip(_K_ROLL * (roll_cmd - roll), -max_roll_rate, max_roll_rate),
+                -_K_PITCH * pitch,
+                GRAVITY * np.tan(roll) / Vh + _K_HEAD * float(wrap_angle(chi - yaw)),
+            ]
+        )
+        f_b = euler_to_dcm(x[6:9]).T @ (a + np.array([0.0, 0.0, GRAVITY]))  # f = C_e^b (a - g)
+        imu[k, 0:3] = f_b
+        imu[k, 3:6] = body_rates_from_euler_rates(x[6:9], theta_dot)
+        x = propagate(x, imu[k], dt)
+        states[k + 1] = x
+    return states, imu
+
+
+def body_vectors_along(states: FloatArray, landmarks: FloatArray) -> FloatArray:
+    """``Delta`` of every landmark at every state: (S, N, 3) for states (S, 9)."""
+    d = landmarks[None, :, :] - states[:, None, 0:3]
+    return np.einsum("sna,sab->snb", d, euler_to_dcm(states[:, 6:9]))  # d^T C_b^e
+
+
+def draw_layout(cfg: LandmarkConfig, states: FloatArray, rng: np.random.Generator) -> FloatArray:
+    """Uniform landmarks around the track, away from the body z axis (module docstring)."""
+    n, m = int(cfg.n_landmarks), float(cfg.landmark_margin)
+    low = [*(states[:, 0:2].min(axis=0) - m), cfg.landmark_height[0]]
+    high = [*(states[:, 0:2].max(axis=0) + m), cfg.landmark_height[1]]
+    sin_min = np.sin(cfg.min_off_nadir_deg * _DEG)
+    kept: list[FloatArray] = []
+    count = 0
+    for _ in range(200):
+        cand = rng.uniform(low, high, size=(2 * n, 3))
+        delta = body_vectors_along(states, cand)
+        rho = np.hypot(delta[..., 0], delta[..., 1])
+        ok = np.all(rho > sin_min * np.linalg.norm(delta, axis=-1), axis=0)
+        kept.append(cand[ok])
+        count += int(ok.sum())
+        if count >= n:
+            return np.concatenate(kept)[:n]
+    raise ValueError(
+        f"could not place {n} landmarks outside {cfg.min_off_nadir_deg} deg of nadir; "
+        "increase landmark_margin or lower min_off_nadir_deg"
+    )

@@ -1,0 +1,143 @@
+"""The record of an env family, from which its ids, entry points, views and agents are built.
+
+A family is one folder under ``selenv/families/``: ``scenario`` (frozen config, seeded generator;
+with ``models`` and the like), ``env`` (the Gymnasium env), ``rendering``, ``agents``
+(heuristics; with ``rollout``, ``forecast``, ``multiagent_agents`` where the family has them),
+``view`` (the candidate view of the learned policies) and ``multiagent`` (its PettingZoo
+module). Its ``__init__`` holds one :class:`FamilySpec` and the two entry points
+:func:`env_factories` makes from it. :mod:`selenv.families` lists the
+records (one line per family) and registers their Gymnasium ids; ``selenv list``, the agent
+registry, the candidate views of the learned policies and the ``ppo`` agent read the records,
+so no table elsewhere names a family.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import gymnasium as gym
+from gymnasium.wrappers import RenderCollection
+
+from selenv.envs.versions import EnvVersion
+
+__all__ = ["FamilySpec", "build_env", "env_factories", "load_attr"]
+
+
+def load_attr(path: str) -> Any:
+    """The object ``"package.module:attr"`` names (imported on use)."""
+    module, _, attr = path.partition(":")
+    if not attr:
+        raise ValueError(f"expected 'module:attr', got {path!r}")
+    return getattr(importlib.import_module(module), attr)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FamilySpec:
+    """Everything the package needs to know of one env family.
+
+    Args:
+        name: folder name under ``selenv/families`` (``"fim"``).
+        env_name: the Gymnasium name; ids are ``selenv/<env_name>-v<N>``.
+        title: one line: the decision problem and its paper.
+        env_class: ``"module:Class"`` of the Gymnasium env.
+        v0_kwargs: keyword defaults registered with ``-v0`` (release 0.1's configuration).
+        v0_presets: preset names that meant another preset in release 0.1 (``-v0`` maps them).
+        views: ``"module:attr"`` of the family's candidate views, ``{name: factory(env)}``; the
+            first is the default (the learned policies read the env through it).
+        checkpoint: file name of the shipped ``ppo`` policy in ``checkpoints/`` (``None``: none).
+        ppo_description: ``selenv list`` text of that policy.
+        agent_modules: modules whose import registers the family's agents.
+        multiagent_module: the public PettingZoo module of the family, if any.
+        has_v0: whether the family has a ``-v0`` id (it existed in release 0.1); a family
+            added later starts at ``-v1``.
+    """
+
+    name: str
+    env_name: str
+    title: str
+    env_class: str
+    v0_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    v0_presets: Mapping[str, str] = field(default_factory=dict)
+    views: str = "selenv.envs.views:IDENTITY_VIEWS"
+    checkpoint: str | None = None
+    ppo_description: str = ""
+    agent_modules: tuple[str, ...] = ()
+    multiagent_module: str | None = None
+    has_v0: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier() or not self.env_name.isidentifier():
+            raise ValueError(f"name and env_name must be identifiers, got {self!r}")
+        for attr in ("v0_kwargs", "v0_presets"):
+            object.__setattr__(self, attr, MappingProxyType(dict(getattr(self, attr))))
+
+    @property
+    def current_id(self) -> str:
+        """The current id, ``selenv/<env_name>-v1``."""
+        return f"selenv/{self.env_name}-v1"
+
+    @property
+    def versions(self) -> tuple[EnvVersion, ...]:
+        """``-v0`` (release 0.1, if :attr:`has_v0`) and ``-v1`` (current), with entry points."""
+        package = f"selenv.families.{self.name}"
+        v1 = EnvVersion(env_id=self.current_id, entry_point=f"{package}:make_env")
+        if not self.has_v0:
+            return (v1,)
+        v0 = EnvVersion(
+            env_id=f"selenv/{self.env_name}-v0",
+            entry_point=f"{package}:make_env_v0",
+            kwargs=self.v0_kwargs,
+            superseded_by=self.current_id,
+        )
+        return (v0, v1)
+
+
+def build_env(entry: str, render_mode: Any = None, **kwargs: Any) -> gym.Env[Any, Any]:
+    """``Class(render_mode=..., **kwargs)`` for ``entry = "module:Class"``.
+
+    ``gymnasium.make`` inspects ``entry_point.metadata`` when the entry point is a class and
+    then handles ``render_mode`` itself before the env sees it: a non-str ``render_mode``
+    (``1``, ``True``) fails there with an ``AttributeError``. The ids are therefore registered
+    with plain functions, so every keyword, ``render_mode`` included, is validated by the env
+    (a ``TypeError`` / ``ValueError`` naming it). What ``gymnasium.make`` would have added is
+    kept: ``render_mode="rgb_array_list"`` wraps the ``"rgb_array"`` env in
+    :class:`gymnasium.wrappers.RenderCollection`.
+    """
+    cls = load_attr(entry)
+    modes = cls.metadata["render_modes"]
+    if isinstance(render_mode, str) and render_mode.endswith("_list"):
+        base = render_mode[: -len("_list")]
+        if base in modes and base != "human":
+            return RenderCollection(cls(render_mode=base, **kwargs))
+    env: gym.Env[Any, Any] = cls(render_mode=render_mode, **kwargs)
+    return env
+
+
+EnvFactory = Callable[..., gym.Env[Any, Any]]
+
+
+def env_factories(spec: FamilySpec) -> tuple[EnvFactory, EnvFactory]:
+    """The entry points ``(make_env, make_env_v0)`` of a family's ``-v1`` and ``-v0`` ids.
+
+    ``make_env_v0`` emits the ``DeprecationWarning`` pointing to ``-v1`` and maps the preset
+    names of :attr:`FamilySpec.v0_presets` (the registered ``v0_kwargs`` arrive as keywords).
+    """
+    from selenv.envs.versions import warn_deprecated
+
+    def make_env(**kwargs: Any) -> gym.Env[Any, Any]:
+        return build_env(spec.env_class, **kwargs)
+
+    def make_env_v0(**kwargs: Any) -> gym.Env[Any, Any]:
+        warn_deprecated(f"selenv/{spec.env_name}-v0", spec.current_id)
+        preset = kwargs.get("preset")
+        if isinstance(preset, str) and preset in spec.v0_presets:
+            kwargs["preset"] = spec.v0_presets[preset]
+        return make_env(**kwargs)
+
+    make_env.__doc__ = f"``{spec.current_id}``: a ``{spec.env_class.split(':')[1]}``."
+    make_env_v0.__doc__ = f"``selenv/{spec.env_name}-v0`` (release 0.1; deprecated)."
+    return make_env, make_env_v0

@@ -1,0 +1,107 @@
+"""Every family is wired from its record alone: ids, versions, agents, views, checkpoint, modules.
+
+This is the check behind the "add a family" recipe (docs/ADDING_A_FAMILY.md): a new folder
+and one line in ``selenv.families.FAMILIES`` must give all of the below.
+"""
+
+from __future__ import annotations
+
+import importlib
+import warnings
+
+import gymnasium as gym
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import selenv
+from selenv.agents import AGENTS, agents_for
+from selenv.bench import multiagent_modules
+from selenv.families import ALL_ENV_IDS, ENV_IDS, FAMILIES, family_spec
+from selenv.families.spec import FamilySpec, load_attr
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
+from selenv.learned.rl.views import VIEWS, view_for
+
+IDS = [f.name for f in FAMILIES]
+
+
+@pytest.mark.parametrize("spec", FAMILIES, ids=IDS)
+def test_record_builds_both_versions_and_the_env(spec: FamilySpec) -> None:
+    package = importlib.import_module(f"selenv.families.{spec.name}")
+    assert package.SPEC is spec
+    ids = [v.env_id for v in spec.versions]
+    assert spec.has_v0  # the four families of release 0.1
+    assert ids == [f"selenv/{spec.env_name}-v0", spec.current_id]
+    assert spec.current_id in ENV_IDS and set(ids) <= set(ALL_ENV_IDS) <= set(gym.registry)
+    assert all(family_spec(i) is spec for i in ids)
+    env = gym.make(spec.current_id)
+    assert isinstance(env.unwrapped, load_attr(spec.env_class))
+    check_env(env.unwrapped, skip_render_check=True)
+    with pytest.warns(DeprecationWarning, match=spec.current_id):
+        gym.make(ids[0])
+
+
+@pytest.mark.parametrize("spec", FAMILIES, ids=IDS)
+def test_record_registers_agents_views_checkpoint(spec: FamilySpec) -> None:
+    for module in spec.agent_modules:
+        assert module in importlib.sys.modules  # imported by selenv.agents
+    assert {"random", "greedy"} & set(agents_for(spec.current_id))
+    env = gym.make(spec.current_id)
+    for env_id in (spec.current_id, f"selenv/{spec.env_name}-v0"):
+        assert list(VIEWS[env_id]) == list(load_attr(spec.views))
+    view = view_for(spec.current_id, env)
+    obs, _ = env.reset(seed=0)
+    assert view.space(env.observation_space).contains(view(obs))
+    if spec.checkpoint is not None:
+        assert DEFAULT_CHECKPOINTS[spec.current_id].is_file()
+        assert spec.current_id in AGENTS["ppo"]
+        assert f"selenv/{spec.env_name}-v0" not in AGENTS["ppo"]  # trained on -v1 only
+    if spec.multiagent_module is not None:
+        module = importlib.import_module(spec.multiagent_module)
+        assert callable(module.parallel_env) and module.__doc__
+        assert spec.multiagent_module in multiagent_modules()
+
+
+def test_families_are_unique_and_in_selenv_list_order() -> None:
+    assert len({f.name for f in FAMILIES}) == len({f.env_name for f in FAMILIES}) == len(FAMILIES)
+    assert selenv.ENV_IDS == ENV_IDS == tuple(f.current_id for f in FAMILIES)
+
+
+def test_a_family_added_later_starts_at_v1() -> None:
+    spec = FamilySpec(name="toy", env_name="Toy", title="", env_class="a:b", has_v0=False)
+    assert [v.env_id for v in spec.versions] == ["selenv/Toy-v1"]
+    assert spec.versions[0].entry_point == "selenv.families.toy:make_env"
+
+
+def test_record_fields_are_validated() -> None:
+    with pytest.raises(ValueError, match="identifiers"):
+        FamilySpec(name="no-dash", env_name="X", title="", env_class="a:b")
+    with pytest.raises(ValueError, match="module:attr"):
+        load_attr("selenv.families")
+
+
+def test_moved_module_paths_still_import_with_a_warning() -> None:
+    from selenv._compat import MOVED
+
+    for old, new in MOVED.items():
+        importlib.sys.modules.pop(old, None)  # an earlier import left the alias: find it anew
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            module = importlib.import_module(old)
+        assert module is importlib.import_module(new)
+        assert any(f"{old} moved to {new}" in str(w.message) for w in caught)
+    from selenv.envs.fim_selection import FIMSelectionEnv  # the old spelling of a class
+
+    assert FIMSelectionEnv is load_attr("selenv.families.fim.env:FIMSelectionEnv")
+
+
+@pytest.mark.parametrize("spec", FAMILIES, ids=IDS)
+def test_every_current_env_observes_its_action_mask(spec: FamilySpec) -> None:
+    """The README's promise: ``action_masks()``, ``info["action_mask"]``, ``obs["action_mask"]``."""
+    import numpy as np
+
+    env = gym.make(spec.current_id)
+    obs, info = env.reset(seed=1)
+    mask = np.asarray(env.unwrapped.action_masks(), dtype=bool)
+    assert mask.any()
+    np.testing.assert_array_equal(np.asarray(obs["action_mask"], dtype=bool).ravel(), mask)
+    np.testing.assert_array_equal(np.asarray(info["action_mask"], dtype=bool).ravel(), mask)
