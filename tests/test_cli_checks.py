@@ -77,3 +77,20 @@ def test_train_dispatches_and_reports_exit_codes(capsys):
     assert "--total-timesteps" in capsys.readouterr().out
     assert main(["train", "no_such_script"]) == 2
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_cli_start_imports_no_heavy_package() -> None:
+    """``selenv list`` (and ``--help``) start without torch, matplotlib, scipy.optimize/stats."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, contextlib, io\n"
+        "from selenv.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        "    main(['list'])\n"
+        "heavy = ('torch', 'matplotlib', 'scipy.optimize', 'scipy.stats', 'ray', 'cvxpy')\n"
+        "print(sorted(m for m in heavy if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

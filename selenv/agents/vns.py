@@ -89,10 +89,52 @@ def vns_whitened(
             ``initial`` (fractions are refused, not truncated), ``l_max`` or ``M_l < 1``.
     """
     Q0, G = whitened_pool(Q0, G)
-    N, m, d = G.shape
+    N, _, d = G.shape
     K = _check_budget(budget, N)
     objective = check_objective(objective)
     idx = check_interest(interest, d, objective)
+    init = _check_options(batched, rng, m_l, initial, l_max, K, N)
+    if K == 0 or K == N:
+        return _finish(Q0, G, list(range(K)), 0, objective, idx)
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    score = _SubsetScorer(Q0, G, K, objective, idx)
+    sel = np.sort(np.argsort(-score.singles(), kind="stable")[:K]) if init is None else init
+    widest = min(K, N - K)  # no swap of more than this many exists
+    if l_max is not None and l_max > widest:
+        raise ValueError(f"l_max must be an int <= min(K, N - K) = {widest}, got {l_max!r}")
+    l_max = min(widest, len(m_l)) if l_max is None else int(l_max)
+    if l_max < 1 or not m_l or min(m_l) < 1:
+        raise ValueError(f"l_max and every M_l must be >= 1, got l_max={l_max}, m_l={m_l!r}")
+
+    best = float(score(sel[None])[0])
+    evals = 1
+    size, j = 1, 0  # neighbourhood size l and draws without improvement at this size
+    while size <= l_max:
+        M = m_l[min(size, len(m_l)) - 1]
+        cands, exhaustive = _neighbours(sel, size, M, N, batched, rng)
+        v = score(cands)
+        evals += cands.shape[0]
+        i = int(np.argmax(v))
+        if v[i] > best:
+            sel, best = np.sort(cands[i]), float(v[i])
+            size, j = 1, 0
+        else:
+            j += cands.shape[0]
+            if exhaustive or j >= M:  # V_l was enumerated whole: drawing again cannot help
+                size, j = size + 1, 0
+    return _finish(Q0, G, sel.tolist(), evals, objective, idx)
+
+
+def _check_options(
+    batched: object,
+    rng: object,
+    m_l: object,
+    initial: Sequence[int] | None,
+    l_max: object,
+    K: int,
+    N: int,
+) -> np.ndarray | None:
+    """Validate the search options (see :func:`vns_whitened`); the sorted warm start or ``None``."""
     if not isinstance(batched, bool | np.bool_):
         raise TypeError(f"batched must be a bool, got {batched!r}")
     if not (
@@ -116,73 +158,78 @@ def vns_whitened(
             raise ValueError(f"initial must be {K} distinct indices in [0, {N}), got {initial!r}")
     if l_max is not None and (isinstance(l_max, bool) or not isinstance(l_max, int | np.integer)):
         raise TypeError(f"l_max must be an int or None, got {l_max!r}")
-    if K == 0 or K == N:
-        return _finish(Q0, G, list(range(K)), 0, objective, idx)
-    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    L = cholesky_spd(Q0, "Q0")
-    Z = np.linalg.solve(L, G.reshape(N * m, d).T).T  # rows of G L^-T, (N m, d)
-    gram = Z @ Z.T  # (N m, N m)
-    rows = np.arange(N * m).reshape(N, m)
-    eye = np.eye(m * K)
-    crit = get_objective(objective)
-    if objective != "logdet":
-        Et = np.eye(d) if idx is None else np.eye(d)[:, idx]  # E^T (d, p)
-        Ye = np.linalg.solve(L, Et)  # L^-1 E^T
-        Y = Z @ Ye  # rows of G P0 E^T, (N m, p)
-        C0 = Ye.T @ Ye  # E P0 E^T
+    return init
 
-    def values(cands: np.ndarray) -> FloatArray:  # (B, K') subsets -> (B,) f
-        r = rows[cands].reshape(cands.shape[0], -1)
-        M = eye[: r.shape[1], : r.shape[1]] + gram[r[:, :, None], r[:, None, :]]
-        if objective == "logdet":
+
+class _SubsetScorer:
+    """``f`` of batches of ``K'``-subsets from one Gram matrix of the whitened rows.
+
+    ``log det(I + Z_S Z_S^T)`` for log det; for any other registered objective the downdate
+    ``c(E P0 E^T) - c(E P_S E^T)`` with ``E P_S E^T = E P0 E^T - Y_S^T (I + Z_S Z_S^T)^-1 Y_S``
+    (module docstring).
+    """
+
+    def __init__(
+        self, Q0: FloatArray, G: FloatArray, K: int, objective: str, idx: np.ndarray | None
+    ) -> None:
+        N, m, d = G.shape
+        L = cholesky_spd(Q0, "Q0")
+        Z = np.linalg.solve(L, G.reshape(N * m, d).T).T  # rows of G L^-T, (N m, d)
+        self.gram = Z @ Z.T  # (N m, N m)
+        self.rows = np.arange(N * m).reshape(N, m)
+        self.eye = np.eye(m * K)
+        self.m, self.N = m, N
+        self.objective = objective
+        self.crit = get_objective(objective)
+        if objective != "logdet":
+            Et = np.eye(d) if idx is None else np.eye(d)[:, idx]  # E^T (d, p)
+            Ye = np.linalg.solve(L, Et)  # L^-1 E^T
+            self.Y = Z @ Ye  # rows of G P0 E^T, (N m, p)
+            self.C0 = Ye.T @ Ye  # E P0 E^T
+
+    def __call__(self, cands: np.ndarray) -> FloatArray:
+        """``(B,)`` values of the subsets ``cands`` ``(B, K')``."""
+        r = self.rows[cands].reshape(cands.shape[0], -1)
+        M = self.eye[: r.shape[1], : r.shape[1]] + self.gram[r[:, :, None], r[:, None, :]]
+        if self.objective == "logdet":
             return np.linalg.slogdet(M)[1]
-        V = np.linalg.solve(np.linalg.cholesky(M), Y[r])  # C^-1 Y_S, (B, m K', p)
-        return crit.downdate_gain(C0, V)  # c(E P0 E^T) - c(E P_S E^T)
+        V = np.linalg.solve(np.linalg.cholesky(M), self.Y[r])  # C^-1 Y_S, (B, m K', p)
+        return self.crit.downdate_gain(self.C0, V)  # c(E P0 E^T) - c(E P_S E^T)
 
-    if objective == "logdet":  # the original single-gain pass (bit-identical)
-        single = np.linalg.slogdet(eye[:m, :m] + gram[rows[:, :, None], rows[:, None, :]])[1]
+    def singles(self) -> FloatArray:
+        """``(N,)`` value of every candidate alone (the default warm start ranks them)."""
+        if self.objective == "logdet":  # the original single-gain pass
+            rows, m = self.rows, self.m
+            return np.linalg.slogdet(
+                self.eye[:m, :m] + self.gram[rows[:, :, None], rows[:, None, :]]
+            )[1]
+        return self(np.arange(self.N)[:, None])
+
+
+def _neighbours(
+    sel: np.ndarray, size: int, M: int, N: int, batched: bool, rng: np.random.Generator
+) -> tuple[np.ndarray, bool]:
+    """Subsets of ``V_size(sel)`` to evaluate, and whether they are the whole neighbourhood.
+
+    When ``V_size`` has at most ``M`` members (and ``batched``) it is enumerated; otherwise
+    ``M`` (batched) or 1 (sequential) draws exchange ``size`` selected for ``size`` unselected.
+    """
+    K = sel.size
+    unsel = np.setdiff1d(np.arange(N), sel, assume_unique=True)
+    exhaustive = batched and math.comb(K, size) * math.comb(N - K, size) <= M
+    if exhaustive:
+        pairs = itertools.product(
+            itertools.combinations(range(K), size), itertools.combinations(unsel, size)
+        )
+        out_l, new_l = zip(*pairs, strict=True)
+        out_pos, new = np.array(out_l, dtype=np.intp), np.array(new_l, dtype=np.intp)
     else:
-        single = values(np.arange(N)[:, None])
-    sel = np.sort(np.argsort(-single, kind="stable")[:K]) if init is None else init
-    widest = min(K, N - K)  # no swap of more than this many exists
-    if l_max is not None and l_max > widest:
-        raise ValueError(f"l_max must be an int <= min(K, N - K) = {widest}, got {l_max!r}")
-    l_max = min(widest, len(m_l)) if l_max is None else int(l_max)
-    if l_max < 1 or not m_l or min(m_l) < 1:
-        raise ValueError(f"l_max and every M_l must be >= 1, got l_max={l_max}, m_l={m_l!r}")
-
-    best = float(values(sel[None])[0])
-    evals = 1
-    size, j = 1, 0  # neighbourhood size l and draws without improvement at this size
-    while size <= l_max:
-        M = m_l[min(size, len(m_l)) - 1]
-        unsel = np.setdiff1d(np.arange(N), sel, assume_unique=True)
-        exhaustive = batched and math.comb(K, size) * math.comb(N - K, size) <= M
-        if exhaustive:
-            # the whole neighbourhood fits in one batch: evaluate all of V_l exactly once
-            pairs = itertools.product(
-                itertools.combinations(range(K), size), itertools.combinations(unsel, size)
-            )
-            out_l, new_l = zip(*pairs, strict=True)
-            out_pos, new = np.array(out_l, dtype=np.intp), np.array(new_l, dtype=np.intp)
-        else:
-            n_draw = M if batched else 1
-            out_pos = np.argsort(rng.random((n_draw, K)), axis=1)[:, :size]  # selected to drop
-            new = unsel[np.argsort(rng.random((n_draw, unsel.size)), axis=1)[:, :size]]
-        n_draw = out_pos.shape[0]
-        cands = np.repeat(sel[None], n_draw, axis=0)
-        np.put_along_axis(cands, out_pos, new, axis=1)
-        v = values(cands)
-        evals += n_draw
-        i = int(np.argmax(v))
-        if v[i] > best:
-            sel, best = np.sort(cands[i]), float(v[i])
-            size, j = 1, 0
-        else:
-            j += n_draw
-            if exhaustive or j >= M:  # V_l was enumerated whole: drawing again cannot help
-                size, j = size + 1, 0
-    return _finish(Q0, G, sel.tolist(), evals, objective, idx)
+        n_draw = M if batched else 1
+        out_pos = np.argsort(rng.random((n_draw, K)), axis=1)[:, :size]  # selected to drop
+        new = unsel[np.argsort(rng.random((n_draw, unsel.size)), axis=1)[:, :size]]
+    cands = np.repeat(sel[None], out_pos.shape[0], axis=0)
+    np.put_along_axis(cands, out_pos, new, axis=1)
+    return cands, exhaustive
 
 
 def vns(

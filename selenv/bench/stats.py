@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats as sps
 
 __all__ = [
     "BOOTSTRAP_RESAMPLES",
@@ -120,6 +119,8 @@ def t_interval(
     n = d.size
     if n < 2:
         return (math.nan, math.nan)
+    from scipy import stats as sps  # deferred: scipy.stats imports slowly (selenv list)
+
     half = float(sps.t.ppf(1.0 - alpha / 2.0, n - 1)) * float(d.std(ddof=1)) / math.sqrt(n)
     mean = float(d.mean())
     return (mean - half, mean + half)

@@ -258,15 +258,15 @@ def blame_shapes(
     return ShapeError(message, names[0])
 
 
-def _diagnose(
-    args: Mapping[str, Any],
-    templates: Mapping[str, str | Sequence[str]],
-    batch: Collection[str],
-    fixed: Mapping[str, int],
-) -> tuple[str, list[str], str] | None:
-    """``(kind, names, message)`` of the first shape problem of :func:`blame_shapes`."""
-    known = dict(fixed)
-    chosen: dict[str, tuple[tuple[str, ...], tuple[int, ...], bool]] = {}
+_Match = tuple[tuple[str, ...], tuple[int, ...], bool]  # (template core, its axes, has "...")
+_Problem = tuple[str, list[str], str]  # (kind, names, message)
+
+
+def _match_templates(
+    args: Mapping[str, Any], templates: Mapping[str, str | Sequence[str]]
+) -> tuple[dict[str, _Match], _Problem | None]:
+    """The first template alternative each argument's number of axes fits, or an ndim problem."""
+    chosen: dict[str, _Match] = {}
     for name, value in args.items():
         if value is None:
             continue
@@ -286,9 +286,19 @@ def _diagnose(
                 break
         if match is None:
             want = " or ".join(_fmt(t) for t in parsed)
-            return "ndim", [name], f"{name} must have shape {want}, got {shape}"
+            return chosen, ("ndim", [name], f"{name} must have shape {want}, got {shape}")
         chosen[name] = match
-    # one vote per argument and symbol (an argument that is inconsistent by itself abstains)
+    return chosen, None
+
+
+def _vote(
+    chosen: Mapping[str, _Match], batch: Collection[str], known: dict[str, int]
+) -> tuple[dict[str, list[tuple[str, int]]], dict[str, list[str]]]:
+    """Each symbol's length by majority of the arguments (one vote per argument and symbol).
+
+    An argument inconsistent by itself abstains. ``known`` gains the decided lengths; returns
+    the votes and the symbols whose vote is a tie (with the arguments involved).
+    """
     votes: dict[str, list[tuple[str, int]]] = {}
     for name, (core, shape, _) in chosen.items():
         own: dict[str, set[int]] = {}
@@ -307,6 +317,18 @@ def _diagnose(
             ties[sym] = [n for n, _ in claims]
         else:
             known[sym] = ranked[0][0]
+    return votes, ties
+
+
+def _blame(
+    args: Mapping[str, Any],
+    chosen: Mapping[str, _Match],
+    batch: Collection[str],
+    known: Mapping[str, int],
+    votes: Mapping[str, list[tuple[str, int]]],
+    ties: Mapping[str, list[str]],
+) -> _Problem | None:
+    """The first argument in a tie, or whose shape disagrees with the decided lengths."""
     for name, (core, shape, ell) in chosen.items():
         for sym, involved in ties.items():
             if name in involved:
@@ -329,6 +351,25 @@ def _diagnose(
             got = np.shape(args[name])
             return "blame", [name], f"{name} must have shape {shown}, got {got}{why}"
     return None
+
+
+def _diagnose(
+    args: Mapping[str, Any],
+    templates: Mapping[str, str | Sequence[str]],
+    batch: Collection[str],
+    fixed: Mapping[str, int],
+) -> _Problem | None:
+    """``(kind, names, message)`` of the first shape problem of :func:`blame_shapes`.
+
+    Three passes: match each argument to a template by its number of axes, decide every
+    symbol's length by majority vote, then blame the first argument that disagrees.
+    """
+    chosen, problem = _match_templates(args, templates)
+    if problem is not None:
+        return problem
+    known = dict(fixed)
+    votes, ties = _vote(chosen, batch, known)
+    return _blame(args, chosen, batch, known, votes, ties)
 
 
 def symmetrize(A: FloatArray) -> FloatArray:

@@ -12,16 +12,15 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import logger
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.legend_handler import HandlerTuple
-from matplotlib.patches import Ellipse
-from matplotlib.ticker import MaxNLocator
+
+if TYPE_CHECKING:  # matplotlib is imported on the first frame, not with the envs
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Ellipse
 
 __all__ = [
     "ARROW",
@@ -84,6 +83,9 @@ class Renderer:
                 plt.ion()
                 self._fig = plt.figure(figsize=self.figsize, dpi=self.dpi)
         elif self._fig is None:
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+            from matplotlib.figure import Figure
+
             self._fig = Figure(figsize=self.figsize, dpi=self.dpi)
             FigureCanvasAgg(self._fig)
         return self._fig
@@ -138,6 +140,8 @@ def ellipse(cov: np.ndarray, centre: Sequence[float], n_sigma: float = 2.0, **kw
     lam = np.clip(lam, 0.0, None)
     width, height = 2.0 * n_sigma * np.sqrt(lam[::-1])  # major axis first
     angle = float(np.degrees(np.arctan2(V[1, 1], V[0, 1])))  # direction of the major axis
+    from matplotlib.patches import Ellipse
+
     return Ellipse((float(centre[0]), float(centre[1])), width, height, angle=angle, **kw)
 
 
@@ -191,6 +195,8 @@ def set_view(ax: Axes, points: np.ndarray, pad: float = 0.08, min_span: float = 
 
 def style_axes(ax: Axes, xlabel: str, ylabel: str) -> None:
     """Axis labels, small ticks (at most 5 per axis) and a light grid."""
+    from matplotlib.ticker import MaxNLocator
+
     ax.set_xlabel(xlabel, fontsize=FONT + 1)
     ax.set_ylabel(ylabel, fontsize=FONT + 1)
     ax.tick_params(labelsize=FONT)
@@ -213,5 +219,7 @@ def note(ax: Axes, text: str, xy: Any, dx: float = 5, dy: float = 0, **kw: Any) 
 
 def legend(fig: Figure, handles: list[Any], labels: list[str], **kw: Any) -> None:
     """Figure legend; a tuple handle draws its artists side by side."""
+    from matplotlib.legend_handler import HandlerTuple
+
     hmap = {tuple: HandlerTuple(ndivide=None)}
     fig.legend(handles, labels, fontsize=FONT, frameon=False, handler_map=hmap, **kw)

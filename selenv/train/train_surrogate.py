@@ -35,6 +35,7 @@ import json
 import shlex
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -232,15 +233,8 @@ def evaluate(sur: Surrogate, ds: SurrogateDataset) -> dict[str, float]:
     }
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Generate or load data, train, save the checkpoint and its metadata; return the metadata."""
-    cfg = parse_args(argv)
-    check_outputs(
-        f"python -m {SCRIPT}",
-        outputs(cfg),
-        force=cfg.force,
-        folders=[cfg.tensorboard_dir] if cfg.tensorboard_dir else [],
-    )
+def check_config(cfg: Config) -> None:
+    """Refuse option combinations and ranges the training cannot run (``ValueError``)."""
     if cfg.kind not in KINDS:
         raise ValueError(f"--kind must be one of {KINDS}, got {cfg.kind!r}")
     if cfg.method not in METHODS:
@@ -256,91 +250,90 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         0 < cfg.val_fraction and 0 < cfg.test_fraction and cfg.val_fraction + cfg.test_fraction < 1
     ):
         raise ValueError("--val-fraction and --test-fraction must be > 0 with a sum < 1")
-    t2 = TABLE_II[cfg.kind]
-    batch_size = cfg.batch_size or int(t2["batch_size"])
-    lr = cfg.lr or float(t2["lr"])
-    opt_name = cfg.optimizer or DEFAULT_OPTIMIZER[cfg.kind]
-    method = cfg.method if cfg.kind == "lpecmv" else 3
-    name = checkpoint_name(cfg)
-    out = output_path(cfg)
-    torch.set_num_threads(cfg.torch_threads)
-    torch.manual_seed(cfg.seed)
-
-    # 1. data
-    start = time.perf_counter()
-    if cfg.data:
-        ds = load_dataset(cfg.data)
-    else:
-        executor = None
-        if cfg.executor or cfg.address:
-            executor = make_executor(
-                cfg.executor or "process",
-                num_workers=cfg.workers or None,
-                address=cfg.address or None,
-            )
-        with executor or contextlib.nullcontext():
-            ds = generate_dataset(
-                cfg.samples,
-                seed=cfg.seed,
-                workers=cfg.workers,
-                gen=GenerationConfig(bearing_sigma_deg=cfg.bearing_sigma_deg),
-                progress=cfg.progress,
-                executor=executor,
-            )
-        if cfg.save_data:
-            save_dataset(ds, cfg.save_data)
-    gen_seconds = time.perf_counter() - start
-    N = len(ds)
-    n_val, n_test = max(1, int(cfg.val_fraction * N)), max(1, int(cfg.test_fraction * N))
-    if N - n_val - n_test < 1:
-        raise ValueError(f"dataset of {N} rows is too small to split")
-    perm = np.random.default_rng(cfg.seed).permutation(N)
-    test, val, train = perm[:n_test], perm[n_test : n_test + n_val], perm[n_test + n_val :]
-    X = ds.features().astype(np.float32)
-    Y = targets(ds, cfg.kind, method).astype(np.float32)
-    Xt, Yt = torch.from_numpy(X[train]), torch.from_numpy(Y[train])
-    Xv, Yv = torch.from_numpy(X[val]), torch.from_numpy(Y[val])
-    terms = objective_terms(ds) if cfg.objective_loss else {}
-    if cfg.objective_loss:  # the "labels" are row numbers into the problems of `terms`
-        Yt, Yv = torch.from_numpy(train), torch.from_numpy(val)
-
-    # 2. model (input standardisation from the training split only)
-    n, m = int(ds.header["n"]), int(ds.header["m"])
-    try:
-        hidden = tuple(int(h) for h in cfg.hidden.split(",")) if cfg.hidden else None
-    except ValueError:
-        raise ValueError(f"--hidden must be comma-separated integers, got {cfg.hidden!r}") from None
-    sur = Surrogate.create(
-        cfg.kind, method=method, n=n, m=m, hidden=hidden, activation=cfg.activation or None
-    )
-    sur.set_normalisation(X[train])
-    net = sur.net
-    if opt_name == "sgd":
-        opt: torch.optim.Optimizer = torch.optim.SGD(net.parameters(), lr=lr, momentum=cfg.momentum)
-    elif opt_name == "adam":
-        opt = torch.optim.Adam(net.parameters(), lr=lr)
-    else:
-        raise ValueError(f"--optimizer must be sgd or adam, got {opt_name!r}")
-    steps_per_epoch = -(-len(train) // batch_size)
-    if cfg.lr_schedule == "onecycle":
-        sched: torch.optim.lr_scheduler.LRScheduler | None = torch.optim.lr_scheduler.OneCycleLR(
-            opt, max_lr=lr, total_steps=max(1, cfg.epochs * steps_per_epoch)
-        )
-    elif cfg.lr_schedule == "constant":
-        sched = None
-    else:
+    if cfg.optimizer not in ("", "sgd", "adam"):
+        raise ValueError(f"--optimizer must be sgd or adam, got {cfg.optimizer!r}")
+    if cfg.lr_schedule not in ("constant", "onecycle"):
         raise ValueError(f"--lr-schedule must be constant or onecycle, got {cfg.lr_schedule!r}")
 
-    def loss_fn(pred: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        if cfg.objective_loss:  # mean gap to the optimum of eq. (8a), >= 0
-            return torch.mean(terms["opt"][y] - pecmv_log_det(pred, terms, y))
-        if method == 1 and cfg.kind == "lpecmv":
-            return barrier_loss(pred, y, cfg.barrier_lambda)
-        return torch.mean((pred - y) ** 2)  # MSE (Table II)
 
-    # 3. train: early stopping on the validation loss, best weights restored
-    log_dir = Path(cfg.tensorboard_dir) / f"surrogate_{name}_{cfg.seed}_{int(time.time())}"
-    writer = SummaryWriter(str(log_dir)) if cfg.tensorboard_dir else None
+def load_or_generate(cfg: Config) -> SurrogateDataset:
+    """The dataset: ``--data`` loaded, or generated (on ``--executor`` if given) and saved."""
+    if cfg.data:
+        return load_dataset(cfg.data)
+    executor = None
+    if cfg.executor or cfg.address:
+        executor = make_executor(
+            cfg.executor or "process",
+            num_workers=cfg.workers or None,
+            address=cfg.address or None,
+        )
+    with executor or contextlib.nullcontext():
+        ds = generate_dataset(
+            cfg.samples,
+            seed=cfg.seed,
+            workers=cfg.workers,
+            gen=GenerationConfig(bearing_sigma_deg=cfg.bearing_sigma_deg),
+            progress=cfg.progress,
+            executor=executor,
+        )
+    if cfg.save_data:
+        save_dataset(ds, cfg.save_data)
+    return ds
+
+
+def split_rows(n_rows: int, cfg: Config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(train, val, test)`` row indices: a permutation seeded by ``cfg.seed``, test first."""
+    n_val = max(1, int(cfg.val_fraction * n_rows))
+    n_test = max(1, int(cfg.test_fraction * n_rows))
+    if n_rows - n_val - n_test < 1:
+        raise ValueError(f"dataset of {n_rows} rows is too small to split")
+    perm = np.random.default_rng(cfg.seed).permutation(n_rows)
+    return perm[n_test + n_val :], perm[n_test : n_test + n_val], perm[:n_test]
+
+
+def make_optimizer(
+    cfg: Config, net: torch.nn.Module, opt_name: str, lr: float, total_steps: int
+) -> tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LRScheduler | None]:
+    """The optimizer (Table II: SGD with momentum, or Adam) and the learning-rate schedule."""
+    opt: torch.optim.Optimizer
+    if opt_name == "sgd":
+        opt = torch.optim.SGD(net.parameters(), lr=lr, momentum=cfg.momentum)
+    else:
+        opt = torch.optim.Adam(net.parameters(), lr=lr)
+    if cfg.lr_schedule == "onecycle":
+        return opt, torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=lr, total_steps=max(1, total_steps)
+        )
+    return opt, None
+
+
+@dataclasses.dataclass
+class FitResult:
+    """What :func:`fit` reports: the epochs run, the best epoch and its validation loss."""
+
+    epochs_run: int
+    best_epoch: int
+    best_val_loss: float
+    wall_seconds: float
+
+
+def fit(
+    cfg: Config,
+    net: torch.nn.Module,
+    data: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    optim: tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LRScheduler | None],
+    batch_size: int,
+    name: str,
+    writer: SummaryWriter | None,
+) -> FitResult:
+    """Mini-batch training with early stopping on the validation loss; best weights restored.
+
+    ``data`` is ``(X_train, Y_train, X_val, Y_val)``; batches are drawn by a generator seeded
+    with ``cfg.seed``; stops after ``cfg.patience`` epochs without a better validation loss.
+    """
+    Xt, Yt, Xv, Yv = data
+    opt, sched = optim
     gen = torch.Generator().manual_seed(cfg.seed)
     best, best_state, best_epoch, epoch = float("inf"), None, -1, 0
     start = time.perf_counter()
@@ -372,13 +365,80 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     bar.close()
     if best_state is not None:
         net.load_state_dict(best_state)
-    wall = time.perf_counter() - start
+    epochs_run = epoch + 1 if cfg.epochs else 0
+    return FitResult(epochs_run, best_epoch, best, time.perf_counter() - start)
+
+
+def loss_name(cfg: Config, method: int) -> str:
+    """The loss :func:`main` trains with: eq. (8a), the barrier of eq. (14), or Table II's MSE."""
+    if cfg.objective_loss:
+        return "objective eq. 8a"
+    return "barrier eq. 14" if method == 1 and cfg.kind == "lpecmv" else "mse"
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Generate or load data, train, save the checkpoint and its metadata; return the metadata."""
+    cfg = parse_args(argv)
+    check_outputs(
+        f"python -m {SCRIPT}",
+        outputs(cfg),
+        force=cfg.force,
+        folders=[cfg.tensorboard_dir] if cfg.tensorboard_dir else [],
+    )
+    check_config(cfg)
+    t2 = TABLE_II[cfg.kind]
+    batch_size = cfg.batch_size or int(t2["batch_size"])
+    lr = cfg.lr or float(t2["lr"])
+    opt_name = cfg.optimizer or DEFAULT_OPTIMIZER[cfg.kind]
+    method = cfg.method if cfg.kind == "lpecmv" else 3
+    name = checkpoint_name(cfg)
+    out = output_path(cfg)
+    torch.set_num_threads(cfg.torch_threads)
+    torch.manual_seed(cfg.seed)
+
+    # 1. data
+    start = time.perf_counter()
+    ds = load_or_generate(cfg)
+    gen_seconds = time.perf_counter() - start
+    train, val, test = split_rows(len(ds), cfg)
+    X = ds.features().astype(np.float32)
+    Y = targets(ds, cfg.kind, method).astype(np.float32)
+    Xt, Yt = torch.from_numpy(X[train]), torch.from_numpy(Y[train])
+    Xv, Yv = torch.from_numpy(X[val]), torch.from_numpy(Y[val])
+    terms = objective_terms(ds) if cfg.objective_loss else {}
+    if cfg.objective_loss:  # the "labels" are row numbers into the problems of `terms`
+        Yt, Yv = torch.from_numpy(train), torch.from_numpy(val)
+
+    # 2. model (input standardisation from the training split only)
+    n, m = int(ds.header["n"]), int(ds.header["m"])
+    try:
+        hidden = tuple(int(h) for h in cfg.hidden.split(",")) if cfg.hidden else None
+    except ValueError:
+        raise ValueError(f"--hidden must be comma-separated integers, got {cfg.hidden!r}") from None
+    sur = Surrogate.create(
+        cfg.kind, method=method, n=n, m=m, hidden=hidden, activation=cfg.activation or None
+    )
+    sur.set_normalisation(X[train])
+    steps_per_epoch = -(-len(train) // batch_size)
+    optim = make_optimizer(cfg, sur.net, opt_name, lr, cfg.epochs * steps_per_epoch)
+
+    def loss_fn(pred: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        if cfg.objective_loss:  # mean gap to the optimum of eq. (8a), >= 0
+            return torch.mean(terms["opt"][y] - pecmv_log_det(pred, terms, y))
+        if method == 1 and cfg.kind == "lpecmv":
+            return barrier_loss(pred, y, cfg.barrier_lambda)
+        return torch.mean((pred - y) ** 2)  # MSE (Table II)
+
+    # 3. train: early stopping on the validation loss, best weights restored
+    log_dir = Path(cfg.tensorboard_dir) / f"surrogate_{name}_{cfg.seed}_{int(time.time())}"
+    writer = SummaryWriter(str(log_dir)) if cfg.tensorboard_dir else None
+    result = fit(cfg, sur.net, (Xt, Yt, Xv, Yv), loss_fn, optim, batch_size, name, writer)
 
     # 4. test metrics, checkpoint and metadata
     metrics = evaluate(sur, ds.subset(test))
     if writer is not None:
         for k, v in metrics.items():
-            writer.add_scalar(f"test/{k}", v, best_epoch)
+            writer.add_scalar(f"test/{k}", v, result.best_epoch)
         writer.close()
     sur.meta.update(
         {
@@ -399,21 +459,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 "momentum": cfg.momentum if opt_name == "sgd" else None,
                 "lr": lr,
                 "batch_size": batch_size,
-                "loss": (
-                    "objective eq. 8a"
-                    if cfg.objective_loss
-                    else "barrier eq. 14"
-                    if method == 1 and cfg.kind == "lpecmv"
-                    else "mse"
-                ),
+                "loss": loss_name(cfg, method),
                 "barrier_lambda": cfg.barrier_lambda if method == 1 else None,
                 "epochs_max": cfg.epochs,
-                "epochs_run": epoch + 1 if cfg.epochs else 0,
-                "best_epoch": best_epoch,
-                "best_val_loss": best,
+                "epochs_run": result.epochs_run,
+                "best_epoch": result.best_epoch,
+                "best_val_loss": result.best_val_loss,
                 "patience": cfg.patience,
                 "seed": cfg.seed,
-                "wall_seconds": round(wall, 1),
+                "wall_seconds": round(result.wall_seconds, 1),
                 "tensorboard": str(log_dir) if writer is not None else None,
             },
             "metrics": {"test": metrics},

@@ -13,7 +13,6 @@ from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.families.clustering.filters import ClusterFilterBank
 from selenv.families.clustering.labels import canonicalize, random_feasible_clustering
-from selenv.families.clustering.rendering import draw_receiver_clustering
 from selenv.families.clustering.scenario import (
     ClusteringConfig,
     ClusteringProblem,
@@ -270,6 +269,10 @@ def render_clustering(
     """Draw ``bank``'s clustering and cost terms with ``renderer`` (both clustering envs)."""
     c = bank.cost()
     labels, sigma, k = bank.labels.copy(), bank.current_sigma(), bank.k
+    from selenv.families.clustering.rendering import (
+        draw_receiver_clustering,  # matplotlib: first frame
+    )
+
     return renderer.render(
         lambda fig: draw_receiver_clustering(
             fig, labels, sigma, c.J, c.J_G, c.J_C, c.J_L, k, max_size, title

@@ -34,7 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import linear_sum_assignment
 
 from selenv.core.linalg import FloatArray
 from selenv.families.clustering.labels import (
@@ -149,6 +148,8 @@ def _align(x: IntArray, y: IntArray) -> IntArray:
     ua, ia, _ = _label_counts(x)  # sorted labels and inverse, as np.unique(return_inverse)
     ub, ib, _ = _label_counts(y)
     T = np.bincount(ia * ub.size + ib, minlength=ua.size * ub.size).reshape(ua.size, ub.size)
+    from scipy.optimize import linear_sum_assignment  # deferred: scipy.optimize imports slowly
+
     rows, cols = linear_sum_assignment(T, maximize=True)
     mapping = np.empty(ub.size, dtype=np.int64)
     mapping[cols] = ua[rows]

@@ -20,7 +20,6 @@ from selenv.envs.conventions import (
     named_parameters,
 )
 from selenv.envs.rendering import Renderer
-from selenv.families.cooperative.rendering import draw_cl_scheduling
 from selenv.families.cooperative.scenario import (
     FUSION_METHODS,
     MAX_AGENTS,
@@ -347,6 +346,10 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         """A frame of the team (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         sim, done = self.sim, sorted(self._done_pairs)
         title = f"CLScheduling-v1 ({self.fusion})"
+        from selenv.families.cooperative.rendering import (
+            draw_cl_scheduling,  # matplotlib: first frame
+        )
+
         return self._renderer.render(
             lambda fig: draw_cl_scheduling(fig, sim, self.pairs, done, title)
         )

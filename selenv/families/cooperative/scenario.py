@@ -41,7 +41,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from selenv.core.kalman import kf_update
 from selenv.core.linalg import FloatArray, logdet_spd
@@ -468,6 +467,8 @@ def fuse_relative(
         z_eff = H_i @ x_i + residual  # kf_update forms y = z_eff - H_i x_i = residual
         res = kf_update(x_i, P_i, z_eff, H_i, B + R, validate=False)
         return res.x, res.P
+    from scipy.optimize import minimize_scalar  # deferred: a slow import, needed for CI only
+
     from selenv.core import fusion  # deferred: keeps scenarios importable without cvxpy
 
     if method == "ci":  # bound (4) with the weight that minimises the trace (CI's criterion)

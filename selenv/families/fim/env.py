@@ -12,7 +12,6 @@ from selenv.core.objectives import GainState, get_objective, make_gain_state, ob
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer
-from selenv.families.fim.rendering import draw_fim_selection
 from selenv.families.fim.scenario import (
     SENSOR_NAMES,
     FIMProblem,
@@ -308,6 +307,8 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         """A frame of the scene (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         state, problem = self.state, self.problem
         title = "FIMSelection-v1"
+        from selenv.families.fim.rendering import draw_fim_selection  # matplotlib: first frame
+
         return self._renderer.render(
             lambda fig: draw_fim_selection(fig, problem, state.selected, state.information, title)
         )

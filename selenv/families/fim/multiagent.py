@@ -75,7 +75,6 @@ from selenv.families.fim.env import (
     fim_observation,
     fim_observation_space,
 )
-from selenv.families.fim.rendering import draw_fim_selection
 from selenv.families.fim.scenario import config_from, make_problem
 from selenv.scenarios.validation import ArgumentTypeError, check_choice, check_integer, describe
 
@@ -290,6 +289,8 @@ class FIMSelectionParallelEnv(ParallelEnv):
         """The fusion centre's frame (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
         c, problem = self._centre, self.problem
         title = f"fim_selection_v0 ({self.mode})"
+        from selenv.families.fim.rendering import draw_fim_selection  # matplotlib: first frame
+
         return self._renderer.render(
             lambda fig: draw_fim_selection(fig, problem, c.selected, c.information, title)
         )

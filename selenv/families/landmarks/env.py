@@ -20,7 +20,6 @@ from selenv.envs.conventions import (
 )
 from selenv.envs.rendering import Renderer
 from selenv.families.fim.env import fim_observation, fim_observation_space
-from selenv.families.landmarks.rendering import draw_landmark_selection
 from selenv.families.landmarks.scenario import (
     LandmarkConfig,
     LandmarkEKF,
@@ -321,6 +320,10 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         ekf, problem = self.ekf, self.problem
         title = "LandmarkSelection-v1"
         picks, last = tuple(self.picks), self.last_selection
+        from selenv.families.landmarks.rendering import (
+            draw_landmark_selection,  # matplotlib: first frame
+        )
+
         return self._renderer.render(
             lambda fig: draw_landmark_selection(
                 fig, problem, ekf.x, ekf.P, ekf.k, picks, last, title
