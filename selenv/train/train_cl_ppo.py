@@ -37,7 +37,9 @@ SCRIPT = "selenv.train.train_cl_ppo"
 class Config(PPOConfig):
     """Defaults of the shipped run, written under ``runs/``."""
 
-    env_kwargs: str = json.dumps({"n_agents": 4, "budget": 2, "fusion": "dmv", "horizon": 100})
+    env_kwargs: str = json.dumps(
+        {"preset": "dense", "n_agents": 4, "budget": 2, "fusion": "dmv", "horizon": 100}
+    )
     total_timesteps: int = 60_000
     n_envs: int = 4
     vec_env: str = "subproc"

@@ -50,7 +50,7 @@ class Config:
     )
     force: bool = arg(False, "overwrite an existing --out (.zip or .json)")
     env_kwargs: str = arg(
-        json.dumps({"n_agents": 30, "horizon": 500}),
+        json.dumps({"preset": "paper", "n_agents": 30, "horizon": 500}),
         "JSON object of gymnasium.make keyword arguments of the labelling episodes",
     )
     states: int = arg(3000, "labelled states (visited by the policy)")

@@ -48,7 +48,7 @@ SCRIPT = "selenv.train.train_clustering_ppo"
 class Config(PPOConfig):
     """Defaults of the shipped run's ranking stage, written under ``runs/``."""
 
-    env_kwargs: str = json.dumps({"n_agents": 30, "horizon": 200})
+    env_kwargs: str = json.dumps({"preset": "paper", "n_agents": 30, "horizon": 200})
     eval_horizon: int = arg(
         500, "episode length of the evaluation episodes (the env's default length)"
     )
