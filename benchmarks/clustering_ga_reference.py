@@ -5,7 +5,8 @@ as it was before issue 19, with the label helpers of that time (``canonical_labe
 ``np.unique``, ``cluster_keys`` by a stable argsort) and :func:`old_evaluate`, the
 ``ClusterFilterBank.evaluate`` of that time (one ``check_clustering`` and ``cluster_keys`` per
 candidate, no caches). ``benchmarks/bench_clustering.py`` times it against the current code in
-one process; ``tests/test_clustering_speed_identity.py`` holds the recorded outputs both give.
+one process; ``tests/clustering/test_clustering_speed_identity.py`` holds the recorded outputs both
+give.
 Not part of the package; do not import it from ``selenv``.
 """
 

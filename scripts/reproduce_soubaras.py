@@ -10,7 +10,7 @@ comparisons are paired. Methods:
   :class:`~selenv.families.landmarks.scenario.LandmarkEKF` with ``update(range(N))``: through the
   env
   it would take ``N`` masked picks per filter step (each updating the observation), ~15x slower
-  for the same filter (``tests/test_reproduce_soubaras.py`` checks that the two agree).
+  for the same filter (``tests/landmarks/test_reproduce_soubaras.py`` checks that the two agree).
 * ``brute_force`` (Algorithm 1), ``vns`` (Algorithm 2, warm-started from the previous step),
   ``greedy`` (extra): the registered agents played through the env, as ``selenv bench`` does.
 

@@ -1,7 +1,8 @@
 """The faster GA / labels / cost cache against recorded runs and the previous implementations.
 
 GA traces and operator draws of the ``"literal"`` variant (the ``"improved"`` ones are in
-``tests/test_clustering_ga.py``), GA runs on a :class:`ClusterFilterBank`, 300-step ``ga``
+``tests/clustering/test_clustering_ga.py``), GA runs on a :class:`ClusterFilterBank`, 300-step
+``ga``
 episodes and 120-step episodes of seven agents in ``ReceiverClustering-v1``. The references were
 recorded with the current code (same seeds and calls as the pre-speed-up recordings) and are
 compared as *decisions* exactly (hashes or lists of integer data only: int64 populations, best
