@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib
 import json
 import os
 import tempfile
@@ -39,6 +40,12 @@ CASES: tuple[tuple[str, dict[str, Any]], ...] = (
     ("selenv/LandmarkSelection", {}),
     ("selenv/ReceiverClustering", {}),
     ("selenv/ReceiverClustering", {"n_agents": 12, "horizon": 40}),
+)
+#: (PettingZoo module name without version, parallel_env keywords) of every recorded case
+MULTIAGENT_CASES: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("selenv.multiagent.receiver_clustering", {"n_agents": 8, "horizon": 30}),
+    ("selenv.multiagent.receiver_clustering", {}),
+    ("selenv.multiagent.fim_selection", {}),
 )
 SEEDS = (0, 1, 2)
 STEPS = 12
@@ -82,6 +89,32 @@ def record_episode(env_id: str, kwargs: dict[str, Any], seed: int) -> dict[str, 
     return {"seed": seed, "actions": actions, "masks": masks, "rewards": rewards, "ends": ends}
 
 
+def record_multiagent_episode(module: str, kwargs: dict[str, Any], seed: int) -> dict[str, Any]:
+    """Per-agent actions, the masks and the per-agent rewards of one PettingZoo episode.
+
+    Actions are seeded and valid by each agent's ``obs["action_mask"]``; a step's masks are
+    digested together in the order of ``env.agents``.
+    """
+    env = importlib.import_module(module).parallel_env(**kwargs)
+    rng = np.random.default_rng(1000 + seed)
+    obs, _ = env.reset(seed=seed)
+    actions, masks, rewards = [], [], []
+    for _ in range(STEPS):
+        if not env.agents:
+            break
+        agent_masks = [np.asarray(obs[a]["action_mask"], dtype=bool) for a in env.agents]
+        masks.append(mask_digest(np.concatenate(agent_masks)))
+        act = {
+            a: int(rng.choice(np.flatnonzero(m)))
+            for a, m in zip(env.agents, agent_masks, strict=True)
+        }
+        obs, rew, _, _, _ = env.step(act)
+        actions.append(act)
+        rewards.append({a: float(r) for a, r in sorted(rew.items())})
+    env.close()
+    return {"seed": seed, "actions": actions, "masks": masks, "rewards": rewards}
+
+
 def write_atomic(path: Path, payload: dict[str, Any]) -> None:
     """Write JSON to ``path`` through a temporary file in the same folder and a rename."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -107,8 +140,14 @@ def main(argv: list[str] | None = None) -> None:
         env_id = f"{family}-{args.version}"
         episodes = [record_episode(env_id, kwargs, s) for s in SEEDS]
         cases.append({"env_id": env_id, "kwargs": kwargs, "episodes": episodes})
+    multiagent = []
+    for family, kwargs in MULTIAGENT_CASES:
+        module = f"{family}_{args.version}"
+        episodes = [record_multiagent_episode(module, kwargs, s) for s in SEEDS]
+        multiagent.append({"module": module, "kwargs": kwargs, "episodes": episodes})
     meta = {"selenv_version": selenv.__version__, "source": args.source}
-    write_atomic(args.out, {"recorded_with": meta, "steps": STEPS, "cases": cases})
+    payload = {"recorded_with": meta, "steps": STEPS, "cases": cases, "multiagent": multiagent}
+    write_atomic(args.out, payload)
 
 
 if __name__ == "__main__":

@@ -24,8 +24,8 @@ from selenv.cli import main
 from selenv.core.information import as_candidates, logdet_objective
 from selenv.families.clustering.multiagent_agents import ClusteringGreedyPolicy
 from selenv.families.fim.multiagent_agents import CentralizedFIMPolicy, FIMGreedyPolicy
-from selenv.multiagent import fim_selection_v0, receiver_clustering_v0
-from selenv.multiagent.receiver_clustering_v0 import resolve_moves
+from selenv.multiagent import fim_selection_v0, receiver_clustering_v1
+from selenv.multiagent.receiver_clustering_v1 import resolve_moves
 
 FIM_KW = {"n_candidates": 10, "budgets": 3}
 CL_KW = {"n_agents": 9, "horizon": 20}
@@ -155,9 +155,9 @@ def test_centralized_greedy_beats_independent_greedy_on_average() -> None:
     assert p is not None and p.mean_diff > 0
 
 
-# -- receiver_clustering_v0 -----------------------------------------------------------------------
+# -- receiver_clustering_v1 -----------------------------------------------------------------------
 def test_clustering_greedy_edits_are_accepted_and_help_from_singletons() -> None:
-    env = receiver_clustering_v0.parallel_env(initial="singletons", invalid_action="raise", **CL_KW)
+    env = receiver_clustering_v1.parallel_env(initial="singletons", invalid_action="raise", **CL_KW)
     policy = make("greedy", CLUSTERING_MODULE)
     obs, infos = env.reset(seed=2)
     policy.reset(env, seed=2)
@@ -200,7 +200,7 @@ def test_clustering_greedy_leaves_out_swaps_the_resolution_rule_rejects() -> Non
 
 def test_clustering_module_bench_runs_every_agent() -> None:
     res = run_bench(CLUSTERING_MODULE, episodes=2, env_kwargs={"horizon": 15}, progress=False)
-    # rllib plays the shipped checkpoints/rllib_receiver_clustering_v0.json
+    # rllib plays the shipped checkpoints/rllib_receiver_clustering_v1.json
     assert (
         list(res.agents) == agents_for(CLUSTERING_MODULE) == ["random", "stay", "greedy", "rllib"]
     )
@@ -241,7 +241,11 @@ def test_cli_runs_a_module_with_a_baseline_and_plots(
 
 
 def test_list_shows_the_modules_and_their_agents(capsys: pytest.CaptureFixture[str]) -> None:
-    assert multiagent_modules() == [FIM_MODULE, CLUSTERING_MODULE]
+    assert multiagent_modules() == [
+        FIM_MODULE,
+        CLUSTERING_MODULE,
+        "selenv.multiagent.receiver_clustering_v0",  # release 0.1's, after the current ones
+    ]
     assert main(["list"]) == 0
     out = capsys.readouterr().out
     for module in (FIM_MODULE, CLUSTERING_MODULE):

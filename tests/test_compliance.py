@@ -25,9 +25,9 @@ from stable_baselines3.common.utils import set_random_seed
 
 import selenv  # noqa: F401  (registers the ids)
 from selenv.envs import ENV_IDS
-from selenv.multiagent import fim_selection_v0, receiver_clustering_v0
+from selenv.multiagent import fim_selection_v0, receiver_clustering_v1
 
-MODULES = [fim_selection_v0, receiver_clustering_v0]
+MODULES = [fim_selection_v0, receiver_clustering_v1]
 PPO_ARGS: dict[str, Any] = {"n_steps": 64, "batch_size": 64, "n_epochs": 1, "seed": 0}
 
 

@@ -138,3 +138,65 @@ def test_version_table_registration_and_agents() -> None:
         assert set(agents_for(old)) == set(agents_for(new)) - {"ppo", "ppo_top4", "ppo_top8"}
         assert "greedy" in agents_for(old) or "ga" in agents_for(old)
     assert selenv.ENV_IDS == ENV_IDS
+
+
+MA_CASES = [(c["module"], c["kwargs"], e) for c in RECORD["multiagent"] for e in c["episodes"]]
+
+
+def _ma_env(module: str, kwargs: dict[str, Any]) -> Any:
+    import importlib
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        return importlib.import_module(module).parallel_env(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("module", "kwargs", "episode"),
+    [c for c in MA_CASES if "receiver_clustering" in c[0]],
+    ids=lambda v: f"{v}" if isinstance(v, str) else None,
+)
+def test_receiver_clustering_v0_replays_release_0_1(module, kwargs, episode) -> None:
+    """Same agents, same masks (digest), same per-agent rewards to rtol 1e-9."""
+    env = _ma_env(module, kwargs)
+    obs, _ = env.reset(seed=episode["seed"])
+    for act, masks, want in zip(
+        episode["actions"], episode["masks"], episode["rewards"], strict=True
+    ):
+        agent_masks = [np.asarray(obs[a]["action_mask"], dtype=bool) for a in env.agents]
+        assert RECORDER.mask_digest(np.concatenate(agent_masks)) == masks
+        obs, rew, _, _, _ = env.step(act)
+        assert sorted(rew) == sorted(want)
+        np.testing.assert_allclose([rew[a] for a in sorted(want)], [want[a] for a in sorted(want)],
+                                   rtol=1e-9, atol=1e-12)  # fmt: skip
+    from selenv.multiagent import receiver_clustering_v0
+
+    with pytest.warns(DeprecationWarning, match="receiver_clustering_v1"):
+        receiver_clustering_v0.parallel_env(n_agents=4, horizon=2)
+
+
+def test_receiver_clustering_v1_is_not_release_0_1() -> None:
+    """The replay above can fail: v1 (multipath noise) rewards the same actions differently."""
+    module, kwargs, episode = next(c for c in MA_CASES if "receiver_clustering" in c[0])
+    env = _ma_env(module.replace("_v0", "_v1"), kwargs)
+    env.reset(seed=episode["seed"])
+    _, rew, _, _, _ = env.step(episode["actions"][0])
+    want = episode["rewards"][0]
+    assert not np.allclose([rew[a] for a in sorted(want)], [want[a] for a in sorted(want)])
+
+
+def test_fim_selection_v0_picks_give_release_0_1_gains() -> None:
+    """fim_selection_v0 kept its trajectories: the same picks give the same step gains.
+
+    Its turn API changed since 0.1 (documented in its Version History): waiting agents are
+    now present, pass with action 0, and every agent receives the team's step reward; in 0.1
+    only the acting agent was present and rewarded (both agents at a change of turn).
+    """
+    for module, kwargs, episode in (c for c in MA_CASES if "fim_selection" in c[0]):
+        env = _ma_env(module, kwargs)
+        env.reset(seed=episode["seed"])
+        for act, want in zip(episode["actions"], episode["rewards"], strict=True):
+            ((acting, pick),) = act.items()
+            obs, rew, _, _, infos = env.step({a: pick if a == acting else 0 for a in env.agents})
+            np.testing.assert_allclose(rew[acting], want[acting], rtol=1e-9, atol=1e-12)
+            assert set(rew) == set(env.possible_agents)  # now: everyone gets the team reward

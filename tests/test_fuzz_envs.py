@@ -42,7 +42,7 @@ from hypothesis import given, note
 from hypothesis import strategies as st
 
 import selenv  # noqa: F401  (registers the ids)
-from selenv.multiagent import fim_selection_v0, receiver_clustering_v0
+from selenv.multiagent import fim_selection_v0, receiver_clustering_v1
 
 pytestmark = pytest.mark.fuzz
 
@@ -52,8 +52,8 @@ CL, FIM, LM, RC = (
     "selenv/LandmarkSelection-v1",
     "selenv/ReceiverClustering-v1",
 )
-MA_FIM, MA_RC = "fim_selection_v0", "receiver_clustering_v0"
-MODULES = {MA_FIM: fim_selection_v0, MA_RC: receiver_clustering_v0}
+MA_FIM, MA_RC = "fim_selection_v0", "receiver_clustering_v1"
+MODULES = {MA_FIM: fim_selection_v0, MA_RC: receiver_clustering_v1}
 
 # ============================================================================ strategies
 

@@ -15,7 +15,7 @@ import pytest
 
 import selenv  # noqa: F401
 from selenv.envs.actions import InvalidActionRule, check_discrete
-from selenv.multiagent import fim_selection_v0, receiver_clustering_v0
+from selenv.multiagent import fim_selection_v0, receiver_clustering_v1
 
 PEN = -0.5
 
@@ -183,7 +183,7 @@ def test_fim_multiagent_noop_charges_only_the_offender() -> None:
 
 def test_clustering_multiagent_masked_label_means_stay() -> None:
     kw = {"n_agents": 7, "horizon": 3, "invalid_action_penalty": PEN}
-    env, ref = receiver_clustering_v0.parallel_env(**kw), receiver_clustering_v0.parallel_env(**kw)
+    env, ref = receiver_clustering_v1.parallel_env(**kw), receiver_clustering_v1.parallel_env(**kw)
     start = {"clustering": [0, 0, 0, 1, 1, 2, 2]}  # cluster 0 full (max size 3)
     env.reset(seed=0, options=start)
     ref.reset(seed=0, options=start)

@@ -184,7 +184,7 @@ CASES = [
     ("selenv/ReceiverClustering-v1", {"horizon": 6}, "ga,greedy,fixed_random,ppo"),
     ("selenv/CLScheduling-v1", {"horizon": 6}, "greedy,random,round_robin,rollout"),
     ("selenv.multiagent.fim_selection_v0", {"n_candidates": 10, "budgets": 3}, None),
-    ("selenv.multiagent.receiver_clustering_v0", {"horizon": 6}, None),
+    ("selenv.multiagent.receiver_clustering_v1", {"horizon": 6}, None),
 ]
 
 

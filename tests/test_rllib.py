@@ -39,7 +39,7 @@ from selenv.learned.rl.rllib_env import (  # noqa: E402
     acting_agents,
 )
 from selenv.learned.rl.rllib_module import MASKED_LOGIT, build_module  # noqa: E402
-from selenv.multiagent import fim_selection_v0, receiver_clustering_v0  # noqa: E402
+from selenv.multiagent import fim_selection_v0, receiver_clustering_v1  # noqa: E402
 from selenv.train import train_rllib_marl  # noqa: E402
 
 SMALL_CL = {"n_agents": 4, "n_max_states": 10, "horizon": 6}
@@ -177,7 +177,7 @@ def test_module_ignores_rllib_model_config_keys_but_checks_its_own() -> None:
 ADAPTER_CASES = [
     ("fim_selection_v0", {}),
     ("fim_selection_v0", {"mode": "independent", "n_candidates": 8, "budgets": [2, 3]}),
-    ("receiver_clustering_v0", SMALL_CL),
+    ("receiver_clustering_v1", SMALL_CL),
 ]
 
 
@@ -211,7 +211,7 @@ def test_adapter_reproduces_the_pettingzoo_team_return(env: str, kwargs: dict) -
             break
     assert set(obs) == set(adapter.possible_agents)  # the last step shows every agent
     # replay the same joint actions on the PettingZoo env itself
-    module = fim_selection_v0 if env.startswith("fim") else receiver_clustering_v0
+    module = fim_selection_v0 if env.startswith("fim") else receiver_clustering_v1
     penv = module.parallel_env(**kwargs)
     _, infos = penv.reset(seed=11)
     replay = []
@@ -230,8 +230,8 @@ def test_adapter_reproduces_the_pettingzoo_team_return(env: str, kwargs: dict) -
 
 
 def test_adapter_is_seeded_by_reset() -> None:
-    a = SelenvMultiAgentEnv({"env": "receiver_clustering_v0", "env_kwargs": SMALL_CL})
-    b = SelenvMultiAgentEnv({"env": "receiver_clustering_v0", "env_kwargs": SMALL_CL})
+    a = SelenvMultiAgentEnv({"env": "receiver_clustering_v1", "env_kwargs": SMALL_CL})
+    b = SelenvMultiAgentEnv({"env": "receiver_clustering_v1", "env_kwargs": SMALL_CL})
     oa, _ = a.reset(seed=7)
     ob, _ = b.reset(seed=7)
     oc, _ = b.reset(seed=8)
@@ -243,7 +243,7 @@ def test_adapter_is_seeded_by_reset() -> None:
 def test_cluster_label_view_is_label_equivariant() -> None:
     from selenv.learned.rl.rllib_env import ClusterLabelView
 
-    penv = receiver_clustering_v0.parallel_env(n_agents=6, n_max_states=14)
+    penv = receiver_clustering_v1.parallel_env(n_agents=6, n_max_states=14)
     obs, _ = penv.reset(seed=1)
     view = ClusterLabelView(penv.max_size)
     o = obs["receiver_2"]
@@ -396,7 +396,7 @@ def test_train_refuses_to_overwrite_and_unreachable_address(tmp_path, capsys) ->
 # -- (c) smoke training, export, reload, bench ---------------------------------------------------
 SMOKE = [
     (FIM_MODULE, "fim_selection_v0", {"n_candidates": 10, "budgets": 2}, {}),
-    (CLUSTERING_MODULE, "receiver_clustering_v0", SMALL_CL, {**SMALL_CL, "n_agents": 6}),
+    (CLUSTERING_MODULE, "receiver_clustering_v1", SMALL_CL, {**SMALL_CL, "n_agents": 6}),
 ]
 
 

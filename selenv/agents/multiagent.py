@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 FIM_MODULE = "selenv.multiagent.fim_selection_v0"
-CLUSTERING_MODULE = "selenv.multiagent.receiver_clustering_v0"
+CLUSTERING_MODULE = "selenv.multiagent.receiver_clustering_v1"
 
 
 class MultiAgentPolicy(Agent):

@@ -42,11 +42,14 @@ MULTIAGENT_PACKAGE = "selenv.multiagent"
 
 
 def multiagent_modules() -> list[str]:
-    """Full names of selenv's PettingZoo modules (``selenv.multiagent.<name>_v<N>``), sorted.
+    """Full names of selenv's PettingZoo modules (``selenv.multiagent.<name>_v<N>``).
+
+    The current modules (sorted), then the older versions kept to reproduce release 0.1.
 
     Read from the family records (:data:`selenv.families.FAMILIES`, ``multiagent_module``).
     """
-    return sorted(f.multiagent_module for f in FAMILIES if f.multiagent_module is not None)
+    current = sorted(f.multiagent_module for f in FAMILIES if f.multiagent_module is not None)
+    return current + sorted(f.multiagent_v0 for f in FAMILIES if f.multiagent_v0 is not None)
 
 
 def is_multiagent_module(env_id: str) -> bool:

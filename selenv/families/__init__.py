@@ -37,6 +37,7 @@ ENV_IDS: tuple[str, ...] = tuple(f.current_id for f in FAMILIES)
 ALL_ENV_IDS: tuple[str, ...] = tuple(v.env_id for v in ENV_VERSIONS)
 
 _BY_ID = {v.env_id: f for f in FAMILIES for v in f.versions}
+_BY_MODULE = {m: f for f in FAMILIES for m in f.multiagent_modules}
 
 
 def family_of(env_id: str) -> str:
@@ -51,7 +52,12 @@ def family_spec(env_id: str) -> FamilySpec | None:
 
 
 def version_ids(env_id: str) -> tuple[str, ...]:
-    """Every registered id of ``env_id``'s family (``(env_id,)`` if it is not registered)."""
+    """Every version of ``env_id``: the family's Gymnasium ids, or its PettingZoo module names.
+
+    ``(env_id,)`` if ``env_id`` is neither.
+    """
+    if env_id in _BY_MODULE:
+        return _BY_MODULE[env_id].multiagent_modules
     spec = _BY_ID.get(env_id)
     return (env_id,) if spec is None else tuple(v.env_id for v in spec.versions)
 

@@ -51,7 +51,10 @@ class FamilySpec:
         checkpoint: file name of the shipped ``ppo`` policy in ``checkpoints/`` (``None``: none).
         ppo_description: ``selenv list`` text of that policy.
         agent_modules: modules whose import registers the family's agents.
-        multiagent_module: the public PettingZoo module of the family, if any.
+        multiagent_module: the public PettingZoo module of the family (its current version),
+            if any.
+        multiagent_v0: the module name that reproduces release 0.1's PettingZoo env, if the
+            current one changed behaviour since (``None``: the current module is it).
         has_v0: whether the family has a ``-v0`` id (it existed in release 0.1); a family
             added later starts at ``-v1``.
     """
@@ -67,6 +70,7 @@ class FamilySpec:
     ppo_description: str = ""
     agent_modules: tuple[str, ...] = ()
     multiagent_module: str | None = None
+    multiagent_v0: str | None = None
     has_v0: bool = True
 
     def __post_init__(self) -> None:
@@ -79,6 +83,12 @@ class FamilySpec:
     def current_id(self) -> str:
         """The current id, ``selenv/<env_name>-v1``."""
         return f"selenv/{self.env_name}-v1"
+
+    @property
+    def multiagent_modules(self) -> tuple[str, ...]:
+        """Every PettingZoo module name of the family, oldest first."""
+        names = (self.multiagent_v0, self.multiagent_module)
+        return tuple(n for n in names if n is not None)
 
     @property
     def versions(self) -> tuple[EnvVersion, ...]:

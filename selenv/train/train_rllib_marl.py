@@ -52,10 +52,10 @@ from selenv.learned.rl.rllib_env import SelenvMultiAgentEnv, resolve_env
 
 __all__ = ["Config", "UsageError", "build_config", "main", "outputs", "parse_args"]
 
-ENVS = ("fim_selection_v0", "receiver_clustering_v0")
+ENVS = ("fim_selection_v0", "receiver_clustering_v1")
 #: --gain-skip-init when not given: 0 (near uniform) as the shipped fim_marl run; 1 for
 #: clustering, whose view gives the "stay" label the only positive gain (p(stay) ~ 0.999)
-GAIN_SKIP_DEFAULTS = {"fim_selection_v0": 0.0, "receiver_clustering_v0": 1.0}
+GAIN_SKIP_DEFAULTS = {"fim_selection_v0": 0.0, "receiver_clustering_v1": 1.0}
 SCRIPT = "selenv.train.train_rllib_marl"
 PROG = f"python -m {SCRIPT}"
 

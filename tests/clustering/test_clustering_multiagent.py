@@ -1,4 +1,4 @@
-"""receiver_clustering_v0 (PettingZoo): API/seed tests, resolution rule, rewards, errors."""
+"""receiver_clustering_v1 (PettingZoo): API/seed tests, resolution rule, rewards, errors."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, sta
 import selenv  # noqa: F401  (registers the Gymnasium ids)
 from selenv.families.clustering.labels import random_feasible_clustering
 from selenv.families.clustering.scenario import canonical_labels
-from selenv.multiagent import receiver_clustering_v0 as rc
+from selenv.multiagent import receiver_clustering_v1 as rc
 
 SMALL: dict[str, Any] = {"n_agents": 7, "n_max_states": 14, "horizon": 10, "tau": 5}  # max_size 3
 FREE: dict[str, Any] = {

@@ -18,7 +18,7 @@ from selenv.families.clustering.scenario import (
     MultipathRegimes,
     make_clustering_problem,
 )
-from selenv.multiagent import receiver_clustering_v0 as rc
+from selenv.multiagent import receiver_clustering_v1 as rc
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 

@@ -25,6 +25,7 @@ SPEC = FamilySpec(
         "selenv.families.clustering.rollout",
         "selenv.families.clustering.multiagent_agents",
     ),
-    multiagent_module="selenv.multiagent.receiver_clustering_v0",
+    multiagent_module="selenv.multiagent.receiver_clustering_v1",
+    multiagent_v0="selenv.multiagent.receiver_clustering_v0",
 )
 make_env, make_env_v0 = env_factories(SPEC)

@@ -9,7 +9,7 @@ re-initialisation of new clusters (Algorithm 2, lines 17-19) are those of
 
 | | |
 |---|---|
-| Import | ``from selenv.multiagent import receiver_clustering_v0`` |
+| Import | ``from selenv.multiagent import receiver_clustering_v1`` |
 | API | ``parallel_env(...)`` (native ``ParallelEnv``), ``env(...)`` (AEC with the standard |
 | | wrappers), ``raw_env(...)`` (unwrapped AEC), as in PettingZoo's own parallel modules |
 | Agents | ``receiver_0 ... receiver_{n-1}`` (``n = n_agents``), all live until the horizon |
@@ -98,12 +98,16 @@ invalid_action_penalty=0.0, render_mode=None, preset="multipath", p_enter=None, 
 degraded_factor=None)``.
 
 ## Version History
-* v0: initial version; time-varying noise (``preset="multipath"``) became the default,
-  ``preset="paper"`` keeps the earlier trajectories.
+* v1 (``receiver_clustering_v1``): time-varying noise (``preset="multipath"``) is the
+  default; ``invalid_action`` modes and rendering.
+* v0 (``receiver_clustering_v0``): release 0.1, fixed receiver noise: this module with
+  ``preset="paper"`` by default, replaying 0.1's episodes (tested against recordings);
+  deprecated in favour of v1.
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -210,7 +214,7 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
-        "name": "receiver_clustering_v0",
+        "name": "receiver_clustering_v1",
         "render_modes": ["rgb_array", "human"],
         "render_fps": 10,
         "is_parallelizable": True,
@@ -380,7 +384,7 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
 
     def render(self) -> np.ndarray | None:
         """The clustering frame (``render_mode`` ``"rgb_array"``: ``(H, W, 3)`` uint8)."""
-        return render_clustering(self._renderer, self.bank, self.max_size, "receiver_clustering_v0")
+        return render_clustering(self._renderer, self.bank, self.max_size, "receiver_clustering_v1")
 
     def close(self) -> None:
         """Close the render window, if any."""
@@ -441,3 +445,29 @@ def env(**kwargs: Any) -> AECEnv:
     """The AEC version with PettingZoo's standard wrappers (bounds check, call order)."""
     aec = wrappers.AssertOutOfBoundsWrapper(raw_env(**kwargs))
     return wrappers.OrderEnforcingWrapper(aec)
+
+
+def _v0_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Release 0.1's defaults (fixed receiver noise), with a ``DeprecationWarning``."""
+    warnings.warn(
+        "selenv.multiagent.receiver_clustering_v0 reproduces selenv 0.1 (preset='paper'); "
+        "selenv.multiagent.receiver_clustering_v1 is the current version",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    return {"preset": "paper", **kwargs}
+
+
+def parallel_env_v0(**kwargs: Any) -> ReceiverClusteringParallelEnv:
+    """``receiver_clustering_v0.parallel_env``: :func:`parallel_env` with 0.1's defaults."""
+    return parallel_env(**_v0_kwargs(kwargs))
+
+
+def raw_env_v0(**kwargs: Any) -> AECEnv:
+    """``receiver_clustering_v0.raw_env``: :func:`raw_env` with 0.1's defaults."""
+    return raw_env(**_v0_kwargs(kwargs))
+
+
+def env_v0(**kwargs: Any) -> AECEnv:
+    """``receiver_clustering_v0.env``: :func:`env` with 0.1's defaults."""
+    return env(**_v0_kwargs(kwargs))

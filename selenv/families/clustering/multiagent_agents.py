@@ -1,4 +1,4 @@
-"""Multi-agent policies for the PettingZoo module ``selenv.multiagent.receiver_clustering_v0``.
+"""Multi-agent policies for the PettingZoo module ``selenv.multiagent.receiver_clustering_v1``.
 
 * ``stay``: every receiver keeps its cluster.
 * ``random``: uniform over each receiver's mask.
@@ -11,7 +11,7 @@ costs the edits of :func:`~selenv.families.clustering.env.edit_mask` with
 ``J``: for a move the mover answers the target label (another receiver's label, or the unused
 label ``m`` for a new singleton), for a swap both receivers answer each other's label, everyone
 else stays. Only edits that the env's resolution rule
-(:func:`~selenv.multiagent.receiver_clustering_v0.resolve_moves`) carries out whatever the
+(:func:`~selenv.multiagent.receiver_clustering_v1.resolve_moves`) carries out whatever the
 visiting order are offered: a move is always accepted (its target has room and nobody else
 moves), a swap only when **both** clusters have room. A swap between two full clusters would
 be rejected for both receivers (each target is full when visited), and with one full cluster

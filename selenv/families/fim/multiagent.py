@@ -51,6 +51,14 @@ a ``ValueError`` / ``TypeError`` in every mode.
 ``infos[agent]`` holds ``objective`` (the centre's ``f``), ``action_mask``, ``on_turn`` and
 ``invalid_action``. ``render_mode="rgb_array"`` / ``"human"`` draws the centre's picture
 (:class:`selenv.families.fim.env.FIMSelectionEnv`'s frame).
+
+## Version History
+* v0, since release 0.1: the same picks give the same gains (tested against 0.1's recorded
+  episodes). The turn API changed under the same name: in 0.1 only the acting agent was in
+  ``env.agents`` and rewarded (both agents at a change of turn); now every agent is present,
+  waiting agents pass, ``on_turn`` is observed and every agent receives the team's step
+  reward. Code written against 0.1's API needs the pass actions; a ``_v1`` name for this
+  change was not introduced.
 """
 
 from __future__ import annotations

@@ -94,7 +94,7 @@ class CentralizedFIMPolicy(MultiAgentPolicy):
         return actions
 
 
-# -- receiver_clustering_v0 ---------------------------------------------------------------------
+# -- receiver_clustering_v1 ---------------------------------------------------------------------
 
 
 def _centralized(swap: bool) -> Any:

@@ -1,7 +1,7 @@
 """selenv's PettingZoo ``ParallelEnv`` modules as RLlib ``MultiAgentEnv`` s (new API stack).
 
 :class:`SelenvMultiAgentEnv` wraps ``selenv.multiagent.fim_selection_v0`` or
-``selenv.multiagent.receiver_clustering_v0`` for RLlib's ``MultiAgentEnvRunner``; every agent
+``selenv.multiagent.receiver_clustering_v1`` for RLlib's ``MultiAgentEnvRunner``; every agent
 sees its own observation through a **candidate view** (one row per action, the layout of
 :func:`selenv.learned.rl.views.candidate_space`) so that one
 :class:`~selenv.learned.rl.rllib_module.CandidateScoringRLModule` acts for all agents::
@@ -15,7 +15,7 @@ Turns, observations, rewards (the RLlib contract, checked by
 * **only agents that must act get an observation**: agent ``a`` acts when
   ``infos[a]["on_turn"]`` (``fim_selection_v0``; cooperative mode: one agent at a time,
   independent mode: every agent with budget left), every live agent otherwise
-  (``receiver_clustering_v0``). A waiting agent is not asked: it passes with action 0 (the
+  (``receiver_clustering_v1``). A waiting agent is not asked: it passes with action 0 (the
   only action its mask allows; the env ignores it), exactly as
   :class:`selenv.learned.rl.marl.SharedPolicyEnv` plays the turns for SB3;
 * **rewards are the env's** (shared: every live agent gets the team reward of the step, plus
@@ -62,7 +62,7 @@ __all__ = [
 ]
 
 FIM_MODULE = "selenv.multiagent.fim_selection_v0"
-CLUSTERING_MODULE = "selenv.multiagent.receiver_clustering_v0"
+CLUSTERING_MODULE = "selenv.multiagent.receiver_clustering_v1"
 
 
 class TurnView:
@@ -87,7 +87,7 @@ class TurnView:
 
 
 class ClusterLabelView:
-    """``receiver_clustering_v0``: candidates = the cluster labels receiver ``i`` may answer.
+    """``receiver_clustering_v1``: candidates = the cluster labels receiver ``i`` may answer.
 
     The action is a label ``t`` in ``[0, n)`` of the canonical labelling (``m`` labels in use),
     so the candidates are the ``n`` labels and the module scores clusters, not receivers:
@@ -123,7 +123,7 @@ class ClusterLabelView:
         """``candidate_space(n, WIDTH)`` for ``n`` receivers."""
         if not isinstance(env_space, spaces.Dict) or "assignment" not in env_space.spaces:
             raise ValueError(
-                f"expected a receiver_clustering_v0 observation space, got {env_space}"
+                f"expected a receiver_clustering_v1 observation space, got {env_space}"
             )
         shape = env_space["assignment"].shape or (0,)
         return candidate_space(int(shape[0]), self.WIDTH)
