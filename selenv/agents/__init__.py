@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import importlib
 
-from selenv.agents import multiagent as _multiagent  # noqa: F401  (protocol, random, rllib)
 from selenv.agents.base import (
     AGENTS,
     Agent,
@@ -21,6 +20,7 @@ from selenv.agents.base import (
     parse_spec,
     register_agent,
 )
+from selenv.agents.multiagent import RandomMaskedPolicy
 from selenv.families import FAMILIES
 
 __all__ = [
@@ -34,6 +34,9 @@ __all__ = [
     "register_agent",
 ]
 
+# every PettingZoo module of every family: the uniform masked policy
+_MODULES = tuple(m for f in FAMILIES for m in f.multiagent_modules)
+register_agent(AgentSpec("random", _MODULES, RandomMaskedPolicy, "uniform over each agent's mask"))
 for _family in FAMILIES:
     for _module in _family.agent_modules:
         importlib.import_module(_module)  # registers the family's agents

@@ -14,7 +14,8 @@ registry (:func:`~selenv.agents.base.register_agent`), the env ids being the mod
 
 The family policies are in ``selenv.families.fim.multiagent_agents`` and
 ``selenv.families.clustering.multiagent_agents``; this module holds the protocol and
-``random``; :mod:`selenv.agents` registers ``rllib`` for every family's PettingZoo module.
+``random``, which :mod:`selenv.agents` registers (with ``rllib``) for every family's PettingZoo
+module.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from selenv.agents.base import Agent, AgentSpec, register_agent
+from selenv.agents.base import Agent
+from selenv.families import clustering, fim
 
 __all__ = [
     "CLUSTERING_MODULE",
@@ -34,8 +36,9 @@ __all__ = [
     "action_mask_of",
 ]
 
-FIM_MODULE = "selenv.multiagent.fim_selection_v0"
-CLUSTERING_MODULE = "selenv.multiagent.receiver_clustering_v1"
+#: the current PettingZoo modules of the two multi-agent families (from their records)
+FIM_MODULE: str = str(fim.SPEC.multiagent_module)
+CLUSTERING_MODULE: str = str(clustering.SPEC.multiagent_module)
 
 
 class MultiAgentPolicy(Agent):
@@ -80,13 +83,3 @@ class RandomMaskedPolicy(MultiAgentPolicy):
 
 
 # -- fim_selection_v0 ---------------------------------------------------------------------------
-
-
-register_agent(
-    AgentSpec(
-        "random",
-        (FIM_MODULE, CLUSTERING_MODULE),
-        RandomMaskedPolicy,
-        "uniform over each agent's mask",
-    )
-)
