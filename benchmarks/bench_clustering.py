@@ -15,7 +15,7 @@ Workload of the paper's Sec. IV-A: n = 30 receivers, N_max = 14, N_S = 20, tau =
 Then a full 500-step episode of ``selenv/ReceiverClustering-v1`` with the ``ga`` agent running a
 generation every step (N_T = 1).
 
-``--compare`` (issue 19): the GA generation of the code before issue 19
+``--compare``: the GA generation of the code before the overhead work
 (``benchmarks/clustering_ga_reference.py``, with the ``ClusterFilterBank.evaluate`` of that time)
 against the current one, both variants, in one process with interleaved rounds (old, new, old,
 new, ...): each side has its own fork of the same steady-state bank, runs a generation, then
@@ -27,7 +27,7 @@ Prints the median per-generation times and their ratio.
 
 ``--env-step``: one ``ReceiverClustering-v1`` step (preset ``paper``, ``gym.make``, the action
 keeps the clustering) against one ``CartPole-v1`` step, interleaved rounds of 100 / 2000 steps;
-prints the median per-step times and their ratio (issue 19 target: <= 50x).
+prints the median per-step times and their ratio (target: <= 50x).
 
     .venv/bin/python benchmarks/bench_clustering.py --env-step [--rounds 300]
 """
@@ -113,13 +113,13 @@ def naive_axis(problem: ClusteringProblem, bank: ClusterFilterBank, cands: np.nd
 
 
 def compare_generation(rounds: int, seed: int, variant: str) -> tuple[float, float]:
-    """Median seconds of one GA generation, (before issue 19, now), interleaved; checks equality.
+    """Median seconds of one GA generation, (reference, now), interleaved; checks equality.
 
     n = 30, N_max = 14 (at most 3 receivers per cluster), N_S = 20, tau = 20, fixed noise; both
     sides start from forks of one bank after 60 filter steps, with equally seeded GAs.
     """
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import clustering_ga_reference as ref  # the pre-issue-19 code
+    import clustering_ga_reference as ref  # the code before the overhead work
 
     rng = np.random.default_rng(seed)
     problem = make_clustering_problem(ClusteringConfig(), rng)
@@ -197,7 +197,7 @@ def main() -> None:
         for variant in ("improved", "literal"):
             t_old, t_new = compare_generation(a.rounds, a.seed, variant)
             print(
-                f"  {variant:<9} before issue 19 {1e3 * t_old:7.2f} ms   now {1e3 * t_new:7.2f} ms"
+                f"  {variant:<9} reference {1e3 * t_old:7.2f} ms   now {1e3 * t_new:7.2f} ms"
                 f"   speed-up {t_old / t_new:5.2f}x   (populations identical every round)"
             )
         return

@@ -1,6 +1,6 @@
 """Fusion with unknown correlation: DMV and PECMV against generic solvers, same run.
 
-Workload (issue 5): two agents with n = 9 states each (position x, y, z, heading, velocities,
+Workload: two agents with n = 9 states each (position x, y, z, heading, velocities,
 biases), random SPD covariances with per-state scales (agent j usually better localised),
 and a relative range measurement (m = 1) or range + bearing (m = 2) with
 ``R = diag(0.05^2, (2 deg)^2)``.
@@ -17,7 +17,7 @@ Targets for n = 9: DMV <= 50 us (m = 1) and <= 0.5 ms (m = 2); PECMV <= 1 ms (m 
 
     .venv/bin/python benchmarks/bench_fusion.py [--cases 40] [--sdp-cases 6] [--batch 20000]
 
-Issue 19 (``--scaling``, alone): :func:`dmv_omega_batch` time per item at B = 1, 64 and 4096
+Overhead ratio (``--scaling``, alone): :func:`dmv_omega_batch` time per item at B = 1, 64 and 4096
 (m = 2, range + bearing; and random SPD problems) against one :func:`dmv_update`, in
 interleaved rounds (every column once per round, median over ``--rounds``).
 
@@ -149,7 +149,7 @@ def random_spd_cases(rng: np.random.Generator, k: int, m: int) -> list[Case]:
 
 
 def scaling(rounds: int) -> None:
-    """Issue 19: per-item time of dmv_omega_batch at B = 1, 64, 4096 vs one dmv_update."""
+    """Overhead ratio: per-item time of dmv_omega_batch at B = 1, 64, 4096 vs one dmv_update."""
     import statistics
 
     rng = np.random.default_rng(19)
@@ -203,7 +203,7 @@ def main() -> None:
     ap.add_argument("--cases", type=int, default=40)
     ap.add_argument("--sdp-cases", type=int, default=6)
     ap.add_argument("--batch", type=int, default=20000)
-    ap.add_argument("--scaling", action="store_true", help="issue 19 rows only")
+    ap.add_argument("--scaling", action="store_true", help="the overhead-ratio rows only")
     ap.add_argument("--rounds", type=int, default=31)
     a = ap.parse_args()
     if a.scaling:

@@ -1,6 +1,6 @@
 """Greedy log-det selection: rank-one greedy vs lazy greedy vs naive greedy, same run.
 
-Workload (issue 2): choose K = 50 of N = 5000 scalar candidates, d = 15.
+Workload: choose K = 50 of N = 5000 scalar candidates, d = 15.
 Naive greedy = one Cholesky log det per candidate per step (``naive_greedy_logdet``);
 batched naive = the same with every step's N log dets in one batched numpy call.
 

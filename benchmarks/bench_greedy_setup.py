@@ -1,4 +1,6 @@
-"""Issue 19: public ``greedy(Q0, H, R, budget)`` vs a minimal rank-one greedy loop; m = 3 vs 2.
+"""Overhead ratio: public ``greedy(Q0, H, R, budget)`` vs a minimal rank-one greedy loop.
+
+Also m = 3 vs m = 2 vector candidates.
 
 Scalar candidates ``H (N, d)``, ``R (N,)``, d = 15, K = 10, N from 200 to 20000. The minimal
 loop (:func:`minimal_greedy`) is the floor: whiten by ``H / sqrt(R)``, ``P = Q0^-1``,

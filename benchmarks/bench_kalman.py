@@ -1,6 +1,6 @@
 """Small Kalman updates: ``kf_update`` (validated and ``validate=False``) against FilterPy.
 
-Workload (issue 19): constant-velocity model in 2-D, state ``n = 4`` (x, y, vx, vy), position
+Workload (overhead ratios): constant-velocity model in 2-D, state ``n = 4`` (x, y, vx, vy), position
 measurement ``m = 2``; ``P`` a random SPD covariance (exactly symmetric, as a filter produces
 it), ``R = diag(0.5^2, 0.5^2)``. Each case is timed on the same inputs for every column.
 

@@ -21,7 +21,7 @@ and prints the ratios exact / learned (> 1: the surrogate is faster).
 
     .venv/bin/python benchmarks/bench_surrogates.py                 # m = 1 and m = 2
     .venv/bin/python benchmarks/bench_surrogates.py --m 2 --single 300
-    .venv/bin/python benchmarks/bench_surrogates.py --m 1 --batches 20000   # issue 6's rows
+    .venv/bin/python benchmarks/bench_surrogates.py --m 1 --batches 20000   # the m = 1 rows
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
-"""The receiver-clustering GA before issue 19 (speed), kept only as the benchmark's reference.
+"""The receiver-clustering GA before the overhead work, kept only as the benchmark's reference.
 
 A verbatim copy of ``selenv/families/clustering/ga.py`` (operators, :class:`GeneticClustering`)
-as it was before issue 19, with the label helpers of that time (``canonical_labels`` by
+as it was before the overhead work, with the label helpers of that time (``canonical_labels`` by
 ``np.unique``, ``cluster_keys`` by a stable argsort) and :func:`old_evaluate`, the
 ``ClusterFilterBank.evaluate`` of that time (one ``check_clustering`` and ``cluster_keys`` per
 candidate, no caches). ``benchmarks/bench_clustering.py`` times it against the current code in
@@ -396,7 +396,7 @@ class GAConfig:
             crossovers on aligned labels, O1M may open a singleton, see the module docstring)
             or ``"literal"`` (Table I as printed: :func:`o1c_literal`, :func:`o2c_literal`,
             :func:`o1m_literal`, :func:`o2m_literal`, :func:`o3m`). Named ``variant`` because
-            ``operators`` is already Table II's O vector (GitHub issue 18 calls it
+            ``operators`` is already Table II's O vector (the paper's Table II calls it
             ``operators="literal"``); the O vector selects among the chosen variant's five.
             ``n_labels`` only applies to the improved O1M and must be ``None`` with literal.
 
@@ -584,7 +584,7 @@ class GeneticClustering:
         self.n_evaluations += B
 
 
-# -- the label helpers and the bank's evaluate before issue 19 -----------------------------------
+# -- the label helpers and the bank's evaluate before the overhead work ----------------------
 def canonical_labels(labels: ArrayLike) -> IntArray:
     """Relabel by first appearance (the ``np.unique`` version of that time)."""
     x = as_labels(labels, "labels")
@@ -611,7 +611,7 @@ def check_clustering(problem: Any, labels: Any, name: str) -> np.ndarray:
 
 
 def old_evaluate(bank: ClusterFilterBank, candidates: Any) -> FloatArray:
-    """``ClusterFilterBank.evaluate`` before issue 19: validate and key every row, no caches."""
+    """``ClusterFilterBank.evaluate`` as it was: validate and key every row, no caches."""
     arr = np.asarray(candidates)
     single = arr.ndim == 1
     arr = arr[None] if single else arr
@@ -626,7 +626,7 @@ def old_evaluate(bank: ClusterFilterBank, candidates: Any) -> FloatArray:
 
 
 def old_ensure(bank: ClusterFilterBank, keys: set[tuple[int, ...]]) -> None:
-    """``ClusterFilterBank._ensure`` before issue 19 (validating ``riccati_pass`` per group)."""
+    """``ClusterFilterBank._ensure`` as it was (validating ``riccati_pass`` per group)."""
     missing = [key for key in keys if key not in bank._window]
     if missing:
         steps = next(iter(bank._hist.values())).shape[0] - 1  # k - l

@@ -69,8 +69,8 @@ READINGS: dict[str, tuple[str, str, str]] = {
     "moving": ("example1_moving", "example2_moving", "example3_moving"),
 }
 #: Monte-Carlo runs in the order of their seed streams. The first four keep the streams of the
-#: pre-issue-18 script (where ``example2`` / ``example3`` were the moving presets), so their
-#: numbers are unchanged.
+#: script from before the presets followed the paper (where ``example2`` / ``example3`` were
+#: the moving presets), so their numbers are unchanged.
 RUN_ORDER: tuple[str, ...] = (
     "example1", "example2_moving", "example3_moving", "example1_moving", "example2", "example3",
 )  # fmt: skip

@@ -1,4 +1,4 @@
-"""Issue 19: the faster CLScheduling step and LandmarkSelection reset give the previous results.
+"""Speed work: the faster CLScheduling step and LandmarkSelection reset give the previous results.
 
 The references below are the previous implementations, kept verbatim: the per-pair loop of
 ``CLSchedulingEnv._pair_gains``, the uncached objective, ``relative_update`` for the env's

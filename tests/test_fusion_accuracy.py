@@ -1,4 +1,4 @@
-"""Accuracy of CI, DMV, PECMV and the Kalman update on ill-conditioned inputs (issue 15).
+"""Accuracy of CI, DMV, PECMV and the Kalman update on ill-conditioned inputs.
 
 Reference: the same mathematical definition evaluated in 60-digit arithmetic (``mpmath``) on
 the exact float64 inputs, with the optimal weights found by bisection / Anderson root finding

@@ -1,4 +1,4 @@
-"""Property-based fuzz suite of the numerical API (issue 15).
+"""Property-based fuzz suite of the numerical API.
 
 Covered: fusion (``covariance_intersection``, ``dmv_update``, ``pecmv_update``), Kalman
 (``kf_predict``, ``kf_update``, ``ekf_update``, ``information_update``), the ``linalg``

@@ -1,4 +1,4 @@
-"""Property-based fuzz suite of the environments (issue 15): constructors and ``step()``.
+"""Property-based fuzz suite of the environments: constructors and ``step()``.
 
 Every registered id ``selenv/...`` is built through ``gymnasium.make`` and every PettingZoo
 module through ``parallel_env()``. Properties:

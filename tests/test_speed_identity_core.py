@@ -1,4 +1,4 @@
-"""Issue 19: the faster ``dmv_omega_batch`` and ``kf_update`` give bit-identical results.
+"""Speed work: the faster ``dmv_omega_batch`` and ``kf_update`` give bit-identical results.
 
 The references below are the previous implementations' logic, kept verbatim (full-batch
 safeguarded Newton evaluating every item on every pass; the Kalman update with ``np.eye`` and

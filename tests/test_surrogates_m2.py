@@ -1,4 +1,4 @@
-"""Range + bearing (m = 2) surrogates and the automatic choice of a shipped surrogate (issue 18).
+"""Range + bearing (m = 2) surrogates and the automatic choice of a shipped surrogate.
 
 * data: ``GenerationConfig(bearing_sigma_deg=...)`` makes m = 2 rows whose labels are the
   single-case exact solvers' (independent of the batched ones that made them);

@@ -140,7 +140,10 @@ def test_default_outputs_are_under_runs(name: str) -> None:
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
-        (["--samples", "2000", "--epochs", "2"], "runs/surrogates/ldmv.pt"),  # issue 17's repro
+        (
+            ["--samples", "2000", "--epochs", "2"],
+            "runs/surrogates/ldmv.pt",
+        ),  # a reported reproduction
         (["--kind", "lpecmv"], "runs/surrogates/lpecmv.pt"),
         (["--kind", "lpecmv", "--method", "1"], "runs/surrogates/lpecmv_method1.pt"),
         (["--kind", "lpecmv", "--method", "2"], "runs/surrogates/lpecmv_method2.pt"),

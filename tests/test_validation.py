@@ -1,4 +1,4 @@
-"""One validation layer (issue 15): types, shapes, values and ranges of the estimators' inputs.
+"""One validation layer: types, shapes, values and ranges of the estimators' inputs.
 
 Every test here reproduces a defect of the code before the layer existed:
 

@@ -34,6 +34,7 @@ from selenv.bench.stats import (
     compare_paired,
     normalized_score,
 )
+from selenv.envs.resolved import jsonable
 
 __all__ = [
     "RANDOM_REFERENCES",
@@ -70,19 +71,6 @@ def _mean(values: list[float]) -> float:
 
 def _std(values: list[float]) -> float:
     return float(np.std(values)) if values else float("nan")
-
-
-def _jsonable(value: Any) -> Any:
-    """``value`` with anything JSON cannot hold replaced by its ``repr``."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
-    if value is None or isinstance(value, bool | int | float | str):
-        return value
-    return repr(value)
 
 
 @dataclass
@@ -271,7 +259,7 @@ class EnvBenchResult:
             name, extra = parse_spec(spec)
             registered = AGENTS.get(name, {}).get(self.env_id)
             kwargs = {**(registered.kwargs if registered else {}), **extra}
-            out[spec] = {"agent": name, "kwargs": _jsonable(kwargs)}
+            out[spec] = {"agent": name, "kwargs": jsonable(kwargs)}
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -287,7 +275,7 @@ class EnvBenchResult:
         return {
             "env_id": self.env_id,
             "kind": self.kind,
-            "env_kwargs": _jsonable(self.env_kwargs),
+            "env_kwargs": jsonable(self.env_kwargs),
             "env_config": self.env_config,
             "seed": self.seed,
             "episodes": self.episodes,

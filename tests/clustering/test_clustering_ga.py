@@ -1,6 +1,6 @@
 """Clustering GA (Greiff et al. 2022, Alg. 2 / Table I): operators, selection, GA on a toy cost.
 
-Also the two operator variants (GitHub issue 18): "improved" (ours, identical to the runs
+Also the two operator variants: "improved" (ours, identical to the runs
 recorded before the option existed) and "literal" (Table I as printed). The recorded references
 were recorded with the current code and are compared as decisions exactly (int64 population
 hashes, best labels) and float values to ``rtol=1e-9``, so they hold on any machine / BLAS kernel.
@@ -470,7 +470,7 @@ def test_huge_labels_are_compacted_before_counting() -> None:
         GeneticClustering(lambda c: c.sum(axis=1).astype(float), [10**10] * 3, 2, rng=0)
 
 
-# ----------------------------------------------------------------------------- variants (issue 18)
+# ----------------------------------------------------------------------------- variants
 
 
 # recorded with the current code (same seeds and calls as the runs recorded before

@@ -41,7 +41,7 @@ from selenv.families.clustering.scenario import ClusteringConfig, make_clusterin
 
 # ----------------------------------------------------------------------------- references
 def canonical_reference(x: np.ndarray) -> np.ndarray:
-    """The pre-issue-19 ``canonical_labels``: ``np.unique`` with first indices, ranked."""
+    """The earlier ``canonical_labels``: ``np.unique`` with first indices, ranked."""
     _, first, inverse = np.unique(x, return_index=True, return_inverse=True)
     rank = np.empty(first.size, dtype=np.int64)
     rank[np.argsort(first)] = np.arange(first.size)
@@ -49,7 +49,7 @@ def canonical_reference(x: np.ndarray) -> np.ndarray:
 
 
 def cluster_keys_reference(canon: np.ndarray) -> list[tuple[int, ...]]:
-    """The pre-issue-19 ``cluster_keys``: stable argsort split at label changes."""
+    """The earlier ``cluster_keys``: stable argsort split at label changes."""
     order = np.argsort(canon, kind="stable")
     bounds = np.flatnonzero(np.diff(canon[order])) + 1
     return [tuple(int(i) for i in part) for part in np.split(order, bounds)]

@@ -293,7 +293,7 @@ def test_paper_presets_estimate_a_stationary_position(preset: str) -> None:
 
 @pytest.mark.parametrize(("preset", "n_agents"), [("example2_moving", 1), ("example3_moving", 2)])
 def test_moving_presets_are_the_v0_presets(preset: str, n_agents: int) -> None:
-    """``example2/3_moving`` = the pre-issue-18 ``example2/3`` (written out field by field)."""
+    """``example2/3_moving`` = the earlier moving ``example2/3`` (written out field by field)."""
     old = FIMScenarioConfig(preset=preset, n_agents=n_agents, sensors=("camera", "doppler"),
                             n_candidates=40, randomize=True)  # fmt: skip
     assert not old.stationary
