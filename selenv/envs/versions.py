@@ -46,10 +46,13 @@ class EnvVersion:
         kwargs: defaults of this version, passed to ``gymnasium.register`` (a user's keyword
             overrides them); recorded in ``env.spec.kwargs``.
         superseded_by: the id that replaces this one (``None``: the current version).
+        vector_entry_point: ``"module:function"`` building the family's native vector env
+            (``gymnasium.make_vec``); ``None``: Gymnasium's Python loop over single envs.
     """
 
     env_id: str
     entry_point: str
+    vector_entry_point: str | None = None
     kwargs: Mapping[str, Any] = field(default_factory=dict)
     superseded_by: str | None = None
 

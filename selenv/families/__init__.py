@@ -69,5 +69,6 @@ for _v in ENV_VERSIONS:
             id=_v.env_id,
             entry_point=_v.entry_point,
             kwargs=dict(_v.kwargs),
+            vector_entry_point=_v.vector_entry_point,
             disable_env_checker=False,
         )

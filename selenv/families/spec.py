@@ -24,7 +24,7 @@ from gymnasium.wrappers import RenderCollection
 
 from selenv.envs.versions import EnvVersion
 
-__all__ = ["FamilySpec", "build_env", "env_factories", "load_attr"]
+__all__ = ["FamilySpec", "build_env", "env_factories", "load_attr", "vector_factories"]
 
 
 def load_attr(path: str) -> Any:
@@ -57,6 +57,9 @@ class FamilySpec:
             current one changed behaviour since (``None``: the current module is it).
         has_v0: whether the family has a ``-v0`` id (it existed in release 0.1); a family
             added later starts at ``-v1``.
+        vector_class: ``"module:Class"`` of the family's native batched vector env (a
+            :class:`~selenv.envs.vector.BatchedVectorEnv`), registered as the ids'
+            ``vector_entry_point``; ``None``: ``gymnasium.make_vec`` loops over single envs.
     """
 
     name: str
@@ -72,6 +75,7 @@ class FamilySpec:
     multiagent_module: str | None = None
     multiagent_v0: str | None = None
     has_v0: bool = True
+    vector_class: str | None = None
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier() or not self.env_name.isidentifier():
@@ -94,12 +98,18 @@ class FamilySpec:
     def versions(self) -> tuple[EnvVersion, ...]:
         """``-v0`` (release 0.1, if :attr:`has_v0`) and ``-v1`` (current), with entry points."""
         package = f"selenv.families.{self.name}"
-        v1 = EnvVersion(env_id=self.current_id, entry_point=f"{package}:make_env")
+        vector = self.vector_class is not None
+        v1 = EnvVersion(
+            env_id=self.current_id,
+            entry_point=f"{package}:make_env",
+            vector_entry_point=f"{package}:make_vector_env" if vector else None,
+        )
         if not self.has_v0:
             return (v1,)
         v0 = EnvVersion(
             env_id=f"selenv/{self.env_name}-v0",
             entry_point=f"{package}:make_env_v0",
+            vector_entry_point=f"{package}:make_vector_env_v0" if vector else None,
             kwargs=self.v0_kwargs,
             superseded_by=self.current_id,
         )
@@ -151,3 +161,32 @@ def env_factories(spec: FamilySpec) -> tuple[EnvFactory, EnvFactory]:
     make_env.__doc__ = f"``{spec.current_id}``: a ``{spec.env_class.split(':')[1]}``."
     make_env_v0.__doc__ = f"``selenv/{spec.env_name}-v0`` (release 0.1; deprecated)."
     return make_env, make_env_v0
+
+
+VectorFactory = Callable[..., Any]
+
+
+def vector_factories(spec: FamilySpec) -> tuple[VectorFactory, VectorFactory]:
+    """The vector entry points ``(make_vector_env, make_vector_env_v0)`` of a family.
+
+    ``gymnasium.make_vec(id, num_envs=B, **kwargs)`` calls them with ``num_envs`` and the id's
+    keywords; ``make_vector_env_v0`` warns and maps the ``-v0`` presets as
+    :func:`env_factories` does. A family without :attr:`FamilySpec.vector_class` refuses.
+    """
+    from selenv.envs.versions import warn_deprecated
+
+    def make_vector_env(num_envs: int = 1, **kwargs: Any) -> Any:
+        if spec.vector_class is None:
+            raise ValueError(f"{spec.current_id} has no native vector env")
+        return load_attr(spec.vector_class)(num_envs=num_envs, **kwargs)
+
+    def make_vector_env_v0(num_envs: int = 1, **kwargs: Any) -> Any:
+        warn_deprecated(f"selenv/{spec.env_name}-v0", spec.current_id)
+        preset = kwargs.get("preset")
+        if isinstance(preset, str) and preset in spec.v0_presets:
+            kwargs["preset"] = spec.v0_presets[preset]
+        return make_vector_env(num_envs, **kwargs)
+
+    make_vector_env.__doc__ = f"``gymnasium.make_vec('{spec.current_id}', num_envs=B)``."
+    make_vector_env_v0.__doc__ = f"``selenv/{spec.env_name}-v0``'s vector env (deprecated)."
+    return make_vector_env, make_vector_env_v0
