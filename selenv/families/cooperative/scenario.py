@@ -36,6 +36,7 @@ fusion methods see the same noise for the same seed.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -272,8 +273,36 @@ class CLProblem:
     x0_hat: FloatArray
 
 
-def _track(kind: str, n_steps: int, dt: float, size: float, speed: float, phase: float) -> Any:
-    """Desired horizontal positions (n_steps + 2, 2), walked at exactly ``speed`` (arc length)."""
+#: samples of each rectangle corner arc and points of each polyline segment of :func:`_track`
+_ARC_SAMPLES, _SEG_POINTS = 200, 20
+
+
+def _polyline(pts: FloatArray, num: int) -> FloatArray:
+    """``num`` points on each segment ``pts[s] -> pts[s + 1]`` (start included, end not).
+
+    Vectorised ``np.concatenate([np.linspace(pts[s], pts[s + 1], num, endpoint=False) for s])``
+    with the same floating-point operations (bit for bit): ``y_k = k step + start``,
+    ``step = delta / num``, ``delta = pts[s + 1] - pts[s]``; where a component of ``step`` is
+    zero numpy's ``linspace`` forms ``y_k = (k / num) delta + start`` instead, and so does this.
+    ``pts`` (S + 1, 2) -> (S num, 2).
+    """
+    start, delta = pts[:-1], pts[1:] - pts[:-1]  # (S, 2)
+    k = np.arange(num, dtype=np.float64)[None, :, None]  # (1, num, 1)
+    step = delta / num
+    y = k * step[:, None, :]
+    zero = (step == 0).any(axis=1)  # linspace's denormal guard, per segment
+    if zero.any():
+        y[zero] = (k / num) * delta[zero][:, None, :]
+    y += start[:, None, :]
+    return y.reshape(-1, pts.shape[1])
+
+
+@functools.lru_cache(maxsize=64)
+def _track_shape(kind: str, size: float) -> tuple[FloatArray, FloatArray]:
+    """``(pts (N, 2), arc (N,))``: the closed polyline of a track and its arc length (read-only).
+
+    Seed-independent, so computed once per ``(kind, size)``.
+    """
     t = np.linspace(0.0, 2 * np.pi, 4001)
     if kind == "circle":
         pts = size * np.stack([np.cos(t), np.sin(t)], -1)
@@ -281,25 +310,38 @@ def _track(kind: str, n_steps: int, dt: float, size: float, speed: float, phase:
         pts = size * np.stack([np.sin(t), np.sin(t) * np.cos(t)], -1)
     else:  # rectangle 2 size x 1.2 size with corner radius 0.3 size, counter-clockwise
         w, h, r = size, 0.6 * size, 0.3 * size
-        corners = [
-            (w - r, h - r, 0.0),
-            (-(w - r), h - r, 0.5),
-            (-(w - r), -(h - r), 1.0),
-            (w - r, -(h - r), 1.5),
-        ]
-        segs = []
-        for cx, cy, a0 in corners:
-            ang = np.pi * (a0 + np.linspace(0.0, 0.5, 200))
-            segs.append(np.stack([cx + r * np.cos(ang), cy + r * np.sin(ang)], -1))
-        pts = np.concatenate([*segs, segs[0][:1]])
-        pts = np.concatenate(
-            [np.linspace(pts[i], pts[i + 1], 20, endpoint=False) for i in range(len(pts) - 1)]
+        corners = np.array(
+            [
+                (w - r, h - r, 0.0),
+                (-(w - r), h - r, 0.5),
+                (-(w - r), -(h - r), 1.0),
+                (w - r, -(h - r), 1.5),
+            ]
         )
+        ang = np.pi * (corners[:, 2:3] + np.linspace(0.0, 0.5, _ARC_SAMPLES))  # (4, 200)
+        segs = np.stack(
+            [corners[:, 0:1] + r * np.cos(ang), corners[:, 1:2] + r * np.sin(ang)], -1
+        ).reshape(-1, 2)
+        pts = _polyline(np.concatenate([segs, segs[:1]]), _SEG_POINTS)
         pts = np.concatenate([pts, pts[:1]])
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    pts.setflags(write=False)
+    arc.setflags(write=False)
+    return pts, arc
+
+
+@functools.lru_cache(maxsize=64)
+def _track(kind: str, n_steps: int, dt: float, size: float, speed: float, phase: float) -> Any:
+    """Desired horizontal positions (n_steps + 2, 2), walked at exactly ``speed`` (arc length).
+
+    Cached per arguments (seed-independent); the array is read-only.
+    """
+    pts, arc = _track_shape(kind, size)
     length = arc[-1]
     s = (phase / (2 * np.pi) * length + speed * dt * np.arange(n_steps + 2)) % length
-    return np.stack([np.interp(s, arc, pts[:, 0]), np.interp(s, arc, pts[:, 1])], -1)
+    out = np.stack([np.interp(s, arc, pts[:, 0]), np.interp(s, arc, pts[:, 1])], -1)
+    out.setflags(write=False)
+    return out
 
 
 def _truth(cfg: CLConfig, i: int) -> tuple[FloatArray, FloatArray]:
@@ -341,6 +383,30 @@ def _truth(cfg: CLConfig, i: int) -> tuple[FloatArray, FloatArray]:
     return states, inputs
 
 
+#: the :class:`CLConfig` fields the truth depends on (:func:`_truth`)
+_TRUTH_FIELDS = ("n_agents", "model", "horizon", "dt", "tracks", "track_size", "speed")
+
+
+def _truth_key(cfg: CLConfig) -> CLConfig:
+    """``cfg`` with every field the truth does not depend on at its default (the cache key)."""
+    return CLConfig(**{f: getattr(cfg, f) for f in _TRUTH_FIELDS}, relative_pairs=())
+
+
+@functools.lru_cache(maxsize=16)
+def _truths(cfg: CLConfig) -> tuple[FloatArray, FloatArray]:
+    """``(states (T + 1, A, n), inputs_true (T, A, n_input))`` of every agent, read-only.
+
+    The truth is deterministic (no random draw), so it is computed once per configuration
+    (keyed by :func:`_truth_key`) and shared by every realisation.
+    """
+    truths = [_truth(cfg, i) for i in range(int(cfg.n_agents))]
+    states = np.stack([s for s, _ in truths], axis=1)  # (T+1, A, n)
+    inputs_true = np.stack([u for _, u in truths], axis=1)
+    states.setflags(write=False)
+    inputs_true.setflags(write=False)
+    return states, inputs_true
+
+
 def make_cl_problem(
     config: CLConfig | None = None, rng: np.random.Generator | None = None
 ) -> CLProblem:
@@ -355,9 +421,7 @@ def make_cl_problem(
     cfg = CLConfig() if config is None else config
     rng = np.random.default_rng() if rng is None else rng
     A, T, n = int(cfg.n_agents), int(cfg.horizon), cfg.agent_model.n
-    truths = [_truth(cfg, i) for i in range(A)]
-    states = np.stack([s for s, _ in truths], axis=1)  # (T+1, A, n)
-    inputs_true = np.stack([u for _, u in truths], axis=1)
+    states, inputs_true = _truths(_truth_key(cfg))  # seed-independent: cached, read-only
     scale = np.array(
         [np.repeat(cfg.input_sigma_of(i), cfg.agent_model.n_input // 2) for i in range(A)]
     )
