@@ -35,14 +35,18 @@ def named_parameters(cls: type) -> list[str]:
 def check_known_keywords(given: dict[str, Any], known: Any, env_name: str, named: Any = ()) -> None:
     """Raise ``TypeError`` for keywords of ``given`` (the ``**config`` of an env) not in ``known``.
 
-    The message lists every keyword the constructor accepts: ``known`` and its ``named``
-    parameters.
+    The message has Python's own form (``got an unexpected keyword argument 'x'``, which
+    wrappers such as TorchRL's ``GymEnv`` recognise to drop an optional keyword like
+    ``frameskip``), names every unknown keyword and lists every keyword the constructor
+    accepts: ``known`` and its ``named`` parameters.
     """
     unknown = sorted(set(given) - set(known))
     if unknown:
         accepted = sorted(set(known) | set(named))
+        more = f" (and {unknown[1:]})" if len(unknown) > 1 else ""
         raise TypeError(
-            f"{env_name} got unexpected keyword argument(s) {unknown}; known: {accepted}"
+            f"{env_name} got an unexpected keyword argument {unknown[0]!r}{more}; "
+            f"known: {accepted}"
         )
 
 

@@ -59,7 +59,8 @@ def test_cooperative_mode_is_the_papers_sequential_scheme():
         assert all(obs[a]["on_turn"][0] == (a in acting) for a in env.agents)
         for a in env.agents:
             if a not in acting:  # a waiting agent may only pass (action 0)
-                mask = infos[a]["action_mask"]
+                mask = obs[a]["action_mask"]
+                assert "action_mask" not in infos[a]  # observed only (TorchRL reads one place)
                 assert mask[0] and not mask[1:].any()
         seen.append(acting)
         obs, *_, infos = env.step(pol.act(obs, env.agents))

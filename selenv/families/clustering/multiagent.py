@@ -27,7 +27,7 @@ of first appearance, ``m`` clusters). Receiver ``i`` answers a label ``t`` in ``
 * ``t >= m`` (a label not in use): move to a new cluster labelled ``t``; receivers choosing the
   same unused label form that new cluster together.
 
-``obs["action_mask"]`` (``int8``, also ``infos[agent]["action_mask"]`` as ``bool``) holds the
+``obs["action_mask"]`` (``int8``; not repeated in ``infos``, see Version History) holds the
 labels receiver ``i`` could take if every other receiver stayed: its own label, every used
 label whose cluster has room (``size < max_size``) and every unused label. Its own label is
 always allowed, so the mask is never all zeros. With ``n_max_states=None`` every action is
@@ -66,7 +66,7 @@ competing for the free places wins is decided by the seeded order.
 Resolve the joint action as above, then ``bank.recluster(new_labels)`` (new clusters start from
 their Algorithm 1 moments) and ``bank.step()`` (one prediction and update of every cluster
 filter, ``k -> k + 1``). Every agent gets the reward ``-J`` of the new posterior;
-``infos[agent]`` holds ``objective`` (``J``), ``accepted``, ``action_mask``, ``changed``,
+``infos[agent]`` holds ``objective`` (``J``), ``accepted``, ``changed``,
 ``n_clusters`` and ``k`` (``reset`` gives the same keys but ``accepted``).
 
 ## Observation
@@ -103,6 +103,9 @@ degraded_factor=None)``.
 * v0 (``receiver_clustering_v0``): release 0.1, fixed receiver noise: this module with
   ``preset="paper"`` by default, replaying 0.1's episodes (tested against recordings);
   deprecated in favour of v1.
+* Both, since release 0.2: the mask is observed only (``obs[agent]["action_mask"]``), no
+  longer repeated in ``infos`` (TorchRL's ``PettingZooWrapper`` reads a mask from the
+  observation or the info, not both); observations, rewards and resolutions are unchanged.
 """
 
 from __future__ import annotations
@@ -424,7 +427,7 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
         reasons = reasons or {}
         for a, i in self._index.items():
             if a in (self.agents if agents is None else agents):
-                infos[a] = {**common, "action_mask": masks[i].copy()}
+                infos[a] = dict(common)
                 if accepted is not None:
                     infos[a]["accepted"] = bool(accepted[i]) and a not in reasons
                 infos[a].update(InvalidActionRule.info(reasons.get(a)))

@@ -48,8 +48,9 @@ episode for everyone (the offender's reward is the penalty, the others' 0). A st
 action for exactly the live agents; a missing one, a non-integer or an out-of-range action is
 a ``ValueError`` / ``TypeError`` in every mode.
 
-``infos[agent]`` holds ``objective`` (the centre's ``f``), ``action_mask``, ``on_turn`` and
-``invalid_action``. ``render_mode="rgb_array"`` / ``"human"`` draws the centre's picture
+``infos[agent]`` holds ``objective`` (the centre's ``f``), ``on_turn`` and
+``invalid_action``; the mask is ``obs[agent]["action_mask"]`` only (see Version History).
+``render_mode="rgb_array"`` / ``"human"`` draws the centre's picture
 (:class:`selenv.families.fim.env.FIMSelectionEnv`'s frame).
 
 ## Version History
@@ -58,7 +59,9 @@ a ``ValueError`` / ``TypeError`` in every mode.
   ``env.agents`` and rewarded (both agents at a change of turn); now every agent is present,
   waiting agents pass, ``on_turn`` is observed and every agent receives the team's step
   reward. Code written against 0.1's API needs the pass actions; a ``_v1`` name for this
-  change was not introduced.
+  change was not introduced. Since release 0.2 the mask is observed only
+  (``obs[agent]["action_mask"]``), no longer repeated in ``infos``: TorchRL's
+  ``PettingZooWrapper`` reads a mask from the observation or the info, not both.
 """
 
 from __future__ import annotations
@@ -322,7 +325,6 @@ class FIMSelectionParallelEnv(ParallelEnv):
     def _info(self, agent: str, reason: str | None = None) -> dict[str, Any]:
         return {
             "objective": float(self._centre.objective),
-            "action_mask": self.action_mask(agent),
             "on_turn": self.on_turn(agent),
             **InvalidActionRule.info(reason),
         }
