@@ -67,7 +67,7 @@ Resolve the joint action as above, then ``bank.recluster(new_labels)`` (new clus
 their Algorithm 1 moments) and ``bank.step()`` (one prediction and update of every cluster
 filter, ``k -> k + 1``). Every agent gets the reward ``-J`` of the new posterior;
 ``infos[agent]`` holds ``objective`` (``J``), ``accepted``, ``changed``,
-``n_clusters`` and ``k`` (``reset`` gives the same keys but ``accepted``).
+``n_clusters`` and ``k`` (``reset`` gives the same keys, ``accepted`` true).
 
 ## Observation
 Per agent, ``assignment (n,)``, ``cluster_size (n,)``, ``sigma (n, 2)``, ``position_var (n,)``,
@@ -428,8 +428,9 @@ class ReceiverClusteringParallelEnv(ParallelEnv):
         for a, i in self._index.items():
             if a in (self.agents if agents is None else agents):
                 infos[a] = dict(common)
-                if accepted is not None:
-                    infos[a]["accepted"] = bool(accepted[i]) and a not in reasons
+                # reset: True (nothing was refused); the same keys at every step (TorchRL's
+                # PettingZooWrapper builds its info spec from the reset's infos)
+                infos[a]["accepted"] = accepted is None or (bool(accepted[i]) and a not in reasons)
                 infos[a].update(InvalidActionRule.info(reasons.get(a)))
         return infos
 
