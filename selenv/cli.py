@@ -134,6 +134,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="write one PNG per env into DIR: paired differences vs the baseline with 95 %% CIs",
     )
     bench.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    bench.add_argument(
+        "--blas-threads",
+        type=_non_negative_int,
+        default=1,
+        metavar="N",
+        help="BLAS threads while episodes play (default 1: the problems are small matrices, "
+        "for which more threads only add start-up cost; 0 leaves BLAS's own setting)",
+    )
+    bench.add_argument(
+        "--torch-threads",
+        type=_non_negative_int,
+        default=1,
+        metavar="N",
+        help="torch intra-op threads of the learned agents while episodes play (default 1: "
+        "one small forward pass per decision; 0 leaves torch's own setting)",
+    )
     add_executor_arguments(bench)
     scripts = training_scripts()
     train = sub.add_parser(
@@ -372,6 +388,7 @@ def _run_envs(
                 skip_inapplicable=several,
                 baseline=args.baseline,
                 executor=executor,
+                threads=(args.blas_threads or None, args.torch_threads or None),
             )
         except EnvKwargsError as exc:
             return _error(f"--env-kwargs: {exc}")

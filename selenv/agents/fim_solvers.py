@@ -82,6 +82,7 @@ from selenv.core.objectives import (
     swap_criteria,
 )
 from selenv.families.clustering.labels import check_int
+from selenv.threads import small_blas
 
 __all__ = [
     "MAX_BRUTE_FORCE_SUBSETS",
@@ -180,6 +181,7 @@ def _objective(objective: object, interest: object, d: int) -> tuple[str, np.nda
     return name, check_interest(interest, d, name)
 
 
+@small_blas
 def greedy_whitened(
     Q0: FloatArray,
     G: FloatArray,
@@ -252,6 +254,7 @@ def _refuse_lazy(objective: object) -> None:
         )
 
 
+@small_blas
 def lazy_greedy_whitened(
     Q0: FloatArray,
     G: FloatArray,
@@ -300,6 +303,7 @@ def _subset_logdets(Qk: FloatArray, Q0: FloatArray, combos: np.ndarray) -> Float
     return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
+@small_blas
 def brute_force_whitened(
     Q0: FloatArray,
     G: FloatArray,
@@ -391,6 +395,7 @@ def _crlb(Q0: FloatArray, G: FloatArray, sel: np.ndarray) -> FloatArray:
     return np.linalg.solve(L.T, np.linalg.solve(L, np.eye(A.shape[0])))
 
 
+@small_blas
 def swap_whitened(
     Q0: FloatArray,
     G: FloatArray,
@@ -462,6 +467,7 @@ def _deltas(
     return float(crit[0]) - swap_criteria(Q0, G, sel, uns, objective, interest)
 
 
+@small_blas
 def greedy(
     Q0: object,
     H: object,
@@ -489,6 +495,7 @@ def greedy(
     return greedy_whitened(Q0_a, G, budget, objective=objective, interest=interest)
 
 
+@small_blas
 def lazy_greedy(
     Q0: object, H: object, R: object, budget: int, *, objective: str = "logdet"
 ) -> Selection:
@@ -507,6 +514,7 @@ def lazy_greedy(
     return lazy_greedy_whitened(Q0_a, G, budget)
 
 
+@small_blas
 def brute_force(
     Q0: object,
     H: object,
@@ -531,6 +539,7 @@ def brute_force(
     )
 
 
+@small_blas
 def swap(
     Q0: object,
     H: object,

@@ -34,6 +34,7 @@ from selenv.agents.fim_solvers import Interest, Selection, _check_budget, _finis
 from selenv.core.information import as_candidates, whitened_pool
 from selenv.core.linalg import FloatArray, cholesky_spd
 from selenv.core.objectives import check_interest, check_objective, get_objective
+from selenv.threads import small_blas
 
 __all__ = ["DEFAULT_M", "vns", "vns_whitened"]
 
@@ -41,6 +42,7 @@ __all__ = ["DEFAULT_M", "vns", "vns_whitened"]
 DEFAULT_M: tuple[int, ...] = (40, 20)
 
 
+@small_blas
 def vns_whitened(
     Q0: FloatArray,
     G: FloatArray,
@@ -232,6 +234,7 @@ def _neighbours(
     return cands, exhaustive
 
 
+@small_blas
 def vns(
     Q0: object,
     H: object,

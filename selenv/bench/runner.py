@@ -47,6 +47,7 @@ from selenv.bench.results import (
 from selenv.envs.resolved import resolved_env_config
 from selenv.families import ALL_ENV_IDS
 from selenv.parallel import Executor, LocalExecutor
+from selenv.threads import limit_threads
 
 __all__ = [
     "AgentRefused",
@@ -179,6 +180,9 @@ class EpisodeBlock:
     agent: str
     seeds: tuple[int, ...]
     named: bool  # the agent was named explicitly: a ValueError while building it is a usage error
+    #: BLAS and torch threads while the episodes play (``None``: leave the library's setting);
+    #: small problems: one thread is fastest (:mod:`selenv.threads`)
+    threads: tuple[int | None, int | None] = (1, 1)
 
 
 @dataclass
@@ -210,12 +214,13 @@ def play_block(
             if block.named:  # named explicitly: bad options or file
                 return BlockResult(result, build_error=str(exc))
             return BlockResult(result, refused=str(exc) or "raised ValueError")
-        for seed in block.seeds:
-            ret, obj = play(env, agent, seed, result)
-            result.returns.append(ret)
-            result.final_objectives.append(obj)
-            if on_episode is not None:
-                on_episode(1)
+        with limit_threads(*block.threads):  # after make: the ppo agent imports torch
+            for seed in block.seeds:
+                ret, obj = play(env, agent, seed, result)
+                result.returns.append(ret)
+                result.final_objectives.append(obj)
+                if on_episode is not None:
+                    on_episode(1)
     except AgentRefused as exc:
         return BlockResult(result, refused=str(exc) or "raised ValueError")
     finally:
@@ -286,6 +291,7 @@ def run_bench(
     skip_inapplicable: bool = False,
     baseline: str | None = None,
     executor: Executor | None = None,
+    threads: tuple[int | None, int | None] = (1, 1),
 ) -> EnvBenchResult:
     """Run each agent on ``episodes`` seeded episodes of ``env_id``.
 
@@ -306,6 +312,9 @@ def run_bench(
             pool or Ray executor gets each agent's episodes as contiguous blocks of seeds
             (:class:`EpisodeBlock`, a fresh env and agent per block); returns and objectives
             are identical to the local run, only the decision times differ.
+        threads: ``(blas, torch)`` thread counts while episodes play, in every worker
+            (:func:`selenv.threads.limit_threads`; ``None`` leaves a library's own setting).
+            Decisions do not depend on them; decision times do.
 
     Returns:
         The per-agent results, in the order of ``agent_names``.
@@ -340,7 +349,7 @@ def run_bench(
         try:
             for name in names:
                 bar.set_postfix_str(name)
-                block = EpisodeBlock(env_id, kind, kwargs, name, tuple(seeds), named)
+                block = EpisodeBlock(env_id, kind, kwargs, name, tuple(seeds), named, threads)
                 part = play_block(block, first_env, bar.update)
                 first_env = None
                 out.agents[name] = _merge(name, [part])
@@ -352,7 +361,7 @@ def run_bench(
             first_env.close()
         parts = _blocks_per_agent(episodes, executor.num_workers)
         blocks = [
-            EpisodeBlock(env_id, kind, kwargs, name, chunk, named)
+            EpisodeBlock(env_id, kind, kwargs, name, chunk, named, threads)
             for name in names
             for chunk in _split(seeds, parts)
         ]

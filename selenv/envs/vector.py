@@ -23,6 +23,8 @@ What this base does, the same way for every family:
 * **Masks**: :meth:`action_masks` returns the ``(B, ...)`` masks (MaskablePPO's protocol).
 * **Rendering**: ``render()`` returns the frames of every sub-env (a tuple, like
   ``SyncVectorEnv``); :meth:`render_env` draws one.
+* **Threads**: ``reset`` and ``step`` run with one BLAS thread (:func:`selenv.threads.small_blas`:
+  the batched calls are many small matrices, which BLAS threads only slow down).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from selenv.scenarios.validation import ArgumentTypeError, describe
+from selenv.threads import small_blas
 
 __all__ = ["BatchedVectorEnv", "check_num_envs", "merge_infos"]
 
@@ -77,7 +80,7 @@ def merge_infos(infos: dict[str, Any], new: dict[str, Any], idx: np.ndarray, n: 
         infos["_" + key][idx] = True
 
 
-class BatchedVectorEnv(VectorEnv):  # type: ignore[type-arg]
+class BatchedVectorEnv(VectorEnv):
     """Base of the families' native vector envs (see the module docstring).
 
     Subclasses call :meth:`_setup` from ``__init__`` and implement:
@@ -116,6 +119,7 @@ class BatchedVectorEnv(VectorEnv):  # type: ignore[type-arg]
         self._has_reset = False
 
     # -- gymnasium.vector API ----------------------------------------------------------------
+    @small_blas
     def reset(
         self,
         *,
@@ -151,6 +155,7 @@ class BatchedVectorEnv(VectorEnv):  # type: ignore[type-arg]
         merge_infos(out, infos, idx, self.num_envs)
         return self._observe(), out
 
+    @small_blas
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every sub-env; those that ended at the previous step are reset instead."""
         if not self._has_reset:

@@ -16,7 +16,7 @@ difference in the last bits can move a float32 rounding by one ulp) and ``atol=1
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -99,7 +99,7 @@ def check_vector_equivalence(
     envs = [gym.make(env_id, **kwargs) for _ in range(num_envs)]
     counts = {"steps": 0, "episodes": 0, "autoresets": 0}
     try:
-        vobs, vinfo = venv.reset(seed=seeds)
+        vobs, vinfo = venv.reset(seed=seeds)  # type: ignore[arg-type]  # a list: Gymnasium's too
         singles = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
         _check_batch(
             venv,
@@ -121,7 +121,7 @@ def check_vector_equivalence(
                 where = f"step {t}, sub-env {b}"
                 if ended[b]:
                     o, info = env.reset()
-                    r, te, tr = 0.0, False, False
+                    r, te, tr = 0.0, False, False  # type: SupportsFloat, bool, bool
                     counts["autoresets"] += 1
                 else:
                     o, r, te, tr, info = env.step(actions[b])
