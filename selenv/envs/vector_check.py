@@ -121,7 +121,8 @@ def check_vector_equivalence(
                 where = f"step {t}, sub-env {b}"
                 if ended[b]:
                     o, info = env.reset()
-                    r, te, tr = 0.0, False, False  # type: SupportsFloat, bool, bool
+                    r: SupportsFloat = 0.0
+                    te, tr = False, False
                     counts["autoresets"] += 1
                 else:
                     o, r, te, tr, info = env.step(actions[b])
