@@ -43,15 +43,9 @@ from typing import Any
 
 import numpy as np
 
-from selenv.core.kalman import kf_update
 from selenv.core.linalg import FloatArray, logdet_spd
-from selenv.families.cooperative.models import (
-    MODELS,
-    AgentModel,
-    beacon_range,
-    relative_bearing,
-    relative_range,
-)
+from selenv.families.cooperative import batched
+from selenv.families.cooperative.models import MODELS, AgentModel
 from selenv.families.landmarks import models as lm
 from selenv.scenarios.validation import (
     ArgumentTypeError,
@@ -72,6 +66,7 @@ __all__ = [
     "CLSimulation",
     "check_learned_fusion",
     "fuse_relative",
+    "input_sigmas",
     "make_cl_problem",
     "relative_noise_cov",
 ]
@@ -387,18 +382,14 @@ def _truth(cfg: CLConfig, i: int) -> tuple[FloatArray, FloatArray]:
 _TRUTH_FIELDS = ("n_agents", "model", "horizon", "dt", "tracks", "track_size", "speed")
 
 
-def _truth_key(cfg: CLConfig) -> CLConfig:
-    """``cfg`` with every field the truth does not depend on at its default (the cache key)."""
-    return CLConfig(**{f: getattr(cfg, f) for f in _TRUTH_FIELDS}, relative_pairs=())
-
-
 @functools.lru_cache(maxsize=16)
-def _truths(cfg: CLConfig) -> tuple[FloatArray, FloatArray]:
+def _truths(key: tuple[Any, ...]) -> tuple[FloatArray, FloatArray]:
     """``(states (T + 1, A, n), inputs_true (T, A, n_input))`` of every agent, read-only.
 
-    The truth is deterministic (no random draw), so it is computed once per configuration
-    (keyed by :func:`_truth_key`) and shared by every realisation.
+    The truth is deterministic (no random draw), so it is computed once per value of the
+    fields :data:`_TRUTH_FIELDS` (``key``, in that order) and shared by every realisation.
     """
+    cfg = CLConfig(**dict(zip(_TRUTH_FIELDS, key, strict=True)), relative_pairs=())
     truths = [_truth(cfg, i) for i in range(int(cfg.n_agents))]
     states = np.stack([s for s, _ in truths], axis=1)  # (T+1, A, n)
     inputs_true = np.stack([u for _, u in truths], axis=1)
@@ -407,12 +398,51 @@ def _truths(cfg: CLConfig) -> tuple[FloatArray, FloatArray]:
     return states, inputs_true
 
 
+@dataclass(frozen=True, eq=False)
+class _Static:
+    """The seed-independent part of a realisation of one :class:`CLConfig` (read-only arrays).
+
+    Attributes:
+        states: (T + 1, A, n) truth; inputs_true: (T, A, n_input) true inputs.
+        scale: (A, n_input) input noise std; beacons: (nb, 3); L0T: (n, n) ``chol(P0)^T``.
+        m: relative measurement size; P0: (n, n); sigma: (A, 2) input noise (SI units).
+    """
+
+    states: FloatArray
+    inputs_true: FloatArray
+    scale: FloatArray
+    beacons: FloatArray
+    L0T: FloatArray
+    m: int
+    P0: FloatArray
+    sigma: FloatArray
+
+
+@functools.lru_cache(maxsize=16)
+def _static(cfg: CLConfig) -> _Static:
+    """:class:`_Static` of ``cfg``, computed once per configuration."""
+    A = int(cfg.n_agents)
+    states, inputs_true = _truths(tuple(getattr(cfg, f) for f in _TRUTH_FIELDS))
+    scale = np.array(
+        [np.repeat(cfg.input_sigma_of(i), cfg.agent_model.n_input // 2) for i in range(A)]
+    )
+    beacons = np.asarray(cfg.beacons, dtype=float).reshape(-1, 3)
+    P0 = cfg.P0()
+    L0T = np.linalg.cholesky(P0).T
+    sigma = np.array([cfg.input_sigma_of(i) for i in range(A)], dtype=np.float64)
+    for arr in (scale, beacons, P0, L0T, sigma):
+        arr.setflags(write=False)
+    m = 1 if cfg.bearing_sigma_deg is None else 2
+    return _Static(states, inputs_true, scale, beacons, L0T, m, P0, sigma)
+
+
 def make_cl_problem(
     config: CLConfig | None = None, rng: np.random.Generator | None = None
 ) -> CLProblem:
     """Draw a realisation (truth, then input, ZUPT, beacon, relative noise and initial errors).
 
-    The truth is deterministic; the draws come from ``rng`` in that order.
+    The truth is deterministic (computed once per configuration); the draws come from ``rng``
+    in that order.
 
     Args:
         config: scenario parameters (default :class:`CLConfig`).
@@ -421,32 +451,17 @@ def make_cl_problem(
     cfg = CLConfig() if config is None else config
     rng = np.random.default_rng() if rng is None else rng
     A, T, n = int(cfg.n_agents), int(cfg.horizon), cfg.agent_model.n
-    states, inputs_true = _truths(_truth_key(cfg))  # seed-independent: cached, read-only
-    scale = np.array(
-        [np.repeat(cfg.input_sigma_of(i), cfg.agent_model.n_input // 2) for i in range(A)]
-    )
-    inputs = inputs_true + rng.standard_normal(inputs_true.shape) * scale[None]
+    st = _static(cfg)
+    states, inputs_true, beacons = st.states, st.inputs_true, st.beacons
+    inputs = inputs_true + rng.standard_normal(inputs_true.shape) * st.scale[None]
     zupt_noise = cfg.zupt_sigma * rng.standard_normal((T, A, 3))
-    beacons = np.asarray(cfg.beacons, dtype=float).reshape(-1, 3)
     beacon_noise = cfg.range_sigma * rng.standard_normal((T, A, beacons.shape[0]))
-    m = 1 if cfg.bearing_sigma_deg is None else 2
-    relative_noise = rng.standard_normal((T, len(cfg.relative_pairs), m))
+    relative_noise = rng.standard_normal((T, len(cfg.relative_pairs), st.m))
     relative_noise[..., 0] *= cfg.range_sigma
-    if m == 2:
+    if st.m == 2:
         relative_noise[..., 1] *= float(cfg.bearing_sigma_deg) * _DEG  # type: ignore[arg-type]
-    L0 = np.linalg.cholesky(cfg.P0())
-    x0_hat = states[0] + rng.standard_normal((A, n)) @ L0.T
-    arrays = (
-        states,
-        inputs_true,
-        inputs,
-        beacons,
-        beacon_noise,
-        relative_noise,
-        zupt_noise,
-        x0_hat,
-    )
-    for arr in arrays:
+    x0_hat = states[0] + rng.standard_normal((A, n)) @ st.L0T
+    for arr in (inputs, beacon_noise, relative_noise, zupt_noise, x0_hat):
         arr.setflags(write=False)
     return CLProblem(
         config=cfg,
@@ -459,6 +474,11 @@ def make_cl_problem(
         zupt_noise=zupt_noise,
         x0_hat=x0_hat,
     )
+
+
+def input_sigmas(config: CLConfig) -> FloatArray:
+    """(A, 2) input noise of every agent in SI units (:meth:`CLConfig.input_sigma_of`; cached)."""
+    return _static(config).sigma
 
 
 def relative_noise_cov(config: CLConfig) -> FloatArray:
@@ -516,8 +536,10 @@ def fuse_relative(
 ) -> tuple[FloatArray, FloatArray]:
     """Agent ``i``'s posterior ``(x, P)`` from a relative measurement with unknown correlation.
 
+    One row of :func:`selenv.families.cooperative.batched.fuse` (the batched rules).
+
     Args:
-        method: one of ``naive``, ``ci``, ``dmv``, ``pecmv`` (see the module table).
+        method: one of ``naive``, ``ci``, ``dmv``, ``pecmv`` or a learned rule (module table).
         x_i: (n,) prior mean of agent i.
         P_i: (n, n) prior covariance of agent i.
         P_j: (n, n) prior covariance of agent j.
@@ -526,40 +548,17 @@ def fuse_relative(
         R: (m, m) measurement noise.
         residual: (m,) ``z - h(x_i, x_j)`` (angles wrapped).
     """
-    if method == "naive":  # independence: the other agent's uncertainty is extra noise
-        B = H_j @ P_j @ H_j.T
-        z_eff = H_i @ x_i + residual  # kf_update forms y = z_eff - H_i x_i = residual
-        res = kf_update(x_i, P_i, z_eff, H_i, B + R, validate=False)
-        return res.x, res.P
-    from scipy.optimize import minimize_scalar  # deferred: a slow import, needed for CI only
-
-    from selenv.core import fusion  # deferred: keeps scenarios importable without cvxpy
-
-    if method == "ci":  # bound (4) with the weight that minimises the trace (CI's criterion)
-        args = (P_i, P_j, H_i, H_j, R)
-        trace = lambda w: float(np.trace(fusion.dmv_update(*args, omega=w, validate=False).P))  # noqa: E731
-        best = minimize_scalar(trace, bounds=(1e-4, 1.0 - 1e-9), method="bounded")
-        if best.fun >= float(np.trace(P_i)):  # omega = 1: no update
-            return x_i.copy(), P_i.copy()
-        ci = fusion.dmv_update(*args, x_i=x_i, residual=residual, omega=float(best.x))
-        return np.asarray(ci.x), np.asarray(ci.P)
-    if method == "dmv":
-        dmv = fusion.dmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
-        return np.asarray(dmv.x), np.asarray(dmv.P)
-    if method == "pecmv":
-        pecmv = fusion.pecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
-        return np.asarray(pecmv.x), np.asarray(pecmv.P)
-    if method == "ldmv":
-        ld = fusion.ldmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual)
-        return np.asarray(ld.x), np.asarray(ld.P)
-    if method in ("lpecmv", "lpecmv_full", "lpecmv_objective"):
-        lp = fusion.lpecmv_update(P_i, P_j, H_i, H_j, R, x_i=x_i, residual=residual, variant=method)
-        return np.asarray(lp.x), np.asarray(lp.P)
-    raise ValueError(f"method must be one of {FUSION_METHODS[1:]}, got {method!r}")
+    arrays = (x_i, P_i, P_j, H_i, H_j, residual)
+    x_b, P_ib, P_jb, H_ib, H_jb, r_b = (np.asarray(a, dtype=np.float64)[None] for a in arrays)
+    x, P = batched.fuse(method, x_b, P_ib, P_jb, H_ib, H_jb, np.asarray(R, np.float64), r_b)
+    return x[0], P[0]
 
 
 class CLSimulation:
     """All agents' local filters on one :class:`CLProblem`, step by step.
+
+    The filter math is :mod:`selenv.families.cooperative.batched` with one realisation
+    (``B = 1``), the functions the vector env calls with all of its sub-envs.
 
     Args:
         problem: the realisation.
@@ -580,9 +579,11 @@ class CLSimulation:
         cfg = problem.config
         self.model = cfg.agent_model
         self.x = problem.x0_hat.copy()
-        self.P = np.repeat(cfg.P0()[None], cfg.n_agents, axis=0)
+        self.P = np.repeat(_static(cfg).P0[None], cfg.n_agents, axis=0)
         self.k = 0
         self.R_rel = relative_noise_cov(cfg)
+        self._sigma = input_sigmas(cfg)
+        self._pairs = np.asarray(cfg.relative_pairs, dtype=np.intp).reshape(-1, 2)
         check_learned_fusion(cfg, fusion)  # a learned fusion without a matching network: now
 
     @property
@@ -593,13 +594,8 @@ class CLSimulation:
     def predict(self) -> None:
         """Propagate every agent with its noisy input (EKF prediction); ``k += 1``."""
         cfg = self.problem.config
-        for i in range(cfg.n_agents):
-            u = self.problem.inputs[self.k, i]
-            self.x[i], F, Q = self.model.propagate_with_jacobians(
-                self.x[i], u, cfg.dt, cfg.input_sigma_of(i)
-            )
-            P = F @ self.P[i] @ F.T + Q
-            self.P[i] = 0.5 * (P + P.T)
+        u = self.problem.inputs[self.k]
+        batched.predict(self.model, self.x[None], self.P[None], u[None], cfg.dt, self._sigma)
         self.k += 1
 
     def zupt_updates(self) -> None:
@@ -607,29 +603,26 @@ class CLSimulation:
         cfg = self.problem.config
         if cfg.model != "ins" or cfg.zupt_every is None or self.k % cfg.zupt_every:
             return
-        H = np.zeros((3, 9))
-        H[:, 3:6] = np.eye(3)
-        R = cfg.zupt_sigma**2 * np.eye(3)
-        for i in range(cfg.n_agents):
-            z = self.truth[i, 3:6] + self.problem.zupt_noise[self.k - 1, i]
-            res = kf_update(self.x[i], self.P[i], z, H, R, validate=False)
-            self.x[i], self.P[i] = res.x, res.P
+        noise = self.problem.zupt_noise[self.k - 1]
+        batched.zupt_updates(
+            self.x[None], self.P[None], self.truth[None, :, 3:6], noise[None], cfg.zupt_sigma
+        )
 
     def beacon_updates(self) -> None:
         """EKF range updates of the beacon agents (every ``beacon_every`` steps)."""
         cfg = self.problem.config
         if self.fusion == "dead_reckoning" or self.k % cfg.beacon_every:
             return
-        R = np.array([[cfg.range_sigma**2]])
-        for i in cfg.beacon_agents:
-            for b, beacon in enumerate(self.problem.beacons):
-                z = beacon_range(self.model, self.truth[i], beacon)[0]
-                z += self.problem.beacon_noise[self.k - 1, i, b]
-                r_hat, H = beacon_range(self.model, self.x[i], beacon)
-                res = kf_update(
-                    self.x[i], self.P[i], H @ self.x[i] + (z - r_hat), H, R, validate=False
-                )
-                self.x[i], self.P[i] = res.x, res.P
+        batched.beacon_updates(
+            self.model,
+            self.x[None],
+            self.P[None],
+            self.truth[None],
+            cfg.beacon_agents,
+            self.problem.beacons,
+            self.problem.beacon_noise[self.k - 1][None],
+            cfg.range_sigma,
+        )
 
     def available(self) -> list[int]:
         """Indices into ``relative_pairs`` measured at this step."""
@@ -638,49 +631,46 @@ class CLSimulation:
             return []
         return list(range(len(cfg.relative_pairs)))
 
+    def _terms(self, ps: np.ndarray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(H_i, H_j (K, m, n), residual (K, m))`` of the relative measurements ``ps`` (K,)."""
+        ij = self._pairs[ps]
+        truth = self.truth
+        return batched.relative_terms(
+            self.model,
+            self.x[ij[:, 0]],
+            self.x[ij[:, 1]],
+            truth[ij[:, 0]],
+            truth[ij[:, 1]],
+            self.problem.relative_noise[self.k - 1, ps],
+            self.problem.config.bearing_sigma_deg is not None,
+        )
+
     def relative_terms(self, p: int) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(H_i, H_j, residual)`` of relative measurement ``p`` at this step."""
-        cfg = self.problem.config
-        i, j = cfg.relative_pairs[p]
-        noise = self.problem.relative_noise[self.k - 1, p]
-        z_true, H_i, H_j = relative_range(self.model, self.truth[i], self.truth[j])
-        z_hat, H_i, H_j = relative_range(self.model, self.x[i], self.x[j])
-        res = [z_true[0] + noise[0] - z_hat[0]]
-        if cfg.bearing_sigma_deg is not None:
-            b_true = relative_bearing(self.model, self.truth[i], self.truth[j])[0]
-            b_hat, Hb_i, Hb_j = relative_bearing(self.model, self.x[i], self.x[j])
-            res.append(float(lm.wrap_angle(b_true[0] + noise[1] - b_hat[0])))
-            H_i, H_j = np.vstack([H_i, Hb_i]), np.vstack([H_j, Hb_j])
-        return H_i, H_j, np.asarray(res)
+        H_i, H_j, res = self._terms(np.array([p], dtype=np.intp))
+        return H_i[0], H_j[0], res[0]
 
     def relative_jacobians(self, ps: Sequence[int] | np.ndarray) -> tuple[FloatArray, FloatArray]:
-        """``(H_i, H_j)`` stacked ``(K, m, n)`` for the relative measurements ``ps`` now.
-
-        Bit-for-bit the ``H_i, H_j`` of :meth:`relative_terms` (same BLAS ``dot`` for the
-        ranges, same elementwise divisions), batched over the pairs; no residuals.
-        """
-        cfg, model = self.problem.config, self.model
-        pairs = np.asarray(cfg.relative_pairs, dtype=np.intp).reshape(-1, 2)[np.asarray(ps)]
-        pos = self.x[:, : model.dim]
-        d = pos[pairs[:, 0]] - pos[pairs[:, 1]]  # (K, dim)
-        # (K,1,dim) @ (K,dim,1) is one ddot per pair: the np.linalg.norm of relative_range
-        r = np.sqrt((d[:, None, :] @ d[:, :, None])[:, 0, 0])
-        H_i = np.zeros((len(pairs), 1, model.n))
-        H_i[:, 0, : model.dim] = d / r[:, None]
-        H_j = -H_i
-        if cfg.bearing_sigma_deg is not None:
-            Hb = [relative_bearing(model, self.x[i], self.x[j])[1:] for i, j in pairs]
-            H_i = np.concatenate([H_i, np.stack([b[0] for b in Hb])], axis=1)
-            H_j = np.concatenate([H_j, np.stack([b[1] for b in Hb])], axis=1)
-        return H_i, H_j
+        """``(H_i, H_j)`` stacked ``(K, m, n)`` for the relative measurements ``ps`` now."""
+        ij = self._pairs[np.asarray(ps, dtype=np.intp)]
+        bearing = self.problem.config.bearing_sigma_deg is not None
+        return batched.relative_jacobians(self.model, self.x[ij[:, 0]], self.x[ij[:, 1]], bearing)
 
     def preview(self, p: int, method: str | None = None) -> tuple[FloatArray, FloatArray]:
         """Agent ``i``'s posterior ``(x, P)`` if relative measurement ``p`` were processed now."""
         i, j = self.problem.config.relative_pairs[p]
-        H_i, H_j, residual = self.relative_terms(p)
-        return fuse_relative(
-            method or self.fusion, self.x[i], self.P[i], self.P[j], H_i, H_j, self.R_rel, residual
+        H_i, H_j, residual = self._terms(np.array([p], dtype=np.intp))
+        x, P = batched.fuse(
+            method or self.fusion,
+            self.x[i : i + 1],
+            self.P[i : i + 1],
+            self.P[j : j + 1],
+            H_i,
+            H_j,
+            self.R_rel,
+            residual,
         )
+        return x[0], P[0]
 
     def relative_update(self, p: int, method: str | None = None) -> float:
         """Process relative measurement ``p``; return the drop in ``log det P_i`` (nats)."""
