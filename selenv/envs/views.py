@@ -58,6 +58,10 @@ class CandidateView:
     """
 
     name = "base"
+    #: whether the view reads the live env besides the observation (previewed updates); a
+    #: pure view (``False``) is a function of the observation alone and also serves a batched
+    #: vector env (:class:`selenv.learned.rl.vec_env.NativeVecEnv`)
+    live = False
 
     def env_action(self, obs: dict[str, np.ndarray], action: int) -> Any:  # noqa: D102
         return action

@@ -44,6 +44,7 @@ class CLView(CandidateView):
         if top_k is not None and (previewer is None or top_k < 1):
             raise ValueError(f"top_k needs a previewer and must be >= 1, got {top_k!r}")
         self.top_k = top_k
+        self.live = previewer is not None  # reads the env's previews, not only the observation
         if previewer is not None:
             self.name = "cl_pairs_fused" if top_k is None else f"cl_pairs_fused_top{top_k}"
         self.i = np.array([p[0] for p in self.pairs], dtype=np.intp)
