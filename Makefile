@@ -17,7 +17,7 @@ TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 PYTEST_WORKERS ?= 2
 PYTEST := $(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadscope
 
-.PHONY: bench test test-numerics lint figures perf overheads clean
+.PHONY: bench test test-numerics lint figures perf perf-vector overheads clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -46,6 +46,11 @@ figures: $(STAMP)
 
 perf: $(STAMP)
 	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py && $(PY) benchmarks/bench_fusion.py && $(PY) benchmarks/bench_surrogates.py
+
+# native vector envs vs SyncVectorEnv and CartPole-v1, scaling in B and in each family's size
+# (docs/BENCHMARKS.md, "Vector envs"); bench_threads: the solvers with the default thread counts
+perf-vector: $(STAMP)
+	$(PY) benchmarks/bench_vector.py --scaling --json docs/bench/vector_envs.json && $(PY) benchmarks/bench_threads.py
 
 # the overhead ratios (docs/BENCHMARKS.md, "Overheads around the core algorithms");
 # bench_kalman.py compares with FilterPy if it is installed (pip install filterpy==1.4.5)
