@@ -7,9 +7,9 @@ Heterogeneous measurement selection by Fisher information (Kirchner et al. 2020)
 
 from __future__ import annotations
 
-from selenv.families.spec import FamilySpec, env_factories
+from selenv.families.spec import FamilySpec, env_factories, vector_factories
 
-__all__ = ["SPEC", "make_env", "make_env_v0"]
+__all__ = ["SPEC", "make_env", "make_env_v0", "make_vector_env", "make_vector_env_v0"]
 
 SPEC = FamilySpec(
     name="fim",
@@ -25,5 +25,7 @@ SPEC = FamilySpec(
         "selenv.families.fim.multiagent_agents",
     ),
     multiagent_module="selenv.multiagent.fim_selection_v0",
+    vector_class="selenv.families.fim.vector:FIMSelectionVectorEnv",
 )
 make_env, make_env_v0 = env_factories(SPEC)
+make_vector_env, make_vector_env_v0 = vector_factories(SPEC)

@@ -2,30 +2,37 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from selenv.core.objectives import GainState, get_objective, make_gain_state, objective_names
+from selenv.core.objectives import get_objective, objective_names
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer
+from selenv.families.fim.batched import FIMBatchState, SubEnvGainState, batched_features
 from selenv.families.fim.scenario import (
     SENSOR_NAMES,
     FIMProblem,
+    FIMScenarioConfig,
     config_from,
-    make_problem,
+    make_problems,
+    problem_constants,
 )
 from selenv.scenarios.validation import ArgumentTypeError, check_choice, check_integer, describe
 
 __all__ = [
     "FIMSelectionEnv",
+    "FIMSettings",
     "candidate_features",
     "check_sensors",
     "fim_observation",
     "fim_observation_space",
+    "fim_observations",
+    "fim_settings",
     "parse_action",
 ]
 
@@ -69,12 +76,38 @@ def fim_observation_space(n: int, m: int, d: int) -> spaces.Dict:
 
 def candidate_features(problem: FIMProblem) -> np.ndarray:
     """Static per-candidate features ``(N, 4)``: one-hot sensor, time in the window in [0, 1]."""
-    t = problem.times
-    span = float(np.ptp(t)) or 1.0
-    feats = np.zeros((len(t), 4), np.float32)
-    feats[np.arange(len(t)), problem.sensor] = 1.0
-    feats[:, 3] = (t - t.min()) / span
-    return feats
+    return batched_features(problem.times[None], problem.sensor)[0]
+
+
+def fim_observations(
+    gains: np.ndarray,
+    Z: np.ndarray,
+    selected: np.ndarray,
+    features: np.ndarray,
+    budget_fraction: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """Assemble ``B`` observations (new arrays) with a leading batch axis.
+
+    Args:
+        gains: ``(B, N)`` current marginal gains (0 in the observation once selected).
+        Z: ``(B, N, m, d)`` candidates whitened in the current information.
+        selected: ``(B, N)`` bool.
+        features: ``(B, N, 4)`` float32 (:func:`candidate_features`).
+        budget_fraction: ``(B,)`` fraction of the budget still to spend.
+    """
+    B, N = gains.shape
+    selected = np.asarray(selected, dtype=bool)
+    gain = gains.astype(np.float32)
+    gain[selected] = 0.0
+    mask = np.logical_not(selected).view(np.int8)
+    return {
+        "gain": gain,
+        "whitened": Z.reshape(B, N, -1).astype(np.float32),
+        "features": features.copy(),
+        "selected": selected.astype(np.int8),
+        "budget_left": budget_fraction.astype(np.float32).reshape(B, 1),
+        "action_mask": mask,
+    }
 
 
 def fim_observation(
@@ -85,14 +118,76 @@ def fim_observation(
     budget_fraction: float,
 ) -> dict[str, np.ndarray]:
     """Assemble one observation from a gain state's ``gains (n,)`` and ``Z (n, m, d)``."""
-    return {
-        "gain": np.where(selected, 0.0, gains).astype(np.float32),
-        "whitened": Z.reshape(len(gains), -1).astype(np.float32),
-        "features": features.copy(),
-        "selected": selected.astype(np.int8),
-        "budget_left": np.array([budget_fraction], np.float32),
-        "action_mask": (~selected).astype(np.int8),
-    }
+    obs = fim_observations(
+        gains[None], Z[None], selected[None], features[None], np.array([budget_fraction])
+    )
+    return {key: val[0] for key, val in obs.items()}
+
+
+@dataclass(frozen=True)
+class FIMSettings:
+    """The validated keywords of ``FIMSelection`` (shared by the single and the vector env).
+
+    Attributes:
+        config: the scenario config; ``objective``: a registered name; ``invalid_rule``:
+            what a masked pick does; ``budget``: picks per episode, in ``[1, N]``;
+        n, m, d: pool size, rows per candidate, parameters; ``interest``: ``(x, y)`` indices
+            scored by objectives that are not unit-invariant (``None``: all parameters).
+    """
+
+    config: FIMScenarioConfig
+    objective: str
+    invalid_rule: InvalidActionRule
+    budget: int
+    n: int
+    m: int
+    d: int
+    interest: tuple[int, ...] | None
+
+
+def fim_settings(
+    *,
+    preset: str = "example2_moving",
+    n_candidates: int = 100,
+    budget: int = 10,
+    sensors: tuple[str, ...] | list[str] | None = None,
+    n_agents: int | None = None,
+    camera_sigma_px: float | None = None,
+    toa_sigma_m: float | None = None,
+    doppler_sigma_mps: float | None = None,
+    randomize: bool = True,
+    invalid_action: str = "noop",
+    invalid_action_penalty: float = 0.0,
+    objective: str = "logdet",
+) -> FIMSettings:
+    """Validate the env keywords (see :class:`FIMSelectionEnv`, Arguments).
+
+    Raises:
+        TypeError, ValueError: a bad keyword, named, with its range.
+    """
+    objective = check_choice(objective, "objective", objective_names())
+    invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
+    overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
+    check_integer(budget, "budget", 1)  # the type first; the pool size bounds it below
+    for key, val in (
+        ("sensors", check_sensors(sensors)),
+        ("n_agents", n_agents),
+        ("camera_sigma_px", camera_sigma_px),
+        ("toa_sigma_m", toa_sigma_m),
+        ("doppler_sigma_mps", doppler_sigma_mps),
+    ):
+        if val is not None:
+            overrides[key] = val
+    config = config_from(preset, **overrides)
+    const = problem_constants(config)
+    n, m, d = const.shape
+    interest = (
+        None
+        if get_objective(objective).unit_invariant
+        else tuple(const.param_names.index(name) for name in ("x", "y"))
+    )
+    budget = check_integer(budget, f"budget (at most the pool size {n})", 1, n)
+    return FIMSettings(config, objective, invalid_rule, budget, n, m, d, interest)
 
 
 class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
@@ -179,6 +274,18 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     registered with :func:`~selenv.core.objective_registry.register_objective` chooses ``f``
     (see Rewards; an unknown name is a ``ValueError`` listing the known ones).
 
+    ## Vector Env
+    ``gymnasium.make_vec("selenv/FIMSelection-v1", num_envs=B, **kwargs)`` returns the native
+    :class:`~selenv.families.fim.vector.FIMSelectionVectorEnv`: the ``B`` episodes in batch
+    arrays, stepped by the same batched core as this env
+    (:class:`~selenv.families.fim.batched.FIMBatchState`, of which this env is the ``B = 1``
+    case), observations and infos with a leading ``(B,)`` axis, ``action_masks()`` ``(B, N)``.
+    Autoreset is Gymnasium's ``NEXT_STEP`` (the step after an episode ends resets that sub-env,
+    reward 0, its action ignored). Seeding as ``SyncVectorEnv``: ``reset(seed=s)`` seeds
+    sub-env ``b`` with ``s + b``, so it replays ``gymnasium.make(...).reset(seed=s + b)``;
+    ``options={"reset_mask": mask}`` resets some sub-envs. ``vectorization_mode="sync"`` still
+    gives the Python loop over single envs.
+
     ## Version History
     * v1: ``preset="example1" / "example2" / "example3"`` are Kirchner et al.'s stationary
       examples (the moving-target ones are ``example*_moving``; the default,
@@ -209,43 +316,44 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         render_mode: str | None = None,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
-        self.objective = check_choice(objective, "objective", objective_names())
-        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
-        check_integer(budget, "budget", 1)  # the type first; the pool size bounds it below
-        for key, val in (
-            ("sensors", check_sensors(sensors)),
-            ("n_agents", n_agents),
-            ("camera_sigma_px", camera_sigma_px),
-            ("toa_sigma_m", toa_sigma_m),
-            ("doppler_sigma_mps", doppler_sigma_mps),
-        ):
-            if val is not None:
-                overrides[key] = val
-        self.config = config_from(preset, **overrides)
-        probe = make_problem(self.config, np.random.default_rng(0))  # shapes only
-        self.n, self.m, self.d = probe.G.shape
+        settings = fim_settings(
+            preset=preset, n_candidates=n_candidates, budget=budget, sensors=sensors,
+            n_agents=n_agents, camera_sigma_px=camera_sigma_px, toa_sigma_m=toa_sigma_m,
+            doppler_sigma_mps=doppler_sigma_mps, randomize=randomize,
+            invalid_action=invalid_action, invalid_action_penalty=invalid_action_penalty,
+            objective=objective,
+        )  # fmt: skip
+        self.settings = settings
+        self.objective = settings.objective
+        self.invalid_rule = settings.invalid_rule
+        self.config = settings.config
+        self.n, self.m, self.d = settings.n, settings.m, settings.d
         #: ``(x, y)`` indices scored by objectives that are not unit-invariant (trace, max_eig);
         #: ``None`` (all parameters) for unit-invariant ones (log det, det)
-        self.interest: tuple[int, ...] | None = (
-            None
-            if get_objective(self.objective).unit_invariant
-            else tuple(probe.param_names.index(name) for name in ("x", "y"))
-        )
-        self.budget = check_integer(budget, f"budget (at most the pool size {self.n})", 1, self.n)
+        self.interest: tuple[int, ...] | None = settings.interest
+        self.budget = settings.budget
         self.max_episode_steps = self.budget
         self.action_space = spaces.Discrete(self.n)
         self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment, unused-ignore]
         self.problem: FIMProblem | None = None
-        self._state: GainState | None = None
+        #: the batched core holding this env's one episode (the ``B = 1`` case)
+        self.core = FIMBatchState(
+            1, problem_constants(self.config).Q0, (self.n, self.m, self.d), self.objective,
+            self.interest,
+        )  # fmt: skip
+        self._state: SubEnvGainState | None = None
         self._steps = 0
         self._done = False
         self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- oracle view used by heuristic agents ---------------------------------------------
     @property
-    def state(self) -> GainState:
-        """The live gain state (information, gains, selection); requires :meth:`reset`."""
+    def state(self) -> SubEnvGainState:
+        """The live gain state (information, gains, selection); requires :meth:`reset`.
+
+        The ``GainState`` interface (:class:`~selenv.core.information.LogDetGainState`'s
+        attributes and methods) over the env's batched core (:attr:`core`).
+        """
         if self._state is None:
             raise RuntimeError("call reset() before using the env")
         return self._state
@@ -274,16 +382,11 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """Draw a new scenario from ``np_random`` and clear the selection."""
         super().reset(seed=seed)
-        self.problem = make_problem(self.config, self.np_random)
-        self._state = make_gain_state(
-            self.problem.Q0,
-            self.problem.G,
-            self.objective,
-            interest=self.interest,
-            track_gains=True,
-            track_whitened=True,
-        )
-        self._features = candidate_features(self.problem)
+        batch = make_problems(self.config, [self.np_random])
+        self.problem = batch.problem(0)
+        self.core.start(_ONE, batch.G)
+        self._state = self.core.view(0)
+        self._features = batched_features(batch.times, batch.constants.sensor)
         self._steps, self._done = 0, False
         return self._obs(), self._info()
 
@@ -298,7 +401,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         if rule.check(f"action {k}", reason) and rule.terminates:
             self._done = True
             return self._obs(), rule.penalty, True, False, self._info(reason)
-        reward = rule.penalty if reason else float(state.add(k))
+        reward = rule.penalty if reason else float(self.core.add(_ONE, np.array([k]))[0])
         self._steps += 1
         self._done = self.budget_left == 0
         return self._obs(), reward, self._done, False, self._info(reason)
@@ -318,17 +421,21 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self._renderer.close()
 
     def _obs(self) -> dict[str, np.ndarray]:
-        s = self.state
-        assert s.gains is not None and s.Z is not None
-        frac = self.budget_left / self.budget
-        return fim_observation(s.gains, s.Z, s.selected, self._features, frac)
+        core = self.core
+        frac = np.array([self.budget_left / self.budget])
+        obs = fim_observations(core.gains, core.Z, core.selected, self._features, frac)
+        return {key: val[0] for key, val in obs.items()}
 
     def _info(self, reason: str | None = None) -> dict[str, Any]:
         s = self.state
         return {
-            "objective": float(s.objective),
+            "objective": s.objective,
             "objective_name": self.objective,
             "action_mask": ~s.selected,
-            "n_selected": len(s.order),
+            "n_selected": int(self.core.count[0]),
             **self.invalid_rule.info(reason),
         }
+
+
+#: the sub-env index of the single env in its batched core
+_ONE = np.zeros(1, dtype=np.intp)

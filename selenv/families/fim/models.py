@@ -51,10 +51,13 @@ N_MOTION = 6
 
 # -- motion model -------------------------------------------------------------------------------
 def _motion(theta: ArrayLike) -> FloatArray:
+    """The motion parameters ``theta[..., :6]`` of one ``(d,)`` or per-time ``(T, d)`` vector."""
     th = check_finite(as_float_array(theta, "theta"), "theta")
-    if th.ndim != 1 or th.shape[0] < N_MOTION:
-        raise ValueError(f"theta must have shape (d,) with d >= {N_MOTION}, got {th.shape}")
-    return th[:N_MOTION]
+    if th.ndim not in (1, 2) or th.shape[-1] < N_MOTION:
+        raise ValueError(
+            f"theta must have shape (d,) or (T, d) with d >= {N_MOTION}, got {th.shape}"
+        )
+    return th[..., :N_MOTION]
 
 
 def _times(s: ArrayLike) -> FloatArray:
@@ -83,15 +86,20 @@ def target_state(theta: ArrayLike, s: ArrayLike) -> tuple[FloatArray, FloatArray
     """Target position and velocity, eq. (18).
 
     Args:
-        theta: ``(d,)`` parameters, ``d >= 6``; only ``theta[:6]`` is used.
+        theta: ``(d,)`` parameters, ``d >= 6``; only ``theta[:6]`` is used. Or ``(T, d)``:
+            one parameter vector per time (many drawn targets evaluated in one call).
         s: ``(T,)`` times since the window start.
 
     Returns:
         ``q (T, 2)`` and ``qdot (T, 2)``.
     """
-    th = _motion(theta).reshape(3, 2)  # rows theta1, theta2, theta3
+    th = _motion(theta)
     b, bdot = motion_basis(s)
-    return b @ th, bdot @ th
+    if th.ndim == 1:
+        th3 = th.reshape(3, 2)  # rows theta1, theta2, theta3
+        return b @ th3, bdot @ th3
+    per_time = check_shape(th, (b.shape[0], N_MOTION), "theta").reshape(-1, 3, 2)
+    return np.einsum("tj,tji->ti", b, per_time), np.einsum("tj,tji->ti", bdot, per_time)
 
 
 def spiral_path(
@@ -100,10 +108,10 @@ def spiral_path(
     qdot: ArrayLike,
     *,
     window_s: float,
-    start_radius: float,
-    end_radius: float,
+    start_radius: ArrayLike,
+    end_radius: ArrayLike,
     sweep_rad: float,
-    end_bearing: float,
+    end_bearing: ArrayLike,
     altitude: float,
 ) -> tuple[FloatArray, FloatArray]:
     """Agent path spiralling in on a moving ground point, with its analytic velocity.
@@ -124,6 +132,9 @@ def spiral_path(
         end_radius: horizontal range at ``s = window_s`` (m).
         sweep_rad: bearing swept over the window (rad).
         end_bearing: bearing at the end of the window (rad, from world x).
+
+    ``start_radius``, ``end_radius`` and ``end_bearing`` are scalars or ``(T,)`` (one per time:
+    the paths of many agents or problems in one call).
         altitude: constant height above the ground plane (m).
 
     Returns:
@@ -133,9 +144,12 @@ def spiral_path(
     q_a = check_shape(as_float_array(q, "q"), (s_a.shape[0], 2), "q")
     qd_a = check_shape(as_float_array(qdot, "qdot"), (s_a.shape[0], 2), "qdot")
     u = s_a / window_s
-    r = start_radius + (end_radius - start_radius) * u
-    rdot = (end_radius - start_radius) / window_s
-    phi, phidot = end_bearing - sweep_rad * (1.0 - u), sweep_rad / window_s
+    r0 = np.asarray(start_radius, dtype=np.float64)
+    r1 = np.asarray(end_radius, dtype=np.float64)
+    r = r0 + (r1 - r0) * u
+    rdot = np.reshape((r1 - r0) / window_s, (-1, 1))  # (1, 1) or (T, 1)
+    phi = np.asarray(end_bearing, dtype=np.float64) - sweep_rad * (1.0 - u)
+    phidot = sweep_rad / window_s
     radial = np.column_stack([np.cos(phi), np.sin(phi)])
     tangent = np.column_stack([-np.sin(phi), np.cos(phi)])
     pos = np.column_stack([q_a + r[:, None] * radial, np.full(s_a.shape[0], altitude)])

@@ -38,7 +38,8 @@ Modelling choices (documented defaults of :class:`FIMScenarioConfig`):
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+import functools
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -64,9 +65,14 @@ __all__ = [
     "RANGES",
     "SENSOR_NAMES",
     "FIMProblem",
+    "FIMProblemBatch",
     "FIMScenarioConfig",
+    "ProblemConstants",
     "config_from",
     "make_problem",
+    "make_problems",
+    "pool_jacobian",
+    "problem_constants",
 ]
 
 #: sensor codes used in :attr:`FIMProblem.sensor` (index into this tuple)
@@ -324,20 +330,11 @@ class FIMProblem:
     def measurement_jacobian(self, theta: ArrayLike, idx: ArrayLike | None = None) -> FloatArray:
         """Jacobians ``d mu_k / d theta`` of candidates ``idx``, ``(len(idx), m, d)``."""
         th, ix = self._theta(theta), self._idx(idx)
-        J = np.zeros((ix.size, self.m, th.size))
-        for code, sel, c, t, p, nu in self._groups(ix):
-            if code == CAMERA:
-                Jc = km.camera_jacobian(th, t, p, self.camera_rotation[c], self.intrinsics)
-                J[sel, :2, : km.N_MOTION] = Jc
-                continue
-            if code == TOA:
-                Jl = km.toa_jacobian(th, t, p, self.symbol[c])
-            else:
-                Jl = km.doppler_jacobian(th, t, p, self.velocities[c])
-            J[sel, 0, : km.N_MOTION] = Jl[:, : km.N_MOTION]
-            for j in range(Jl.shape[1] - km.N_MOTION):  # scatter the nuisance columns
-                J[sel, 0, nu[:, j]] = Jl[:, km.N_MOTION + j]
-        return J[:, :, self.free]
+        return pool_jacobian(
+            th, self.sensor[ix], self.times[ix], self.positions[ix], self.velocities[ix],
+            self.camera_rotation[ix], self.symbol[ix], self.nuisance[ix], self.intrinsics,
+            self.m, self.free,
+        )  # fmt: skip
 
     def sample_measurements(
         self, rng: np.random.Generator, idx: ArrayLike | None = None
@@ -357,6 +354,47 @@ class FIMProblem:
 
 
 # -- construction -------------------------------------------------------------------------------
+def pool_jacobian(
+    theta_full: FloatArray,
+    sensor: np.ndarray,
+    times: FloatArray,
+    positions: FloatArray,
+    velocities: FloatArray,
+    camera_rotation: FloatArray,
+    symbol: np.ndarray,
+    nuisance: np.ndarray,
+    intrinsics: FloatArray,
+    m: int,
+    free: np.ndarray,
+) -> FloatArray:
+    """Jacobians ``d mu_k / d theta`` ``(T, m, d)`` of ``T`` candidates at one ``theta_full``.
+
+    Camera rows are eq. (23), TOA eq. (20), Doppler eq. (22) (:mod:`models`); the nuisance
+    columns are scattered into the full vector, then the ``free`` columns kept. The candidates
+    are given by their per-candidate arrays (``(T,)``, ``(T, 3)``, ``(T, 3, 3)``, ``(T, 2)``), so
+    the pools of many problems can be stacked into one call.
+    """
+    J = np.zeros((sensor.size, m, theta_full.size))
+    for code in (CAMERA, TOA, DOPPLER):
+        sel = np.flatnonzero(sensor == code)
+        if not sel.size:
+            continue
+        t, p = times[sel], positions[sel]
+        if code == CAMERA:
+            Jc = km.camera_jacobian(theta_full, t, p, camera_rotation[sel], intrinsics)
+            J[sel, :2, : km.N_MOTION] = Jc
+            continue
+        if code == TOA:
+            Jl = km.toa_jacobian(theta_full, t, p, symbol[sel])
+        else:
+            Jl = km.doppler_jacobian(theta_full, t, p, velocities[sel])
+        J[sel, 0, : km.N_MOTION] = Jl[:, : km.N_MOTION]
+        nu = nuisance[sel]
+        for j in range(Jl.shape[1] - km.N_MOTION):  # scatter the nuisance columns
+            J[sel, 0, nu[:, j]] = Jl[:, km.N_MOTION + j]
+    return J[:, :, free]
+
+
 def _nominal(cfg: FIMScenarioConfig) -> tuple[FloatArray, FloatArray, list[str], np.ndarray]:
     """Prior mean, prior std devs, parameter names and per-agent nuisance columns ``(n, 3)``."""
     mean = [0.0] * 6 if cfg.stationary else [0.0, 0.0, 3.0, 1.0, 0.05, -0.02]
@@ -376,91 +414,310 @@ def _nominal(cfg: FIMScenarioConfig) -> tuple[FloatArray, FloatArray, list[str],
     return np.array(mean), np.array(std), names, cols
 
 
-def _candidates(
-    cfg: FIMScenarioConfig, mean: FloatArray, rng: np.random.Generator
-) -> dict[str, np.ndarray]:
-    """Candidate geometry, agent-major then sensor then time (geometry draws from ``rng``)."""
-    n, cell = cfg.n_candidates, cfg.window_s / cfg.n_candidates
-    rot = rng.uniform(0.0, 2.0 * np.pi) if cfg.randomize else 0.0
-    scales = rng.uniform(0.8, 1.2, cfg.n_agents) if cfg.randomize else np.ones(cfg.n_agents)
-    keys = ("agent", "sensor", "times", "positions", "velocities", "camera_rotation", "symbol")
-    parts: dict[str, list[np.ndarray]] = {key: [] for key in keys}
-    for i in range(cfg.n_agents):
-        end_bearing = rot + np.pi / 2 + 2.0 * np.pi * i / cfg.n_agents
-        for code in (SENSOR_NAMES.index(name) for name in cfg.sensors):
-            if not cfg.randomize:
-                off = np.full(n, 0.5)  # cell midpoints
-            elif code == TOA:  # regular symbol grid, random phase
-                off = np.full(n, rng.uniform(0.0, 1.0))
-            else:
-                off = rng.uniform(0.0, 1.0, n)  # jitter within each cell
-            s = (np.arange(n) + off) * cell
-            q, qdot = km.target_state(mean, s)
-            pos, vel = km.spiral_path(
-                s, q, qdot, window_s=cfg.window_s, start_radius=scales[i] * cfg.start_radius_m,
-                end_radius=scales[i] * cfg.end_radius_m, sweep_rad=np.deg2rad(cfg.sweep_deg),
-                end_bearing=end_bearing, altitude=cfg.altitude_m,
-            )  # fmt: skip
-            aim = np.column_stack([q, np.zeros(n)])
-            eye = np.broadcast_to(np.eye(3), (n, 3, 3))
-            parts["agent"].append(np.full(n, i))
-            parts["sensor"].append(np.full(n, code))
-            parts["times"].append(s)
-            parts["positions"].append(pos)
-            parts["velocities"].append(vel)
-            parts["camera_rotation"].append(
-                km.look_at_rotation(pos, aim) if code == CAMERA else eye
-            )
-            parts["symbol"].append(np.arange(n) if code == TOA else np.full(n, -1))
-    return {key: np.concatenate(val) for key, val in parts.items()}
+@dataclass(frozen=True, kw_only=True)
+class ProblemConstants:
+    """Everything of a drawn problem that does not depend on the seed (arrays read-only).
+
+    Computed once per config by :func:`problem_constants` (cached) and shared by every
+    problem drawn from it. ``D`` is the length of the full parameter vector, ``d`` that of
+    the estimated one, ``N`` the pool size, ``A`` the number of agents, ``S`` of sensors.
+
+    Attributes:
+        config: the scenario config.
+        mean, std: ``(D,)`` prior mean (``= theta_fixed``) and standard deviations.
+        param_names: ``d`` names of the estimated parameters; ``free`` ``(d,)`` their indices.
+        agent, sensor, rows, symbol: ``(N,)`` ints; ``nuisance`` ``(N, 2)``; ``camera``
+            ``(N,)`` bool (the camera candidates).
+        R: ``(N, m, m)`` noise covariances; ``P0``, ``Q0`` ``(d, d)`` (eq. 3).
+        intrinsics: ``(3, 3)`` camera matrix ``A``.
+        fixed: without ``randomize``: the whole geometry ``times (1, N)``, ``positions``,
+            ``velocities (1, N, 3)``, ``camera_rotation (1, N, 3, 3)``, ``H``, ``G``
+            ``(1, N, m, d)``; ``None`` when the geometry is drawn per problem.
+    """
+
+    config: FIMScenarioConfig
+    mean: FloatArray
+    std: FloatArray
+    param_names: tuple[str, ...]
+    free: np.ndarray
+    agent: np.ndarray
+    sensor: np.ndarray
+    rows: np.ndarray
+    symbol: np.ndarray
+    nuisance: np.ndarray
+    camera: np.ndarray
+    R: FloatArray
+    P0: FloatArray
+    Q0: FloatArray
+    intrinsics: FloatArray
+    fixed: dict[str, np.ndarray] | None = None
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """``(N, m, d)`` of the pool's ``G``."""
+        return int(self.R.shape[0]), int(self.R.shape[1]), int(self.free.size)
 
 
-def make_problem(config: FIMScenarioConfig, rng: np.random.Generator) -> FIMProblem:
-    """Draw one problem: geometry (if ``randomize``), truth from the prior; build ``H, R, G``.
+@functools.lru_cache(maxsize=64)
+def problem_constants(config: FIMScenarioConfig) -> ProblemConstants:
+    """The seed-independent part of :func:`make_problem` for ``config`` (cached per config).
 
-    All randomness comes from ``rng`` (geometry first, then the truth).
-
-    Raises:
-        ValueError: if no truth in 100 prior draws keeps the target in front of every camera.
+    Prior (eq. 3), parameter layout, candidate bookkeeping and noise ``R``; without
+    ``randomize`` also the whole geometry and the whitened pool ``G`` (only the truth is then
+    drawn per problem). Arrays are read-only (``flags.writeable`` is false): they are shared.
     """
     cfg = config
     mean, std, names, cols = _nominal(cfg)
-    geo = _candidates(cfg, mean, rng)
-    agent, sensor = geo["agent"], geo["sensor"]
-    N, m, A = agent.size, 2 if "camera" in cfg.sensors else 1, km.intrinsics(cfg.focal_px)
+    n, A = cfg.n_candidates, cfg.n_agents
+    codes = np.array([SENSOR_NAMES.index(name) for name in cfg.sensors])
+    S = codes.size
+    agent = np.repeat(np.arange(A), S * n)  # agent-major, then sensor, then time
+    sensor = np.tile(np.repeat(codes, n), A)
+    symbol = np.where(sensor == TOA, np.tile(np.arange(n), A * S), -1)
+    N, m = agent.size, 2 if "camera" in cfg.sensors else 1
     nuisance = -np.ones((N, 2), dtype=np.intp)
     nuisance[sensor == TOA] = cols[agent[sensor == TOA], :2]
     nuisance[sensor == DOPPLER, 0] = cols[agent[sensor == DOPPLER], 2]
     sigma = np.array([cfg.camera_sigma_px, cfg.toa_sigma_m, cfg.doppler_sigma_mps])[sensor]
     R = np.broadcast_to(np.eye(m), (N, m, m)).copy()  # identity on padding rows
     R[:, 0, 0] = sigma**2
-    if m == 2:
-        R[sensor == CAMERA, 1, 1] = cfg.camera_sigma_px**2
     cam = sensor == CAMERA
-    for _ in range(100):
-        theta_true = mean + std * rng.standard_normal(mean.size)
-        if cfg.stationary:
-            theta_true[2:6] = 0.0
-        depth = km.camera_depth(
-            theta_true, geo["times"][cam], geo["positions"][cam], geo["camera_rotation"][cam], A
-        )
-        if np.all(depth > 0.0):
-            break
-    else:
-        raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
+    if m == 2:
+        R[cam, 1, 1] = cfg.camera_sigma_px**2
     free = (
         np.setdiff1d(np.arange(mean.size), np.arange(2, 6))
         if cfg.stationary
         else np.arange(mean.size)
     )
     sf = std[free]
-    arrays: dict[str, np.ndarray] = {
-        **geo, "rows": np.where(cam, 2, 1), "nuisance": nuisance, "intrinsics": A, "R": R,
-        "theta_true": theta_true[free], "theta_prior_mean": mean[free], "P0": np.diag(sf**2),
-        "Q0": np.diag(1.0 / sf**2), "H": np.zeros((N, m, free.size)), "free": free,
-        "theta_fixed": mean,
+    arrays = {
+        "mean": mean, "std": std, "free": free, "agent": agent, "sensor": sensor,
+        "rows": np.where(cam, 2, 1), "symbol": symbol, "nuisance": nuisance, "camera": cam,
+        "R": R, "P0": np.diag(sf**2), "Q0": np.diag(1.0 / sf**2),
+        "intrinsics": km.intrinsics(cfg.focal_px),
     }  # fmt: skip
     ro: dict[str, Any] = {key: _readonly(val) for key, val in arrays.items()}
-    draft = FIMProblem(config=cfg, param_names=tuple(names[i] for i in free), G=ro["H"], **ro)
-    H = draft.measurement_jacobian(mean[free])
-    return dataclasses.replace(draft, H=_readonly(H), G=_readonly(whiten(H, R)))
+    const = ProblemConstants(config=cfg, param_names=tuple(names[i] for i in free), **ro)
+    if cfg.randomize:
+        return const
+    shape = (1, A, S, n)
+    geo = _geometry(const, np.zeros(1), np.ones((1, A)), np.full(shape, 0.5))
+    fixed = {key: _readonly(val) for key, val in geo.items()}
+    return dataclasses.replace(const, fixed=fixed)
+
+
+def _geometry(
+    const: ProblemConstants, rot: FloatArray, scales: FloatArray, offsets: FloatArray
+) -> dict[str, FloatArray]:
+    """Candidate geometry, Jacobians and whitened pools of ``K`` problems in one pass.
+
+    Args:
+        const: the config's constants.
+        rot: ``(K,)`` rotation of all paths about the target (rad).
+        scales: ``(K, A)`` range scale per agent.
+        offsets: ``(K, A, S, n)`` position of each candidate time in its grid cell, in [0, 1).
+
+    Returns:
+        ``times (K, N)``, ``positions``, ``velocities (K, N, 3)``, ``camera_rotation (K, N, 3,
+        3)``, ``H`` and ``G`` ``(K, N, m, d)``: agent ``i`` spirals in on the nominal target
+        (:func:`~models.spiral_path`, ending at bearing ``rot + 90 deg + 360 deg i / A``);
+        ``H`` is evaluated at the prior mean, ``G_k = L_k^-1 H_k`` with ``R_k = L_k L_k^T``.
+    """
+    cfg = const.config
+    K, A, S, n = offsets.shape
+    N, m, _ = const.shape
+    cell = cfg.window_s / cfg.n_candidates
+    s = ((np.arange(n) + offsets) * cell).reshape(K * N)
+    q, qdot = km.target_state(const.mean, s)
+    bearing = rot[:, None] + np.pi / 2 + 2.0 * np.pi * np.arange(A) / A  # (K, A)
+    per_candidate = (K, A, S * n)
+    pos, vel = km.spiral_path(
+        s, q, qdot, window_s=cfg.window_s,
+        start_radius=np.broadcast_to((scales * cfg.start_radius_m)[..., None], per_candidate)
+        .reshape(K * N),
+        end_radius=np.broadcast_to((scales * cfg.end_radius_m)[..., None], per_candidate)
+        .reshape(K * N),
+        sweep_rad=np.deg2rad(cfg.sweep_deg),
+        end_bearing=np.broadcast_to(bearing[..., None], per_candidate).reshape(K * N),
+        altitude=cfg.altitude_m,
+    )  # fmt: skip
+    cam = np.tile(const.camera, K)
+    rotation = np.empty((K * N, 3, 3))
+    rotation[:] = np.eye(3)
+    if cam.any():
+        aim = np.column_stack([q[cam], np.zeros(int(cam.sum()))])
+        rotation[cam] = km.look_at_rotation(pos[cam], aim)
+    H = pool_jacobian(
+        const.mean, np.tile(const.sensor, K), s, pos, vel, rotation, np.tile(const.symbol, K),
+        np.tile(const.nuisance, (K, 1)), const.intrinsics, m, const.free,
+    )  # fmt: skip
+    G = _whiten_pools(const, H)
+    d = const.free.size
+    return {
+        "times": s.reshape(K, N), "positions": pos.reshape(K, N, 3),
+        "velocities": vel.reshape(K, N, 3), "camera_rotation": rotation.reshape(K, N, 3, 3),
+        "H": H.reshape(K, N, m, d), "G": G.reshape(K, N, m, d),
+    }  # fmt: skip
+
+
+def _whiten_pools(const: ProblemConstants, H: FloatArray) -> FloatArray:
+    """``G_k = L_k^-1 H_k`` (``R_k = L_k L_k^T``) of stacked pools ``H`` ``(K N, m, d)``.
+
+    :func:`~selenv.core.information.whiten` with the config's ``R`` repeated. Every ``R_k`` of
+    this family is diagonal (independent rows, identity padding), so ``L_k = diag(sqrt(R_k))``
+    and the triangular solve is a product with ``1 / sqrt(R_k)``, what the LAPACK solve
+    computes on a diagonal factor (to one rounding; bit for bit with OpenBLAS, tested against
+    ``whiten``); a non-diagonal ``R`` goes through ``whiten``.
+    """
+    N, m, _ = const.shape
+    K = H.shape[0] // N
+    R = const.R
+    if not np.count_nonzero(R - R * np.eye(m)):  # diagonal: L = sqrt(diag R)
+        scale = 1.0 / np.sqrt(np.diagonal(R, axis1=1, axis2=2))  # (N, m): L^-1
+        G: FloatArray = (H.reshape(K, N, m, -1) * scale[:, :, None]).reshape(H.shape)
+        return G
+    return whiten(H, np.broadcast_to(R, (K, N, m, m)).reshape(K * N, m, m))
+
+
+def _draw_geometry(
+    const: ProblemConstants, rng: np.random.Generator
+) -> tuple[float, FloatArray, FloatArray]:
+    """The geometry draws of one problem from ``rng``: ``rot``, ``scales (A,)``, ``offsets``.
+
+    ``offsets`` ``(A, S, n)``: camera and Doppler times jittered uniformly within their grid
+    cells, one random phase of the TOA symbol grid per agent. Draw order (agent-major, then
+    sensor) is part of the reproducibility contract.
+    """
+    cfg = const.config
+    n = cfg.n_candidates
+    rot = float(rng.uniform(0.0, 2.0 * np.pi))
+    scales = rng.uniform(0.8, 1.2, cfg.n_agents)
+    offsets = np.empty((cfg.n_agents, len(cfg.sensors), n))
+    for i in range(cfg.n_agents):
+        for j, name in enumerate(cfg.sensors):
+            if name == "toa":  # regular symbol grid, random phase
+                offsets[i, j] = rng.uniform(0.0, 1.0)
+            else:
+                offsets[i, j] = rng.uniform(0.0, 1.0, n)  # jitter within each cell
+    return rot, scales, offsets
+
+
+def _draw_truth(const: ProblemConstants, rng: np.random.Generator) -> FloatArray:
+    """One prior draw ``theta (D,)`` from ``rng`` (velocity and curvature 0 when stationary)."""
+    theta: FloatArray = const.mean + const.std * rng.standard_normal(const.mean.size)
+    if const.config.stationary:
+        theta[2:6] = 0.0
+    return theta
+
+
+def _in_front(const: ProblemConstants, theta: FloatArray, geo: dict[str, FloatArray]) -> bool:
+    """Whether the target at ``theta (D,)`` is in front of every camera of one problem."""
+    cam = const.camera
+    depth = km.camera_depth(
+        theta, geo["times"][cam], geo["positions"][cam], geo["camera_rotation"][cam],
+        const.intrinsics,
+    )  # fmt: skip
+    return bool(np.all(depth > 0.0))
+
+
+#: margin (m) under which a depth of the batched front check is re-tested exactly
+_DEPTH_MARGIN = 1e-6
+
+
+@dataclass(frozen=True, kw_only=True)
+class FIMProblemBatch:
+    """``K`` problems of one config: its constants plus the drawn arrays with a batch axis.
+
+    Attributes:
+        constants: the config's :class:`ProblemConstants` (shared).
+        theta_true: ``(K, d)``; ``times`` ``(K, N)``; ``positions``, ``velocities``
+            ``(K, N, 3)``; ``camera_rotation`` ``(K, N, 3, 3)``; ``H``, ``G`` ``(K, N, m, d)``
+            (read-only).
+    """
+
+    constants: ProblemConstants
+    theta_true: FloatArray
+    times: FloatArray
+    positions: FloatArray
+    velocities: FloatArray
+    camera_rotation: FloatArray
+    H: FloatArray
+    G: FloatArray
+
+    def __len__(self) -> int:
+        return int(self.theta_true.shape[0])
+
+    def problem(self, i: int) -> FIMProblem:
+        """Problem ``i`` as a :class:`FIMProblem` (views of the batch, no copies)."""
+        c = self.constants
+        return FIMProblem(
+            config=c.config, theta_true=self.theta_true[i], theta_prior_mean=c.mean[c.free],
+            P0=c.P0, Q0=c.Q0, H=self.H[i], R=c.R, G=self.G[i], agent=c.agent, sensor=c.sensor,
+            rows=c.rows, times=self.times[i], positions=self.positions[i],
+            velocities=self.velocities[i], camera_rotation=self.camera_rotation[i],
+            symbol=c.symbol, nuisance=c.nuisance, intrinsics=c.intrinsics,
+            param_names=c.param_names, free=c.free, theta_fixed=c.mean,
+        )  # fmt: skip
+
+
+def make_problems(
+    config: FIMScenarioConfig, rngs: Sequence[np.random.Generator]
+) -> FIMProblemBatch:
+    """Draw ``K = len(rngs)`` problems, problem ``i`` from ``rngs[i]`` alone.
+
+    Each generator is consumed exactly as :func:`make_problem` consumes it (geometry first,
+    if ``randomize``, then the truth), so problem ``i`` equals ``make_problem(config, rngs[i])``
+    drawn from a generator in the same state. The seed-independent part comes from
+    :func:`problem_constants`; the geometry, Jacobians, whitening (``G_k = L_k^-1 H_k``) and the
+    camera check of the first truth draws are batched over the ``K`` problems.
+
+    Raises:
+        ValueError: if no truth in 100 prior draws keeps the target in front of every camera.
+    """
+    const = problem_constants(config)
+    K = len(rngs)
+    if K == 0:
+        raise ValueError("rngs must hold at least one generator")
+    if const.fixed is None:
+        draws = [_draw_geometry(const, rng) for rng in rngs]
+        geo = _geometry(
+            const,
+            np.array([d[0] for d in draws]),
+            np.stack([d[1] for d in draws]),
+            np.stack([d[2] for d in draws]),
+        )
+    else:
+        geo = {key: np.broadcast_to(val, (K, *val.shape[1:])) for key, val in const.fixed.items()}
+    theta = np.stack([_draw_truth(const, rng) for rng in rngs])
+    cam = const.camera
+    if cam.any():  # camera depth of every first draw in one call, each at its own truth
+        n_cam = int(cam.sum())
+        depth = km.camera_depth(
+            np.repeat(theta, n_cam, axis=0), geo["times"][:, cam].reshape(-1),
+            geo["positions"][:, cam].reshape(-1, 3),
+            geo["camera_rotation"][:, cam].reshape(-1, 3, 3), const.intrinsics,
+        ).reshape(K, n_cam)  # fmt: skip
+        for i in np.flatnonzero(depth.min(axis=1) <= _DEPTH_MARGIN).tolist():
+            one = {key: val[i] for key, val in geo.items()}
+            for attempt in range(100):  # exactly the scalar check; redraws from rngs[i] alone
+                if attempt:
+                    theta[i] = _draw_truth(const, rngs[i])
+                if _in_front(const, theta[i], one):
+                    break
+            else:
+                raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
+    ro = {key: _readonly(val) if val.flags.writeable else val for key, val in geo.items()}
+    return FIMProblemBatch(constants=const, theta_true=_readonly(theta[:, const.free]), **ro)
+
+
+def make_problem(config: FIMScenarioConfig, rng: np.random.Generator) -> FIMProblem:
+    """Draw one problem: geometry (if ``randomize``), truth from the prior; build ``H, R, G``.
+
+    All randomness comes from ``rng`` (geometry first, then the truth); the rest is
+    :func:`problem_constants` (cached per config). The one-problem case of
+    :func:`make_problems`.
+
+    Raises:
+        ValueError: if no truth in 100 prior draws keeps the target in front of every camera.
+    """
+    return make_problems(config, [rng]).problem(0)
