@@ -7,9 +7,9 @@ Cooperative localization: which relative measurements to fuse (Chen & Kia 2022).
 
 from __future__ import annotations
 
-from selenv.families.spec import FamilySpec, env_factories
+from selenv.families.spec import FamilySpec, env_factories, vector_factories
 
-__all__ = ["SPEC", "make_env", "make_env_v0"]
+__all__ = ["SPEC", "make_env", "make_env_v0", "make_vector_env", "make_vector_env_v0"]
 
 SPEC = FamilySpec(
     name="cooperative",
@@ -24,5 +24,7 @@ SPEC = FamilySpec(
         "selenv.families.cooperative.agents",
         "selenv.families.cooperative.rollout",
     ),
+    vector_class="selenv.families.cooperative.vector:CLSchedulingVectorEnv",
 )
 make_env, make_env_v0 = env_factories(SPEC)
+make_vector_env, make_vector_env_v0 = vector_factories(SPEC)

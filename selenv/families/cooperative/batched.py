@@ -28,6 +28,7 @@ builds). The other functions equal the former per-row calls to rounding (rtol 1e
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
 from selenv.core.linalg import FloatArray
@@ -41,6 +42,7 @@ __all__ = [
     "fuse",
     "ins_propagate",
     "kalman_update",
+    "logdets",
     "naive_fuse",
     "pair_gains",
     "predict",
@@ -232,10 +234,7 @@ def kalman_update(
     n, m = x.shape[-1], y.shape[-1]
     HP = H @ P  # (N, m, n)
     S = _sym(HP @ _T(H) + R)
-    if m == 1:
-        KT = HP / S  # S K^T = H P
-    else:
-        KT = np.linalg.solve(S, HP)
+    KT = np.asarray(HP / S if m == 1 else np.linalg.solve(S, HP), np.float64)  # S K^T = H P
     K = _T(KT)
     x_new = x + _mv(K, y)
     I_KH = np.eye(n) - K @ H
@@ -249,17 +248,17 @@ def zupt_updates(
     """Velocity pseudo-measurements ``z = v + N(0, sigma^2 I3)`` of every agent, in place.
 
     Args:
-        x: (B, A, 9) estimates; P: (B, A, 9, 9) covariances (updated).
-        v_true: (B, A, 3) true velocities; noise: (B, A, 3) their draws.
+        x: (B, A, 9) estimates (updated).
+        P: (B, A, 9, 9) covariances (updated).
+        v_true: (B, A, 3) true velocities.
+        noise: (B, A, 3) their noise draws.
         sigma: ZUPT noise (m/s).
     """
     B, A, n = x.shape
     H = np.zeros((3, n))
     H[:, 3:6] = np.eye(3)
     y = (v_true + noise - x[..., 3:6]).reshape(B * A, 3)
-    xn, Pn = kalman_update(
-        x.reshape(B * A, n), P.reshape(B * A, n, n), y, H, sigma**2 * np.eye(3)
-    )
+    xn, Pn = kalman_update(x.reshape(B * A, n), P.reshape(B * A, n, n), y, H, sigma**2 * np.eye(3))
     x[...], P[...] = xn.reshape(B, A, n), Pn.reshape(B, A, n, n)
 
 
@@ -284,7 +283,8 @@ def beacon_updates(
 
     Args:
         model: the agents' model.
-        x: (B, A, n) estimates; P: (B, A, n, n) covariances (updated).
+        x: (B, A, n) estimates (updated).
+        P: (B, A, n, n) covariances (updated).
         truth: (B, A, n) true states.
         agents: the beacon agents (in order; an agent listed twice is updated twice).
         beacons: (nb, 3) positions.
@@ -374,18 +374,41 @@ def relative_terms(
 
 
 def pair_gains(
-    P_i: FloatArray, P_j: FloatArray, H_i: FloatArray, H_j: FloatArray, R: FloatArray
+    P_i: FloatArray,
+    P_j: FloatArray,
+    H_i: FloatArray,
+    H_j: FloatArray,
+    R: FloatArray,
+    dim: int | None = None,
 ) -> FloatArray:
     """(K,) ``log det(I + N^-1 A)``, ``A = H_i P_i H_i^T``, ``N = H_j P_j H_j^T + R``.
 
     The naive-EKF information gain of each pair (the observation's cheap proxy); ``P`` (K, n, n),
-    ``H`` (K, m, n), ``R`` (m, m).
+    ``H`` (K, m, n), ``R`` (m, m). ``dim``: the Jacobians are zero beyond column ``dim`` (the
+    relative measurements see the position only), so only the ``(dim, dim)`` position blocks
+    of ``P`` are read (the same value; ``None``: all ``n`` columns). ``m = 1``:
+    ``log(1 + A / N)``, the 1 x 1 determinant.
     """
     if P_i.shape[0] == 0:
         return np.zeros(0)
+    if dim is not None:
+        P_i, P_j = P_i[:, :dim, :dim], P_j[:, :dim, :dim]
+        H_i, H_j = H_i[:, :, :dim], H_j[:, :, :dim]
     A = H_i @ P_i @ _T(H_i)
     N = H_j @ P_j @ _T(H_j) + R
+    if A.shape[1] == 1:
+        return np.log(1.0 + A[:, 0, 0] / N[:, 0, 0])
     return np.asarray(np.linalg.slogdet(np.eye(A.shape[1]) + np.linalg.solve(N, A))[1])
+
+
+def logdets(P: FloatArray) -> FloatArray:
+    """``log det P = 2 sum log diag chol(P)`` over the last two axes of SPD ``P`` (..., n, n).
+
+    The fast path of :func:`selenv.core.linalg.logdet_spd` (``P`` exactly symmetric, as every
+    covariance here is after its symmetrisation): the same LAPACK factor, the same values.
+    """
+    L = np.linalg.cholesky(P)
+    return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
 def naive_fuse(
@@ -420,7 +443,13 @@ def dmv_fuse(
     information form (one call per such row).
 
     Args:
-        x_i: (K, n); P_i, P_j: (K, n, n); H_i, H_j: (K, m, n); R: (m, m); residual: (K, m).
+        x_i: (K, n) prior means of the agents i.
+        P_i: (K, n, n) prior covariances of the agents i.
+        P_j: (K, n, n) prior covariances of the agents j.
+        H_i: (K, m, n) Jacobians w.r.t. agent i.
+        H_j: (K, m, n) Jacobians w.r.t. agent j.
+        R: (m, m) measurement noise.
+        residual: (K, m) ``z - h(x_i, x_j)`` (angles wrapped).
 
     Raises:
         ValueError: ``H_j P_j H_j^T`` not positive definite (as ``dmv_update``).
@@ -455,9 +484,7 @@ def dmv_fuse(
             P_new[kal] = Pk
             x_new[kal] = x_i[kal] + Kb * residual[kal]
     else:
-        w = _dmv_omega_batch(
-            P_i, P_i, P_j, P_j, H_i, H_j, np.broadcast_to(R, (K, m, m)).copy()
-        )
+        w = _dmv_omega_batch(P_i, P_i, P_j, P_j, H_i, H_j, np.broadcast_to(R, (K, m, m)).copy())
         kal = (w < 1.0) & (w >= _W_INFORMATION)
         if kal.any():
             wk = w[kal][:, None, None]
@@ -465,9 +492,9 @@ def dmv_fuse(
             A = Hk @ Pk @ _T(Hk)
             Bm = H_j[kal] @ P_j[kal] @ _T(H_j[kal])
             S = _sym(A / wk + Bm / (1.0 - wk) + R)  # S(w)
-            L = np.linalg.cholesky(S)
-            M = np.linalg.solve(L, (Hk @ Pk) / wk)  # L_S^-1 H_i P_i / w
-            Kb = _T(np.linalg.solve(_T(L), M))  # Kbar = (P_i/w) H_i^T S^-1
+            L = np.asarray(np.linalg.cholesky(S), np.float64)
+            M = np.asarray(np.linalg.solve(L, (Hk @ Pk) / wk), np.float64)  # L_S^-1 H_i P_i / w
+            Kb = _T(np.asarray(np.linalg.solve(_T(L), M), np.float64))  # Kbar = (P_i/w) H_i^T S^-1
             P_new[kal] = _sym(Pk / wk - _T(M) @ M)
             x_new[kal] = x_i[kal] + _mv(Kb, residual[kal])
     for k in np.flatnonzero(w < _W_INFORMATION):  # near 0: the information form, per row
@@ -531,8 +558,13 @@ def fuse(
     Args:
         method: ``naive``, ``ci``, ``dmv``, ``pecmv``, ``ldmv``, ``lpecmv``, ``lpecmv_full``
             or ``lpecmv_objective``.
-        x_i: (K, n) prior means of the agents i; P_i, P_j: (K, n, n) prior covariances of i, j.
-        H_i, H_j: (K, m, n) Jacobians; R: (m, m) noise; residual: (K, m) ``z - h(x_i, x_j)``.
+        x_i: (K, n) prior means of the agents i.
+        P_i: (K, n, n) prior covariances of the agents i.
+        P_j: (K, n, n) prior covariances of the agents j.
+        H_i: (K, m, n) Jacobians w.r.t. agent i.
+        H_j: (K, m, n) Jacobians w.r.t. agent j.
+        R: (m, m) measurement noise.
+        residual: (K, m) ``z - h(x_i, x_j)`` (angles wrapped).
 
     Returns:
         ``(x+ (K, n), P+ (K, n, n))``.

@@ -20,6 +20,7 @@ from selenv.envs.conventions import (
     named_parameters,
 )
 from selenv.envs.rendering import Renderer
+from selenv.families.cooperative import batched
 from selenv.families.cooperative.scenario import (
     FUSION_METHODS,
     MAX_AGENTS,
@@ -175,10 +176,19 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     ``range_sigma`` in ``[1e-3, 100]`` m, ``horizon`` in ``[1, 100000]``). ``n_agents`` is an
     int in ``[2, 32]``, ``budget`` an int in ``[1, P]``.
 
-    An unknown keyword raises ``TypeError`` ("got unexpected keyword argument(s) [...]; known:
+    An unknown keyword raises ``TypeError`` ("got an unexpected keyword argument ...; known:
     [...]"); a known keyword with a value of the wrong type a ``TypeError`` naming it and the
     expected type and range (e.g. "dt must be a real number in [0.001, 1] s, got 'x'"); a value
     out of range a ``ValueError`` naming it and the range.
+
+    ## Vector Env
+    ``gymnasium.make_vec("selenv/CLScheduling-v1", num_envs=B, **kwargs)`` returns the native
+    :class:`~selenv.families.cooperative.vector.CLSchedulingVectorEnv`: the filters of all
+    ``B`` sub-envs in arrays with a leading batch axis, stepped together by the batched core
+    :mod:`selenv.families.cooperative.batched` (which this env calls with one realisation).
+    Sub-env ``b`` replays this env reset with seed ``s + b`` under the same actions
+    (Gymnasium ``NEXT_STEP`` autoreset); ``action_masks()`` is ``(B, P + 1)``.
+    ``vectorization_mode="sync"`` still gives the loop over single envs.
 
     ## Version History
     * v1: the default configuration is ``preset="benchmark"`` (6 agents, budget 1, horizon
@@ -391,7 +401,8 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         """(P,) ``log det(I + N^-1 A)`` of every open pair (0 when masked), batched.
 
         ``A = H_i P_i H_i^T``, ``N = H_j P_j H_j^T + R``: one stacked matmul / solve / slogdet
-        over the open pairs, equal to the former per-pair loop to rounding (rtol 1e-9; some
+        over the open pairs (:func:`selenv.families.cooperative.batched.pair_gains`, on the
+        position blocks), equal to the former per-pair loop to rounding (rtol 1e-9; some
         BLAS kernels round the stacked calls differently in the last bit), which
         tests/test_env_speed_identity.py keeps as the reference.
         """
@@ -402,9 +413,8 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
             return out
         H_i, H_j = sim.relative_jacobians(ps)
         ij = self._pair_index[ps]
-        A = H_i @ sim.P[ij[:, 0]] @ H_i.transpose(0, 2, 1)
-        N = H_j @ sim.P[ij[:, 1]] @ H_j.transpose(0, 2, 1) + sim.R_rel
-        out[ps] = np.linalg.slogdet(np.eye(A.shape[1]) + np.linalg.solve(N, A))[1]
+        dim = sim.model.dim
+        out[ps] = batched.pair_gains(sim.P[ij[:, 0]], sim.P[ij[:, 1]], H_i, H_j, sim.R_rel, dim)
         return out
 
     def _logdets(self) -> np.ndarray:

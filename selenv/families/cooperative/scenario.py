@@ -428,7 +428,7 @@ def _static(cfg: CLConfig) -> _Static:
     )
     beacons = np.asarray(cfg.beacons, dtype=float).reshape(-1, 3)
     P0 = cfg.P0()
-    L0T = np.linalg.cholesky(P0).T
+    L0T = np.asarray(np.linalg.cholesky(P0), np.float64).T
     sigma = np.array([cfg.input_sigma_of(i) for i in range(A)], dtype=np.float64)
     for arr in (scale, beacons, P0, L0T, sigma):
         arr.setflags(write=False)
