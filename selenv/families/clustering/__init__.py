@@ -7,15 +7,16 @@ Clustering GNSS receivers with a shared bias (Greiff et al. 2022).
 
 from __future__ import annotations
 
-from selenv.families.spec import FamilySpec, env_factories
+from selenv.families.spec import FamilySpec, env_factories, vector_factories
 
-__all__ = ["SPEC", "make_env", "make_env_v0"]
+__all__ = ["SPEC", "make_env", "make_env_v0", "make_vector_env", "make_vector_env_v0"]
 
 SPEC = FamilySpec(
     name="clustering",
     env_name="ReceiverClustering",
     title="clustering GNSS receivers with a shared bias (Greiff et al. 2022)",
     env_class="selenv.families.clustering.env:ReceiverClusteringEnv",
+    vector_class="selenv.families.clustering.vector:ReceiverClusteringVectorEnv",
     v0_kwargs={"preset": "paper", "obs_mask": False},
     views="selenv.families.clustering.view:VIEWS",
     checkpoint="receiver_clustering_ppo.zip",
@@ -29,3 +30,4 @@ SPEC = FamilySpec(
     multiagent_v0="selenv.multiagent.receiver_clustering_v0",
 )
 make_env, make_env_v0 = env_factories(SPEC)
+make_vector_env, make_vector_env_v0 = vector_factories(SPEC)

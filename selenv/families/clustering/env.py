@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -11,6 +12,7 @@ from gymnasium import spaces
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer
+from selenv.families.clustering.batched import assignment_masks, edit_masks, swap_pairs
 from selenv.families.clustering.filters import ClusterFilterBank
 from selenv.families.clustering.labels import canonicalize, random_feasible_clustering
 from selenv.families.clustering.scenario import (
@@ -31,11 +33,15 @@ __all__ = [
     "ACTION_MODES",
     "INITIALS",
     "PRESETS",
+    "ClusteringEnvSettings",
     "ReceiverClusteringEnv",
     "apply_edit",
     "clustering_config",
+    "clustering_env_settings",
     "clustering_observation",
     "clustering_observation_space",
+    "describe_action",
+    "describe_edit",
     "edit_action_count",
     "edit_cost_changes",
     "edit_mask",
@@ -162,7 +168,7 @@ def edit_action_count(n: int) -> int:
 
 
 def _swap_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    return np.triu_indices(n, k=1)
+    return swap_pairs(n)
 
 
 def edit_mask(labels: np.ndarray, max_size: int) -> np.ndarray:
@@ -177,15 +183,7 @@ def edit_mask(labels: np.ndarray, max_size: int) -> np.ndarray:
 
     Every allowed edit yields a feasible clustering with a different partition.
     """
-    n = labels.size
-    sizes = np.bincount(labels)
-    same = labels[:, None] == labels[None, :]
-    move = ~same & (sizes[labels][None, :] < max_size)
-    move[np.arange(n), np.arange(n)] = sizes[labels] > 1
-    iu, ju = _swap_pairs(n)
-    alone = sizes[labels] == 1  # swapping two singletons leaves the partition unchanged
-    swap = ~same[iu, ju] & ~(alone[iu] & alone[ju])
-    return np.concatenate([[True], move.ravel(), swap])
+    return edit_masks(np.asarray(labels, dtype=np.int64)[None], max_size)[0]
 
 
 def apply_edit(labels: np.ndarray, action: int) -> np.ndarray:
@@ -203,6 +201,25 @@ def apply_edit(labels: np.ndarray, action: int) -> np.ndarray:
     i, j = int(iu[a - n * n]), int(ju[a - n * n])
     out[i], out[j] = labels[j], labels[i]
     return out
+
+
+def describe_edit(n: int, action: int) -> str:
+    """Human-readable meaning of edit ``action`` of ``n`` receivers (see :func:`edit_mask`)."""
+    if action == 0:
+        return "no-op"
+    a = action - 1
+    if a < n * n:
+        i, j = divmod(a, n)
+        return f"receiver {i} -> new singleton" if i == j else f"receiver {i} -> cluster of {j}"
+    iu, ju = _swap_pairs(n)
+    return f"swap receivers {int(iu[a - n * n])} and {int(ju[a - n * n])}"
+
+
+def describe_action(action_mode: str, action: Any) -> str:
+    """An action as an invalid action's message names it (labels, or the edit index)."""
+    if action_mode == "assignment":
+        return np.array2string(np.asarray(action), separator=",", max_line_width=10**6)
+    return str(int(np.asarray(action).reshape(())))
 
 
 def _edit_changes(
@@ -308,6 +325,111 @@ def clustering_observation(bank: ClusterFilterBank, horizon: int) -> dict[str, n
         "cost": np.array([c.J, c.J_G, c.J_C, c.J_L], np.float32),
         "time": np.array([min(bank.k / horizon, 1.0)], np.float32),
     }
+
+
+@dataclass(frozen=True, eq=False)
+class ClusteringEnvSettings:
+    """The validated keywords of a clustering env (single or vector) and its spaces.
+
+    Attributes:
+        config: the scenario config (:func:`clustering_config`).
+        preset, action_mode, initial: as given (validated).
+        n: receivers; horizon: filter steps per episode; max_size: receivers per cluster.
+        invalid_rule: the ``invalid_action`` handling.
+        obs_mask: whether the assignment mode observes its ``action_mask``.
+        action_space, observation_space: the single env's spaces.
+    """
+
+    config: ClusteringConfig
+    preset: str
+    action_mode: str
+    initial: str
+    n: int
+    horizon: int
+    max_size: int
+    invalid_rule: InvalidActionRule
+    obs_mask: bool
+    action_space: spaces.Space[Any]
+    observation_space: spaces.Dict
+
+    @property
+    def mask_size(self) -> int:
+        """Length of the flat action mask (``n * n`` or the edit count)."""
+        return self.n * self.n if self.action_mode == "assignment" else edit_action_count(self.n)
+
+    @property
+    def observes_mask(self) -> bool:
+        """Whether the observation holds ``action_mask``."""
+        return self.action_mode == "edit" or self.obs_mask
+
+
+def clustering_env_settings(
+    *,
+    n_agents: int,
+    n_max_states: int | None,
+    sigma: Any,
+    noise_correlation: float,
+    dt: float,
+    tau: int,
+    weights: tuple[float, float, float],
+    horizon: int,
+    prior_std: tuple[float, float, float],
+    action_mode: str,
+    initial: str,
+    invalid_action: str,
+    invalid_action_penalty: float,
+    preset: str,
+    p_enter: float | None,
+    p_leave: float | None,
+    degraded_factor: float | None,
+    obs_mask: bool,
+) -> ClusteringEnvSettings:
+    """Validate the keywords of :class:`ReceiverClusteringEnv` (shared with its vector env).
+
+    Raises:
+        TypeError, ValueError: naming the bad keyword (see the env's ``## Arguments``).
+    """
+    obs_mask = check_bool(obs_mask, "obs_mask")
+    rule = InvalidActionRule(invalid_action, invalid_action_penalty)
+    config = clustering_config(
+        n_agents=n_agents,
+        n_max_states=n_max_states,
+        sigma=sigma,
+        noise_correlation=noise_correlation,
+        dt=dt,
+        tau=tau,
+        weights=weights,
+        prior_std=prior_std,
+        horizon=horizon,
+        initial=initial,
+        preset=preset,
+        p_enter=p_enter,
+        p_leave=p_leave,
+        degraded_factor=degraded_factor,
+    )
+    check_choice(action_mode, "action_mode", ACTION_MODES)
+    n = int(n_agents)
+    action_space: spaces.Space[Any]
+    if action_mode == "assignment":
+        action_space = spaces.MultiDiscrete([n] * n)
+        observation_space = clustering_observation_space(n, n * n if obs_mask else None)
+    else:
+        n_edit = edit_action_count(n)
+        action_space = spaces.Discrete(n_edit)
+        observation_space = clustering_observation_space(n, n_edit)
+    return ClusteringEnvSettings(
+        config=config,
+        preset=preset,
+        action_mode=action_mode,
+        initial=initial,
+        n=n,
+        horizon=int(horizon),
+        max_size=config.max_cluster_size,
+        invalid_rule=rule,
+        obs_mask=obs_mask,
+        action_space=action_space,
+        observation_space=observation_space,
+    )
 
 
 class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], Any]):
@@ -423,6 +545,16 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
     ``p_enter``, ``p_leave``, ``degraded_factor`` (``None``: the preset's value) override the
     multipath model and are a ``ValueError`` with ``preset="paper"``.
 
+    ## Vector Env
+    ``gymnasium.make_vec("selenv/ReceiverClustering-v1", num_envs=B, **kwargs)`` (the same
+    keywords) returns the native
+    :class:`~selenv.families.clustering.vector.ReceiverClusteringVectorEnv`: ``B`` sub-envs
+    whose filters, costs, re-clusterings and masks run as batched numpy calls over all of them
+    (:mod:`selenv.families.clustering.batched`, the code this env runs with ``B = 1``).
+    Sub-env ``b`` reproduces this env reset with seed ``s + b`` and driven by the same actions
+    (values within ``rtol 1e-9``); autoreset is Gymnasium's ``NEXT_STEP``.
+    ``vectorization_mode="sync"`` still gives ``SyncVectorEnv``.
+
     ## Version History
     * v1: time-varying noise (``preset="multipath"``) is the default; the assignment mode
       observes its per-receiver ``action_mask``; ``invalid_action`` modes and rendering.
@@ -458,9 +590,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         obs_mask: bool = True,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
-        self.obs_mask = check_bool(obs_mask, "obs_mask")
-        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        self.config = clustering_config(
+        settings = clustering_env_settings(
             n_agents=n_agents,
             n_max_states=n_max_states,
             sigma=sigma,
@@ -468,30 +598,31 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
             dt=dt,
             tau=tau,
             weights=weights,
-            prior_std=prior_std,
             horizon=horizon,
+            prior_std=prior_std,
+            action_mode=action_mode,
             initial=initial,
+            invalid_action=invalid_action,
+            invalid_action_penalty=invalid_action_penalty,
             preset=preset,
             p_enter=p_enter,
             p_leave=p_leave,
             degraded_factor=degraded_factor,
+            obs_mask=obs_mask,
         )
-        self.preset = preset
-        check_choice(action_mode, "action_mode", ACTION_MODES)
-        self.n = int(n_agents)
-        self.horizon = int(horizon)
+        self.settings = settings
+        self.obs_mask = settings.obs_mask
+        self.invalid_rule = settings.invalid_rule
+        self.config = settings.config
+        self.preset = settings.preset
+        self.n = settings.n
+        self.horizon = settings.horizon
         self.max_episode_steps = self.horizon
-        self.action_mode = action_mode
-        self.initial = initial
-        self.max_size = self.config.max_cluster_size
-        if action_mode == "assignment":
-            self.action_space: spaces.Space[Any] = spaces.MultiDiscrete([self.n] * self.n)
-            mask_size = self.n * self.n if self.obs_mask else None
-            self.observation_space = clustering_observation_space(self.n, mask_size)  # type: ignore[assignment, unused-ignore]
-        else:
-            n_edit = edit_action_count(self.n)
-            self.action_space = spaces.Discrete(n_edit)
-            self.observation_space = clustering_observation_space(self.n, n_edit)  # type: ignore[assignment, unused-ignore]
+        self.action_mode = settings.action_mode
+        self.initial = settings.initial
+        self.max_size = settings.max_size
+        self.action_space: spaces.Space[Any] = settings.action_space
+        self.observation_space = settings.observation_space  # type: ignore[assignment, unused-ignore]
         self.problem: ClusteringProblem | None = None
         self._bank: ClusterFilterBank | None = None
         self._done = False
@@ -510,12 +641,7 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         bank = self.bank
         if self.action_mode == "edit":
             return edit_mask(bank.labels, self.max_size)
-        labels = bank.labels
-        sizes = np.bincount(labels, minlength=self.n)
-        room = sizes < self.max_size
-        mask = np.broadcast_to(room, (self.n, self.n)).copy()
-        mask[np.arange(self.n), labels] = True  # staying is always allowed
-        return mask.ravel()
+        return assignment_masks(bank.labels[None], self.max_size)[0]
 
     # -- Gymnasium API -----------------------------------------------------------------------
     def reset(
@@ -585,21 +711,11 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
         return apply_edit(bank.labels, k), None
 
     def _describe(self, action: Any) -> str:
-        if self.action_mode == "assignment":
-            return np.array2string(np.asarray(action), separator=",", max_line_width=10**6)
-        return str(int(np.asarray(action).reshape(())))
+        return describe_action(self.action_mode, action)
 
     def describe_edit(self, action: int) -> str:
         """Human-readable meaning of an edit action."""
-        n = self.n
-        if action == 0:
-            return "no-op"
-        a = action - 1
-        if a < n * n:
-            i, j = divmod(a, n)
-            return f"receiver {i} -> new singleton" if i == j else f"receiver {i} -> cluster of {j}"
-        iu, ju = _swap_pairs(n)
-        return f"swap receivers {int(iu[a - n * n])} and {int(ju[a - n * n])}"
+        return describe_edit(self.n, action)
 
     def _obs(self) -> dict[str, np.ndarray]:
         obs = clustering_observation(self.bank, self.horizon)

@@ -35,75 +35,40 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from selenv.core import npfast
 from selenv.core.linalg import FloatArray
-from selenv.core.riccati import history_overflow_error, riccati_step, singular_step_error
-from selenv.families.clustering.labels import canonicalize
+from selenv.families.clustering.batched import (
+    axis_model,
+    cluster_statistics,
+    clustering_costs,
+    correlation,
+    filter_step,
+    noise_covariances,
+    window_pass,
+)
+from selenv.families.clustering.labels import IntArray, canonicalize
 from selenv.families.clustering.scenario import (
     ClusteringProblem,
     CostBreakdown,
-    clustering_cost,
     n_states,
 )
 
-__all__ = ["ClusterFilterBank", "cluster_keys", "window_pass"]
+__all__ = [
+    "BankStep",
+    "ClusterFilterBank",
+    "bank_costs",
+    "cluster_keys",
+    "ensure_windows",
+    "recluster_banks",
+    "step_banks",
+    "window_pass",
+]
 
 Key = tuple[int, ...]
-
-
-def _raise_singular(err: str, flag: int) -> None:
-    raise np.linalg.LinAlgError("Singular matrix")
-
-
-def _solve(S: FloatArray, HP: FloatArray) -> FloatArray:
-    """``np.linalg.solve(S, HP)`` for float64 stacks ``(B, p, p)``, ``(B, p, n)``: same bits.
-
-    Call it inside ``np.errstate(call=_raise_singular, invalid="call", ...)`` (as
-    ``np.linalg.solve`` sets it) so that a singular ``S`` raises ``LinAlgError``.
-    """
-    return npfast.solve(S, HP)
-
-
-def window_pass(
-    P0: FloatArray, F: FloatArray, Q: FloatArray, H: FloatArray, R: FloatArray, steps: int
-) -> FloatArray:
-    """:func:`~selenv.core.riccati.riccati_pass` for the bank's own (valid, float64) arrays.
-
-    The same operations in the same order (bit-identical, tested), without the per-call input
-    validation and with the solve's wrapper trimmed: Algorithm 1's hot path runs it for every
-    group of new clusters. ``R`` is ``(B, p, p)`` or, per step, ``(B, steps, p, p)``; returns
-    ``(B, steps + 1, n, n)``. Singular ``S`` and overflow raise riccati_pass's ``ValueError``.
-    """
-    B, n = P0.shape[0], P0.shape[1]
-    per_step = R.ndim == 4
-    out = np.empty((B, steps + 1, n, n))
-    out[:, 0] = P0
-    P, Ft, Ht = P0, F.T, H.T
-    # np.linalg.solve's error state, set once per pass (an invalid result anywhere in a step
-    # is then reported as singular; riccati_pass would report it as an overflow at the end)
-    errstate = np.errstate(
-        call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"
-    )
-    t = 0
-    try:
-        with errstate:
-            for t in range(1, steps + 1):
-                R_t = R[:, t - 1] if per_step else R
-                Pm = F @ P @ Ft + Q  # (11b)
-                HP = H @ Pm
-                S = HP @ Ht + R_t
-                Pp = Pm - np.swapaxes(HP, -1, -2) @ _solve(S, HP)  # (12a) + (12c)
-                P = 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
-                out[:, t] = P
-    except np.linalg.LinAlgError:
-        raise singular_step_error(t) from None
-    if not np.all(np.isfinite(out)):
-        raise history_overflow_error(steps)
-    return out
 
 
 def cluster_keys(canon: np.ndarray) -> list[Key]:
@@ -195,10 +160,14 @@ class ClusterFilterBank:
         return self._hist[key]
 
     def cost(self) -> CostBreakdown:
-        """Eq. (10) of the current clustering at time ``k`` (cached until it changes)."""
-        if self._cost is None:
-            self._cost = clustering_cost(self.posteriors(), self.weights)
-        return self._cost
+        """Eq. (10) of the current clustering at time ``k`` (cached until it changes).
+
+        Computed by :func:`bank_costs` (the batched cost the vector env uses, one bank).
+        """
+        cost = self._cost
+        if cost is None:
+            cost = self._cost = CostBreakdown(*bank_costs([self])[0].tolist())
+        return cost
 
     def receiver_position_variance(self) -> FloatArray:
         """(n,) per-axis position variance of each receiver in its cluster's posterior."""
@@ -211,21 +180,8 @@ class ClusterFilterBank:
 
     # -- time update ------------------------------------------------------------------------
     def step(self) -> None:
-        """Advance every cluster filter one step (11b, 12c) with ``R_{k+1}``, batched by size."""
-        by_size: dict[int, list[Key]] = defaultdict(list)
-        for key in self._hist:
-            by_size[len(key)].append(key)
-        for keys in by_size.values():
-            F, Q, H = self.problem.axis_model(keys[0])
-            P = np.stack([self._hist[key][-1] for key in keys])
-            R = self._noise(keys, self.k + 1, self.k + 2)
-            R = R[:, 0] if R.ndim == 4 else R  # R_{k+1}
-            P_new = riccati_step(P, F, Q, H, R)
-            for key, Pk in zip(keys, P_new, strict=True):
-                hist = np.concatenate([self._hist[key], Pk[None]])
-                self._hist[key] = hist[-(self.tau + 1) :]
-        self.k += 1
-        self._new_time_step()
+        """Advance every cluster filter one step (11b, 12c) with ``R_{k+1}``: :func:`step_banks`."""
+        step_banks([self])
 
     # -- Algorithm 1 ------------------------------------------------------------------------
     def evaluate(self, candidates: Any) -> FloatArray:
@@ -343,19 +299,11 @@ class ClusterFilterBank:
         """Switch to ``labels``; new clusters start from the moments of their evaluation.
 
         Algorithm 2, lines 17-19: unchanged clusters keep their filters; every new cluster's
-        history becomes its Algorithm 1 forward pass over the window. Returns whether the
-        partition changed.
+        history becomes its Algorithm 1 forward pass over the window (:func:`recluster_banks`).
+        Returns whether the partition changed.
         """
         canon = self.problem.check_clustering(labels, "labels")
-        if np.array_equal(canon, self.labels):
-            return False
-        keys = cluster_keys(canon)
-        self._ensure(set(keys))
-        self._hist = {key: self._window[key] for key in keys}
-        self.labels = canon
-        self._keys = keys
-        self._cost = None
-        return True
+        return bool(recluster_banks([self], [canon])[0])
 
     # -- internals --------------------------------------------------------------------------
     def _noise(self, keys: list[Key], k0: int, k1: int) -> FloatArray:
@@ -386,48 +334,16 @@ class ClusterFilterBank:
 
     def _composed_priors(self, keys: list[Key]) -> FloatArray:
         """Steps 1-2 of Algorithm 1: priors ``(B, 2s+1, 2s+1)`` of clusters ``keys`` (one size)."""
-        if self._prior_parts is None:
-            n = self.problem.n
-            U = np.zeros((2 * n, 2 * n))  # per-axis unique covariance of all receivers at l
-            theta = []
-            for old, hist in self._hist.items():
-                P = hist[0]
-                s = len(old)
-                idx = np.ravel([[2 * i, 2 * i + 1] for i in old])
-                U[np.ix_(idx, idx)] = P[: 2 * s, : 2 * s]
-                theta.append(P[2 * s, 2 * s])
-            self._prior_parts = (U, float(np.mean(theta)))  # bias: mean over old clusters
-        U, theta_var = self._prior_parts
-        members = np.array(keys, dtype=np.int64)  # (B, s)
-        B, s = members.shape
-        rows = np.stack([2 * members, 2 * members + 1], axis=2).reshape(B, 2 * s)
-        P0 = np.zeros((B, 2 * s + 1, 2 * s + 1))
-        P0[:, : 2 * s, : 2 * s] = U[rows[:, :, None], rows[:, None, :]]
-        P0[:, 2 * s, 2 * s] = theta_var
-        return P0
+        _prior_parts([self])
+        return _compose_priors([self], np.zeros(len(keys), dtype=np.int64), keys)
 
     def _composed_prior(self, key: Key) -> FloatArray:
         """Steps 1-2 of Algorithm 1: prior of cluster ``key`` at the window start."""
         return self._composed_priors([key])[0]
 
     def _ensure(self, keys: set[Key]) -> None:
-        """Forward passes (steps 3-9) for the clusters not in the window cache, by size."""
-        missing = [key for key in keys if key not in self._window]
-        if missing:
-            steps = next(iter(self._hist.values())).shape[0] - 1  # k - l
-            by_size: dict[int, list[Key]] = defaultdict(list)
-            for key in missing:
-                by_size[len(key)].append(key)
-            for group in by_size.values():
-                F, Q, H = self.problem.axis_model(group[0])
-                P0 = self._composed_priors(group)
-                R = self._noise(group, self.k - steps + 1, self.k + 1)  # R_{l+1} .. R_k
-                hist = window_pass(P0, F, Q, H, R, steps)
-                self._store(group, hist)
-            self.n_cluster_passes += len(missing)
-        for key in keys:
-            if key not in self._stats:
-                self._store([key], self._window[key][None])
+        """Forward passes (steps 3-9) of the clusters not in the window cache (batched core)."""
+        ensure_windows([self], [keys])
 
     def _store(self, keys: list[Key], hist: FloatArray) -> None:
         """Cache the windows ``hist`` (B, L, d, d) of ``keys`` (one size) and their statistics."""
@@ -448,3 +364,291 @@ class ClusterFilterBank:
         J_L = max(st[3] for st in stats)
         a_G, a_C, a_L = self.weights
         return float(a_G * J_G + a_C * J_C + a_L * J_L)
+
+
+# -- the filters of several banks at once (the vector env; a bank alone is the B = 1 case) -----
+@dataclass(frozen=True, eq=False)
+class BankStep:
+    """What :func:`step_banks` computed for ``B`` banks after their step.
+
+    Attributes:
+        costs: ``(B, 4)`` eq. (10) ``(J, J_G, J_C, J_L)`` of each bank at its new time.
+        position_var: ``(B, n)`` per-axis position variance of each receiver in its cluster.
+    """
+
+    costs: FloatArray
+    position_var: FloatArray
+
+
+def _shared_model(banks: Sequence[ClusterFilterBank]) -> tuple[float, float, int]:
+    """``(dt, r, tau)`` of the banks, which must agree (``ValueError`` otherwise)."""
+    cfg = banks[0].problem.config
+    key = (float(cfg.dt), float(cfg.noise_correlation), int(cfg.tau), banks[0].problem.n)
+    for bank in banks[1:]:
+        c = bank.problem.config
+        if c is not cfg and (c.dt, c.noise_correlation, c.tau, bank.problem.n) != key:
+            raise ValueError(
+                "banks must share n_agents, dt, noise_correlation and tau to be filtered together"
+            )
+    return key[0], key[1], key[2]
+
+
+def _flatten(banks: Sequence[ClusterFilterBank]) -> tuple[list[Key], IntArray, IntArray]:
+    """Every current cluster of every bank in (bank, cluster) order: keys, owners, sizes."""
+    keys: list[Key] = []
+    owner: list[int] = []
+    for b, bank in enumerate(banks):
+        keys.extend(bank._keys)
+        owner.extend([b] * len(bank._keys))
+    sizes = np.fromiter(map(len, keys), dtype=np.int64, count=len(keys))
+    return keys, np.array(owner, dtype=np.int64), sizes
+
+
+def step_banks(banks: Sequence[ClusterFilterBank]) -> BankStep:
+    """Advance every cluster filter of every bank one step (eqs. 11b, 12c) with its ``R_{k+1}``.
+
+    The clusters of one size, across all banks, are stacked ``(M, d, d)`` and advanced by one
+    :func:`~selenv.families.clustering.batched.filter_step`, their noise
+    ``R_{k+1}`` ``(M, 2s, 2s)`` built by one
+    :func:`~selenv.families.clustering.batched.noise_covariances` from the levels of each
+    bank's step ``k + 1``; each history keeps its last ``tau + 1`` posteriors. The new
+    posteriors' eq. (10) statistics are cached (the current clusters' Algorithm 1 costs need no
+    further pass) and every bank's cost is computed by
+    :func:`~selenv.families.clustering.batched.clustering_costs`. Banks may be at different
+    times; they must share the model (``n_agents``, ``dt``, ``noise_correlation``, ``tau``).
+    """
+    dt, r, tau = _shared_model(banks)
+    B, n = len(banks), banks[0].problem.n
+    keys, owner, sizes = _flatten(banks)
+    M = len(keys)
+    levels = np.stack([bank.problem.sigma_at(bank.k + 1) for bank in banks])  # (B, n, 2)
+    trace2, mean, worst = np.empty(M), np.empty(M), np.empty(M)
+    position_var = np.empty((B, n))
+    hists = [banks[o]._hist[key] for o, key in zip(owner.tolist(), keys, strict=True)]
+    new_hists: list[FloatArray] = [hists[0]] * M
+    for s in np.unique(sizes).tolist():
+        sel = np.flatnonzero(sizes == s)
+        own = owner[sel]
+        members = np.array([keys[m] for m in sel.tolist()], dtype=np.int64)  # (M_s, s)
+        group = [hists[m] for m in sel.tolist()]
+        P = np.stack([h[-1] for h in group])
+        F, Q, H = axis_model(dt, s)
+        R = noise_covariances(levels[own[:, None], members], correlation(r, s))  # R_{k+1}
+        P_new = filter_step(P, F, Q, H, R)
+        trace2[sel], mean[sel], worst[sel] = cluster_statistics(P_new)
+        position_var[own[:, None], members] = np.diagonal(P_new, axis1=1, axis2=2)[:, 0 : 2 * s : 2]
+        for L in {h.shape[0] for h in group}:  # histories of one length, appended at once
+            part = [j for j, h in enumerate(group) if h.shape[0] == L]
+            keep = min(L, tau)  # posteriors kept besides the new one
+            out = np.empty((len(part), keep + 1, 2 * s + 1, 2 * s + 1))
+            out[:, :keep] = np.stack([group[j][L - keep :] for j in part])
+            out[:, keep] = P_new[part]
+            for j, h in zip(part, out, strict=True):
+                new_hists[int(sel[j])] = h
+    states = (4 * sizes + 2).astype(np.float64)  # N(C) = 4s + 2
+    costs = clustering_costs(trace2, states, mean, worst, owner, B, banks[0].weights)
+    rows = zip(
+        owner.tolist(),
+        keys,
+        new_hists,
+        trace2.tolist(),
+        sizes.tolist(),
+        mean.tolist(),
+        worst.tolist(),
+        strict=True,
+    )
+    for bank in banks:
+        bank.k += 1
+        bank._stats = {}
+    for o, key, h, tr, s, mn, wr in rows:
+        bank = banks[o]
+        bank._hist[key] = h
+        bank._stats[key] = (tr, n_states(s), mn, wr)
+    for bank, c in zip(banks, costs.tolist(), strict=True):
+        stats = bank._stats
+        bank._new_time_step()
+        bank._stats = stats
+        bank._cost = CostBreakdown(*c)
+    return BankStep(costs=costs, position_var=position_var)
+
+
+def bank_costs(banks: Sequence[ClusterFilterBank]) -> FloatArray:
+    """Eq. (10) ``(J, J_G, J_C, J_L)`` of each bank's current clustering, ``(B, 4)``.
+
+    Cached costs are reused; the others come from the current clusters' statistics
+    (computed for those not cached, by size across the banks) through one
+    :func:`~selenv.families.clustering.batched.clustering_costs`. Sets each bank's cost cache.
+    """
+    out = np.empty((len(banks), 4))
+    todo = [b for b, bank in enumerate(banks) if bank._cost is None]
+    for b, bank in enumerate(banks):
+        if bank._cost is not None:
+            c = bank._cost
+            out[b] = (c.J, c.J_G, c.J_C, c.J_L)
+    if todo:
+        sub = [banks[b] for b in todo]
+        _ensure_stats(sub, [bank._keys for bank in sub])
+        stats = np.array([bank._stats[key] for bank in sub for key in bank._keys])  # (M, 4)
+        owner = np.repeat(np.arange(len(sub)), [len(bank._keys) for bank in sub])
+        costs = clustering_costs(
+            stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3], owner, len(sub), sub[0].weights
+        )
+        for bank, c in zip(sub, costs.tolist(), strict=True):
+            bank._cost = CostBreakdown(*c)
+        out[todo] = costs
+    return out
+
+
+def _ensure_stats(banks: Sequence[ClusterFilterBank], keysets: Sequence[Any]) -> None:
+    """Cache the eq. (10) statistics of the windowed clusters ``keysets[b]`` of bank ``b``."""
+    by_size: dict[int, list[tuple[int, Key]]] = defaultdict(list)
+    for b, (bank, keys) in enumerate(zip(banks, keysets, strict=True)):
+        stats = bank._stats
+        for key in keys:
+            if key not in stats:
+                by_size[len(key)].append((b, key))
+    for s, items in by_size.items():
+        P = np.stack([banks[b]._window[key][-1] for b, key in items])
+        rows = zip(*(a.tolist() for a in cluster_statistics(P)), strict=True)
+        for (b, key), (tr, mn, wr) in zip(items, rows, strict=True):
+            banks[b]._stats[key] = (tr, n_states(s), mn, wr)
+
+
+def _prior_parts(banks: Sequence[ClusterFilterBank]) -> None:
+    """Steps 1-2 of Algorithm 1, the parts of every bank lacking them (cached per time step).
+
+    Per bank: ``U`` ``(2n, 2n)``, the per-axis unique covariance of all receivers at the
+    window start ``l`` (each current cluster's block of ``P_l|l``, no cross terms between
+    clusters), and the bias variance averaged over the current clusters. The blocks of one
+    cluster size are scattered into the ``(B, 2n, 2n)`` stack at once.
+    """
+    need = [bank for bank in banks if bank._prior_parts is None]
+    if not need:
+        return
+    n = need[0].problem.n
+    U = np.zeros((len(need), 2 * n, 2 * n))
+    keys, owner, sizes = _flatten(need)
+    for s in np.unique(sizes).tolist():
+        sel = np.flatnonzero(sizes == s).tolist()
+        own = owner[sel]
+        members = np.array([keys[m] for m in sel], dtype=np.int64)
+        rows = np.stack([2 * members, 2 * members + 1], axis=2).reshape(len(sel), 2 * s)
+        blocks = np.stack([need[owner[m]]._hist[keys[m]][0][: 2 * s, : 2 * s] for m in sel])
+        U[own[:, None, None], rows[:, :, None], rows[:, None, :]] = blocks
+    for j, bank in enumerate(need):
+        theta = [hist[0][-1, -1] for hist in bank._hist.values()]
+        bank._prior_parts = (U[j], float(np.mean(theta)))  # bias: mean over old clusters
+
+
+def _compose_priors(
+    banks: Sequence[ClusterFilterBank], owner: IntArray, keys: Sequence[Key]
+) -> FloatArray:
+    """Priors ``(M, 2s+1, 2s+1)`` at the window start of clusters ``keys`` (one size ``s``).
+
+    Algorithm 1 steps 1-2, ``P_l = sum_i M^ui' P^i M^ui + |C|^-1 M^si' P^i M^si`` read per new
+    cluster: its members' rows and columns of bank ``owner[m]``'s ``U`` and the mean bias
+    variance (needs :func:`_prior_parts`).
+    """
+    members = np.array(keys, dtype=np.int64).reshape(len(keys), -1)  # (M, s)
+    M, s = members.shape
+    used = np.unique(owner)
+    U = np.stack([banks[b]._prior_parts[0] for b in used.tolist()])
+    theta = np.array([banks[b]._prior_parts[1] for b in used.tolist()])
+    local = np.searchsorted(used, owner)
+    rows = np.stack([2 * members, 2 * members + 1], axis=2).reshape(M, 2 * s)
+    P0 = np.zeros((M, 2 * s + 1, 2 * s + 1))
+    P0[:, : 2 * s, : 2 * s] = U[local[:, None, None], rows[:, :, None], rows[:, None, :]]
+    P0[:, 2 * s, 2 * s] = theta[local]
+    return P0
+
+
+def _window_noise(
+    banks: Sequence[ClusterFilterBank], owner: IntArray, members: IntArray, steps: int
+) -> FloatArray:
+    """``R_{l+1} .. R_k`` of clusters ``members`` ``(M, s)`` of banks ``owner`` ``(M,)``.
+
+    Time-varying noise: ``(M, steps, 2s, 2s)``, the levels of each step of each bank's own
+    window; fixed noise: ``(M, 2s, 2s)``.
+    """
+    s = members.shape[1]
+    rho = correlation(banks[0].problem.config.noise_correlation, s)
+    used = np.unique(owner)
+    local = np.searchsorted(used, owner)
+    if not banks[0].problem.time_varying:
+        levels = np.stack([banks[b].problem.sigma for b in used.tolist()])  # (G, n, 2)
+        return noise_covariances(levels[local[:, None], members], rho)
+    paths = []
+    for b in used.tolist():
+        problem, k = banks[b].problem, banks[b].k
+        k0 = k - steps + 1
+        problem._check_step(k0, "k0")
+        problem._check_step(k, "k1 - 1")
+        paths.append(problem.sigma_path[k0 : k + 1])
+    W = np.stack(paths)  # (G, steps, n, 2)
+    t = np.arange(steps)
+    return noise_covariances(W[local[:, None, None], t[None, :, None], members[:, None, :]], rho)
+
+
+def ensure_windows(banks: Sequence[ClusterFilterBank], keysets: Sequence[Any]) -> None:
+    """Algorithm 1 (steps 1-9) for the clusters ``keysets[b]`` of bank ``b`` not yet windowed.
+
+    The new clusters of one size and window length, across all banks, start from their
+    composed priors (steps 1-2) and run one
+    :func:`~selenv.families.clustering.batched.window_pass` over ``R_{l+1} .. R_k`` of their
+    bank; windows and eq. (10) statistics are cached per bank for the current time step.
+    """
+    if not banks:
+        return
+    dt, _, _ = _shared_model(banks)
+    groups: dict[tuple[int, int, bool], list[tuple[int, Key]]] = defaultdict(list)
+    passes = [0] * len(banks)
+    for b, (bank, keys) in enumerate(zip(banks, keysets, strict=True)):
+        window = bank._window
+        missing = [key for key in keys if key not in window]
+        if missing:
+            steps = next(iter(bank._hist.values())).shape[0] - 1  # k - l
+            tv = bank.problem.time_varying
+            for key in missing:
+                groups[(len(key), steps, tv)].append((b, key))
+            passes[b] = len(missing)
+    if groups:
+        _prior_parts([banks[b] for b, n_new in enumerate(passes) if n_new])
+    for (s, steps, _), items in groups.items():
+        owner = np.array([b for b, _ in items], dtype=np.int64)
+        keys = [key for _, key in items]
+        members = np.array(keys, dtype=np.int64)
+        F, Q, H = axis_model(dt, s)
+        P0 = _compose_priors(banks, owner, keys)
+        R = _window_noise(banks, owner, members, steps)
+        hist = window_pass(P0, F, Q, H, R, steps)
+        rows = zip(*(a.tolist() for a in cluster_statistics(hist[:, -1])), strict=True)
+        for (b, key), h, (tr, mn, wr) in zip(items, hist, rows, strict=True):
+            banks[b]._window[key] = h
+            banks[b]._stats[key] = (tr, n_states(s), mn, wr)
+    for bank, n_new in zip(banks, passes, strict=True):
+        bank.n_cluster_passes += n_new
+    _ensure_stats(banks, keysets)
+
+
+def recluster_banks(banks: Sequence[ClusterFilterBank], labels: Sequence[IntArray]) -> np.ndarray:
+    """Switch bank ``b`` to the canonical, feasible clustering ``labels[b]`` (not re-checked).
+
+    Algorithm 2, lines 17-19, for all banks at once: the new clusters' forward passes run in
+    one :func:`ensure_windows`; unchanged clusters keep their filters. Returns ``(B,)`` bool,
+    whether each partition changed.
+    """
+    changed = np.zeros(len(banks), dtype=np.bool_)
+    todo: list[tuple[int, IntArray, list[Key]]] = []
+    for b, (bank, canon) in enumerate(zip(banks, labels, strict=True)):
+        if not np.array_equal(canon, bank.labels):
+            todo.append((b, canon, cluster_keys(canon)))
+    if todo:
+        ensure_windows([banks[b] for b, _, _ in todo], [keys for _, _, keys in todo])
+    for b, canon, keys in todo:
+        bank = banks[b]
+        bank._hist = {key: bank._window[key] for key in keys}
+        bank.labels = np.array(canon, dtype=np.int64)
+        bank._keys = keys
+        bank._cost = None
+        changed[b] = True
+    return changed

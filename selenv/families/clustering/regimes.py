@@ -74,14 +74,17 @@ class MultipathRegimes:
         return self.sample(start, steps, rng)
 
     def sample(self, start: FloatArray, steps: int, rng: np.random.Generator) -> FloatArray:
-        """A path ``(steps + 1, n)`` of 0/1 states from the states ``start`` (n,) at row 0."""
+        """A path ``(steps + 1, n)`` of 0/1 states from the states ``start`` (n,) at row 0.
+
+        :func:`~selenv.families.clustering.batched.regime_paths` of one chain.
+        """
+        from selenv.families.clustering.batched import regime_paths
+
         u = rng.random((int(steps), start.size))
-        out = np.empty((int(steps) + 1, start.size))
-        out[0] = start
-        for t in range(int(steps)):
-            bad = out[t] > 0.5
-            out[t + 1] = np.where(bad, u[t] >= self.p_leave, u[t] < self.p_enter)
-        return out
+        path = regime_paths(
+            np.asarray(start, dtype=float)[None], u[None], float(self.p_enter), float(self.p_leave)
+        )
+        return path[0]
 
     def forecast(self, start: FloatArray, steps: int) -> FloatArray:
         """``P(degraded at t | states start at 0)`` for ``t = 1 .. steps``, ``(steps, n)``.

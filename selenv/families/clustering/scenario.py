@@ -40,6 +40,13 @@ from typing import Any
 import numpy as np
 
 from selenv.core.linalg import FloatArray
+from selenv.families.clustering.batched import (
+    axis_model,
+    axis_prior,
+    correlation,
+    noise_covariances,
+    regime_paths,
+)
 from selenv.families.clustering.labels import as_labels, canonical_labels, canonicalize
 from selenv.families.clustering.regimes import MultipathRegimes
 from selenv.scenarios.validation import (
@@ -67,6 +74,7 @@ __all__ = [
     "canonical_labels",
     "clustering_cost",
     "make_clustering_problem",
+    "make_clustering_problems",
     "n_measurements",
     "n_states",
 ]
@@ -319,9 +327,6 @@ class ClusteringProblem:
     sigma: FloatArray
     regimes: FloatArray | None = None
     sigma_path: FloatArray | None = field(init=False, default=None, repr=False)
-    _axis_cache: dict[tuple[int, ...], tuple[FloatArray, ...]] = field(
-        default_factory=dict, repr=False
-    )
 
     def __post_init__(self) -> None:
         if self.regimes is None:
@@ -431,26 +436,10 @@ class ClusteringProblem:
         State ``(p_1, v_1, ..., p_s, v_s, theta)`` (2s + 1), measurements
         ``(y1_1, y2_1, ..., y1_s, y2_s)`` with ``y1 = p - theta``, ``y2 = p + theta`` (eq. 3b).
         """
-        s = len(members)
-        key = (s,)
-        if key not in self._axis_cache:
-            h = float(self.config.dt)
-            F = np.eye(2 * s + 1)
-            Q = np.zeros((2 * s + 1, 2 * s + 1))
-            H = np.zeros((2 * s, 2 * s + 1))
-            for a in range(s):
-                F[2 * a, 2 * a + 1] = h  # p' = p + h v (3a)
-                Q[2 * a : 2 * a + 2, 2 * a : 2 * a + 2] = [[h**3 / 3, h**2 / 2], [h**2 / 2, h]]
-                H[2 * a, [2 * a, 2 * s]] = [1.0, -1.0]  # y1 = p - theta (3b)
-                H[2 * a + 1, [2 * a, 2 * s]] = [1.0, 1.0]  # y2 = p + theta
-            Q[2 * s, 2 * s] = h
-            self._axis_cache[key] = (F, Q, H)
-        F, Q, H = self._axis_cache[key]
-        return F, Q, H
+        return axis_model(float(self.config.dt), len(members))
 
     def _rho(self, s: int) -> FloatArray:
-        r = float(self.config.noise_correlation)
-        return np.full((s, s), r) + (1.0 - r) * np.eye(s)
+        return correlation(float(self.config.noise_correlation), s)
 
     def axis_noise(self, members: Sequence[int], k: int | None = None) -> FloatArray:
         """Per-axis measurement covariance (2s, 2s): ``R[(a,c),(b,c)] = rho_ab s_ca s_cb``.
@@ -462,12 +451,7 @@ class ClusteringProblem:
         idx = np.asarray(members, dtype=int)
         s = idx.size
         sigma = self.sigma if k is None else self.sigma_at(k)
-        rho = self._rho(s)
-        R = np.zeros((2 * s, 2 * s))
-        for c in range(2):
-            sc = sigma[idx, c]
-            R[c::2, c::2] = rho * np.outer(sc, sc)
-        return R
+        return noise_covariances(sigma[idx], self._rho(s))
 
     def axis_noise_steps(self, members: Any, k0: int, k1: int) -> FloatArray:
         """Per-step :meth:`axis_noise` of ``B`` clusters of one size, ``(B, k1 - k0, 2s, 2s)``.
@@ -488,17 +472,11 @@ class ClusteringProblem:
             S = np.broadcast_to(self.sigma[idx][:, None], (B, k1 - k0, s, 2))
         else:
             S = np.moveaxis(self.sigma_path[k0:k1][:, idx], 0, 1)  # (B, T, s, 2)
-        rho = self._rho(s)
-        R = np.zeros((B, k1 - k0, 2 * s, 2 * s))
-        for c in range(2):
-            sc = S[..., c]
-            R[..., c::2, c::2] = rho * (sc[..., :, None] * sc[..., None, :])  # as np.outer
-        return R
+        return noise_covariances(S, self._rho(s))
 
     def axis_prior(self, size: int) -> FloatArray:
         """Initial per-axis covariance ``diag(sp^2, sv^2, ..., sb^2)`` of a cluster."""
-        sp, sv, sb = (float(v) for v in self.config.prior_std)
-        return np.diag([sp**2, sv**2] * size + [sb**2])
+        return axis_prior(self.config.prior_std, size)
 
     # -- full model, eqs. (3)-(6): for tests and users --------------------------------------
     def full_model(
@@ -570,18 +548,53 @@ def make_clustering_problem(
         horizon: last step ``K`` of the regime path (required with ``config.regimes``).
     """
     cfg = ClusteringConfig() if config is None else config
-    if cfg.sigma is not None:
-        sigma = _check_sigma(cfg.sigma, int(cfg.n_agents)).copy()
-    else:
+    if cfg.sigma is None and rng is None:
+        raise ValueError("rng is required to draw sigma ~ U(0, 1] (config.sigma is None)")
+    if cfg.regimes is not None:
+        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 0:
+            raise ValueError(
+                f"horizon must be an int >= 0 to draw the regime path, got {horizon!r}"
+            )
         if rng is None:
-            raise ValueError("rng is required to draw sigma ~ U(0, 1] (config.sigma is None)")
-        sigma = 1.0 - rng.random((int(cfg.n_agents), 2))  # U(0, 1]
-    sigma.setflags(write=False)
-    if cfg.regimes is None:
-        return ClusteringProblem(config=cfg, sigma=sigma)
-    if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 0:
-        raise ValueError(f"horizon must be an int >= 0 to draw the regime path, got {horizon!r}")
-    if rng is None:
-        raise ValueError("rng is required to draw the regime path (config.regimes is set)")
-    regimes = cfg.regimes.draw(int(cfg.n_agents), int(horizon), rng)
-    return ClusteringProblem(config=cfg, sigma=sigma, regimes=regimes)
+            raise ValueError("rng is required to draw the regime path (config.regimes is set)")
+    return make_clustering_problems(cfg, [rng], 0 if horizon is None else int(horizon))[0]
+
+
+def make_clustering_problems(
+    config: ClusteringConfig, rngs: Sequence[np.random.Generator | None], horizon: int
+) -> list[ClusteringProblem]:
+    """One realisation per generator, each drawn exactly as :func:`make_clustering_problem`.
+
+    Generator ``b`` draws ``sigma`` ``(n, 2)`` (unless given), then the regime chain's start
+    ``(n,)`` and its uniforms ``(horizon, n)``; the chains of all ``B`` realisations then run
+    as one :func:`~selenv.families.clustering.batched.regime_paths` ``(B, horizon + 1, n)``.
+    The arguments are not re-validated (a ``None`` generator is allowed only when nothing is
+    drawn).
+    """
+    n = int(config.n_agents)
+    fixed = None if config.sigma is None else _check_sigma(config.sigma, n)
+    sigmas: list[FloatArray] = []
+    starts, uniforms = [], []
+    model = config.regimes
+    for rng in rngs:
+        if fixed is not None:
+            sigma = fixed.copy()
+        else:
+            sigma = 1.0 - rng.random((n, 2))  # type: ignore[union-attr]  # U(0, 1]
+        sigma.setflags(write=False)
+        sigmas.append(sigma)
+        if model is not None:
+            starts.append(rng.random(n) < model.degraded_fraction)  # type: ignore[union-attr]
+            uniforms.append(rng.random((int(horizon), n)))  # type: ignore[union-attr]
+    if model is None:
+        return [ClusteringProblem(config=config, sigma=sigma) for sigma in sigmas]
+    paths = regime_paths(
+        np.array(starts, dtype=float).reshape(len(sigmas), n),
+        np.array(uniforms).reshape(len(sigmas), int(horizon), n),
+        float(model.p_enter),
+        float(model.p_leave),
+    )
+    return [
+        ClusteringProblem(config=config, sigma=sigma, regimes=path)
+        for sigma, path in zip(sigmas, paths, strict=True)
+    ]
