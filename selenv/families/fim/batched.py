@@ -114,21 +114,19 @@ class FIMBatchState:
     def start(self, idx: np.ndarray, G: FloatArray) -> None:
         """New episodes for sub-envs ``idx`` ``(k,)`` over pools ``G`` ``(k, N, m, d)``.
 
-        ``Z = G L0^-T`` (one triangular solve for all ``k`` pools), ``L^-1 = L0^-1``, gains
+        ``Z = G L0^-T`` (one product for all ``k`` pools), ``L^-1 = L0^-1``, gains
         against the prior: log det ``log det(I + Z_k Z_k^T)`` or
         :func:`~selenv.core.objectives.criterion_gains` at ``P0 = Q0^-1``; nothing selected.
         """
         k, (N, m, d) = idx.size, (self.N, self.m, self.d)
         self.G[idx] = G
-        flat = G.reshape(k * N * m, d)
-        W = solve_triangular(self.L0, flat.T, lower=True, check_finite=False).T  # rows g L0^-T
-        Wb = W.reshape(k, N, m, d)
-        self.Z[idx] = Wb
+        W = np.matmul(G.reshape(k * N * m, d), self.Linv0.T)  # rows g L0^-T
+        self.Z[idx] = W.reshape(k, N, m, d)
         self.Linv[idx] = self.Linv0
         if self.S is not None:
-            S = np.einsum("kid,kjd->kij", W.reshape(k * N, m, d), W.reshape(k * N, m, d))
-            self.S[idx] = S.reshape(k, N, m, m)  # S_k = G_k Q0^-1 G_k^T
-            self.gains[idx] = block_logdet_gains(S).reshape(k, N)
+            S = _gram(W.reshape(k, N, m, d))  # S_k = G_k Q0^-1 G_k^T
+            self.S[idx] = S
+            self.gains[idx] = block_logdet_gains(S.reshape(k * N, m, m)).reshape(k, N)
         else:
             gains = criterion_gains(self.P0, G.reshape(k * N, m, d), self.objective_name,
                                     self.interest)  # fmt: skip
@@ -148,12 +146,13 @@ class FIMBatchState:
             ``(k,)`` the change of each sub-env's objective ``f`` (the step reward).
         """
         k, (N, m, d) = idx.size, (self.N, self.m, self.d)
-        before = self.objective[idx]
+        rows: np.ndarray | slice = slice(None) if k == self.num_envs else idx  # views if all
+        before = self.objective[rows].copy()
         Zj = self.Z[idx, picks]  # (k, m, d)
         M = np.matmul(np.swapaxes(Zj, 1, 2), Zj) + self._eye_d  # I + Z_j^T Z_j
         C = _cholesky(M)
-        Linv = np.linalg.solve(C, self.Linv[idx])  # L'^-1 = C^-1 L^-1
-        self.Linv[idx] = Linv
+        Linv = np.linalg.solve(C, self.Linv[rows])  # L'^-1 = C^-1 L^-1
+        self.Linv[rows] = Linv
         Linv_T = np.swapaxes(Linv, 1, 2)
         if k == self.num_envs:  # every sub-env: write Z' = G L'^-T in place
             np.matmul(self.G.reshape(k, N * m, d), Linv_T, out=self.Z.reshape(k, N * m, d))
@@ -163,20 +162,15 @@ class FIMBatchState:
             self.Z[idx] = Z
         if self.S is not None:  # log det
             after = before + 2.0 * np.sum(np.log(np.diagonal(C, axis1=1, axis2=2)), axis=1)
-            S = np.empty((k, N, m, m))
-            for a in range(m):  # S_k = Z_k Z_k^T, unique entries by row-wise dots
-                for b in range(a, m):
-                    v = np.einsum("knd,knd->kn", Z[:, :, a], Z[:, :, b])
-                    S[:, :, a, b] = v
-                    S[:, :, b, a] = v
-            self.S[idx] = S
-            self.gains[idx] = block_logdet_gains(S.reshape(k * N, m, m)).reshape(k, N)
+            S = _gram(Z)
+            self.S[rows] = S
+            self.gains[rows] = block_logdet_gains(S.reshape(k * N, m, m)).reshape(k, N)
         else:
             P = np.matmul(Linv_T, Linv)  # P = L^-T L^-1, the CRLB
             crit = covariance_criterion(P, self.objective_name, self.interest)
             after = self._crit0 - crit
             G = self.G
-            for i, b in enumerate(idx):  # the registry's downdate takes one E P E^T
+            for i, b in enumerate(idx.tolist()):  # the registry's downdate takes one E P E^T
                 self.gains[b] = criterion_gains(P[i], G[b], self.objective_name, self.interest)
         self.objective[idx] = after
         self.selected[idx, picks] = True
@@ -188,6 +182,18 @@ class FIMBatchState:
     def view(self, b: int) -> SubEnvGainState:
         """Sub-env ``b``'s gain state (live view; the ``GainState`` interface)."""
         return SubEnvGainState(self, b)
+
+
+def _gram(Z: FloatArray) -> FloatArray:
+    """``S_k = Z_k Z_k^T`` ``(k, N, m, m)`` of ``Z`` ``(k, N, m, d)`` (unique entries by dots)."""
+    k, N, m, _ = Z.shape
+    S = np.empty((k, N, m, m))
+    for a in range(m):
+        for b in range(a, m):
+            v = np.einsum("knd,knd->kn", Z[:, :, a], Z[:, :, b])
+            S[:, :, a, b] = v
+            S[:, :, b, a] = v
+    return S
 
 
 def _cholesky(M: FloatArray) -> FloatArray:

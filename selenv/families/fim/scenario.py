@@ -392,7 +392,7 @@ def pool_jacobian(
         nu = nuisance[sel]
         for j in range(Jl.shape[1] - km.N_MOTION):  # scatter the nuisance columns
             J[sel, 0, nu[:, j]] = Jl[:, km.N_MOTION + j]
-    return J[:, :, free]
+    return J if free.size == theta_full.size else J[:, :, free]
 
 
 def _nominal(cfg: FIMScenarioConfig) -> tuple[FloatArray, FloatArray, list[str], np.ndarray]:
