@@ -7,9 +7,9 @@ K of N angle-of-arrival landmarks per EKF step (Soubaras & Chahbazian 2023).
 
 from __future__ import annotations
 
-from selenv.families.spec import FamilySpec, env_factories
+from selenv.families.spec import FamilySpec, env_factories, vector_factories
 
-__all__ = ["SPEC", "make_env", "make_env_v0"]
+__all__ = ["SPEC", "make_env", "make_env_v0", "make_vector_env", "make_vector_env_v0"]
 
 SPEC = FamilySpec(
     name="landmarks",
@@ -23,5 +23,7 @@ SPEC = FamilySpec(
         "selenv.families.landmarks.agents",
         "selenv.families.landmarks.rollout",
     ),
+    vector_class="selenv.families.landmarks.vector:LandmarkSelectionVectorEnv",
 )
 make_env, make_env_v0 = env_factories(SPEC)
+make_vector_env, make_vector_env_v0 = vector_factories(SPEC)

@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from selenv.core.information import whiten
-from selenv.core.linalg import FloatArray, cholesky_spd
-from selenv.core.objectives import GainState, get_objective, make_gain_state, objective_names
+from selenv.core.information import information_matrix
+from selenv.core.linalg import FloatArray
+from selenv.core.objectives import get_objective, objective_names
 from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import (
     EpisodeLengthSpec,
@@ -19,7 +20,19 @@ from selenv.envs.conventions import (
     named_parameters,
 )
 from selenv.envs.rendering import Renderer
-from selenv.families.fim.env import fim_observation, fim_observation_space
+from selenv.families.fim.env import fim_observation_space
+from selenv.families.landmarks.batched import (
+    POSITION,
+    GainSpec,
+    SelectionBatch,
+    add_picks,
+    landmark_costs,
+    landmark_features,
+    landmark_interest,
+    open_selection,
+    whiten_landmarks,
+    write_observation,
+)
 from selenv.families.landmarks.scenario import (
     LandmarkConfig,
     LandmarkEKF,
@@ -31,31 +44,19 @@ from selenv.scenarios.validation import ArgumentTypeError, check_choice, describ
 __all__ = [
     "OBJECTIVES",
     "POSITION",
+    "LandmarkGainView",
     "LandmarkSelectionEnv",
+    "LandmarkSettings",
     "landmark_cost",
     "landmark_features",
     "landmark_interest",
+    "landmark_settings",
 ]
 
 #: the built-in objectives (every registered one is accepted: :func:`objective_names`)
 OBJECTIVES = ("logdet", "det", "trace", "max_eig")
 
-#: indices of the position ``p`` in the EKF state ``(p, v, theta)``: what objectives that are
-#: not unit-invariant (``"trace"``, ``"max_eig"``) score
-POSITION: tuple[int, ...] = (0, 1, 2)
-
-
-def landmark_interest(objective: str) -> tuple[int, ...] | None:
-    """State indices an objective scores: ``None`` (all) if unit-invariant, else the position.
-
-    ``logdet`` and ``det`` score the whole state; ``trace``, ``max_eig`` (and any registered
-    objective that is not unit-invariant) :data:`POSITION`, since velocity and attitude have
-    other units.
-
-    Raises:
-        TypeError, ValueError: ``objective`` not a registered name.
-    """
-    return None if get_objective(objective).unit_invariant else POSITION
+_ROW0 = np.zeros(1, dtype=np.intp)  # the single env is row 0 of a batch of one
 
 
 def landmark_cost(P: FloatArray, objective: str) -> float:
@@ -65,24 +66,149 @@ def landmark_cost(P: FloatArray, objective: str) -> float:
     MSE ``tr(P[:3, :3])`` (m^2), the A-optimal criterion (Kirchner et al. 2020, eq. 6) on the
     position block; ``"max_eig"``: ``lambda_max(P[:3, :3])`` (m^2), the variance along the
     worst-determined direction of the position, the E-optimal criterion (eq. 7). Any other
-    registered objective scores the block :func:`landmark_interest` gives.
+    registered objective scores the block :func:`landmark_interest` gives. The ``B = 1`` case
+    of :func:`~selenv.families.landmarks.batched.landmark_costs`.
 
     Raises:
         TypeError, ValueError: ``objective`` not a registered name.
     """
-    idx = landmark_interest(objective)
-    block = P if idx is None else P[np.ix_(idx, idx)]
-    return float(get_objective(objective).value(block))
+    return float(landmark_costs(np.asarray(P, dtype=np.float64)[None], objective)[0])
 
 
-def landmark_features(h_pred: FloatArray, k: int, horizon: int) -> np.ndarray:
-    """Per-landmark features (N, 4): sin, cos of the predicted azimuth, elevation / (pi/2), time.
+@dataclass(frozen=True)
+class LandmarkSettings:
+    """The validated keywords of ``LandmarkSelection-v1`` (single and vector env alike).
 
-    ``h_pred`` (N, 2) predicted (azimuth, elevation); time is ``k / horizon``.
+    Attributes:
+        config: the scenario; n: ``N``; k: picks per filter step; horizon: filter steps;
+        objective: the cost's name; invalid_rule: the ``invalid_action`` handling;
+        render_mode: the checked mode; spec: what the gain state scores
+        (``solver_objective``, ``interest``).
     """
-    az, el = h_pred[:, 0], h_pred[:, 1]
-    t = np.full_like(az, k / horizon)
-    return np.stack([np.sin(az), np.cos(az), el / (np.pi / 2), t], axis=1).astype(np.float32)
+
+    config: LandmarkConfig
+    n: int
+    k: int
+    horizon: int
+    objective: str
+    invalid_rule: InvalidActionRule
+    render_mode: str | None
+    spec: GainSpec
+
+
+def landmark_settings(
+    owner: type,
+    metadata: dict[str, Any],
+    *,
+    n_landmarks: Any,
+    k: Any,
+    horizon: Any,
+    objective: Any,
+    landmarks: Any,
+    invalid_action: Any,
+    invalid_action_penalty: Any,
+    render_mode: Any,
+    config: dict[str, Any],
+) -> LandmarkSettings:
+    """Validate the keywords of ``owner`` (the single or the vector env) as the env does.
+
+    Raises:
+        TypeError: an unknown keyword or a value of the wrong type, naming it.
+        ValueError: a value out of range, naming it.
+    """
+    fields = {f.name for f in dataclasses.fields(LandmarkConfig)}
+    check_known_keywords(
+        config,
+        fields - {"n_landmarks", "horizon", "landmarks"},
+        "LandmarkSelection-v1",
+        named_parameters(owner),
+    )
+    mode = check_render_mode(render_mode, metadata)
+    rule = InvalidActionRule(invalid_action, invalid_action_penalty)
+    check_choice(objective, "objective", objective_names())
+    if isinstance(k, bool | np.bool_) or not isinstance(k, int | np.integer):
+        raise ArgumentTypeError(f"k must be an int in [1, n_landmarks], got {describe(k)}")
+    cfg = LandmarkConfig(n_landmarks=n_landmarks, horizon=horizon, landmarks=landmarks, **config)
+    if not 1 <= k <= cfg.n_landmarks:
+        raise ValueError(f"k must lie in [1, n_landmarks={cfg.n_landmarks}], got {k}")
+    spec = GainSpec(get_objective(objective).solver_name, landmark_interest(objective))
+    return LandmarkSettings(
+        config=cfg,
+        n=int(cfg.n_landmarks),
+        k=int(k),
+        horizon=int(cfg.horizon),
+        objective=objective,
+        invalid_rule=rule,
+        render_mode=mode,
+        spec=spec,
+    )
+
+
+def landmark_observation_space(n: int) -> gym.spaces.Dict:
+    """The observation space over ``n`` landmarks (the ``FIMSelection-v1`` layout)."""
+    space = fim_observation_space(n, 2, 9)
+    space.spaces["features"] = gym.spaces.Box(-1.0, 1.0, (n, 4), np.float32)
+    return space
+
+
+class LandmarkGainView:
+    """The gain state of the single env's open filter step (row ``0`` of its batch).
+
+    The attributes of :class:`~selenv.core.information.LogDetGainState` the agents read:
+    ``selected`` (N,), ``order``, ``G`` (N, 2, 9), ``Q0`` (9, 9), ``P`` (9, 9), ``Z``
+    (N, 2, 9), ``gains`` (N,), ``information`` (9, 9), ``objective``, :meth:`masked_gains`.
+    Views of the env's arrays for this filter step (a new step has new arrays); a pick updates
+    ``selected``, ``Z``, ``gains``, ``P`` and ``objective`` in place.
+    """
+
+    def __init__(self, sel: SelectionBatch, order: list[int]) -> None:
+        self._sel = sel
+        self.order = order
+        self.N, self.m, self.d = sel.G.shape[1:]
+
+    @property
+    def selected(self) -> np.ndarray:
+        """(N,) bool: the landmarks picked in this filter step."""
+        return self._sel.selected[0]
+
+    @property
+    def G(self) -> FloatArray:
+        """(N, 2, 9) whitened Jacobians ``R^-1/2 H``."""
+        return self._sel.G[0]
+
+    @property
+    def Q0(self) -> FloatArray:
+        """(9, 9) prior information ``P_pred^-1``."""
+        return self._sel.Q0[0]
+
+    @property
+    def Z(self) -> FloatArray:
+        """(N, 2, 9) the landmarks whitened in the current information."""
+        return self._sel.Z[0]
+
+    @property
+    def gains(self) -> FloatArray:
+        """(N,) marginal gains of every landmark (also the picked ones)."""
+        return self._sel.gains[0]
+
+    @property
+    def P(self) -> FloatArray:
+        """(9, 9) ``A^-1``: the posterior covariance of the picks so far."""
+        return self._sel.P(_ROW0)[0]
+
+    @property
+    def information(self) -> FloatArray:
+        """(9, 9) ``A = Q0 + sum_{k in S} G_k^T G_k``, recomputed from the picks (eq. 2)."""
+        return information_matrix(self.Q0, self.G, self.order)
+
+    @property
+    def objective(self) -> float:
+        """``f(S)`` of the picks (the log-det gain eq. 9, or ``c(P_pred) - c(P_S)``)."""
+        return float(self._sel.objective[0])
+
+    def masked_gains(self) -> FloatArray:
+        """Gains with the picked landmarks at ``-inf`` (for argmax)."""
+        return np.where(self.selected, -np.inf, self.gains)
 
 
 class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
@@ -149,6 +275,15 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     ``render_mode="rgb_array"`` or ``"human"``: the UAV's true track and estimate, the
     landmarks with the ones picked now and in the last update, the 2-sigma position ellipse.
 
+    ## Vector Env
+    ``gymnasium.make_vec("selenv/LandmarkSelection-v1", num_envs=B, **kwargs)`` returns the
+    native :class:`~selenv.families.landmarks.vector.LandmarkSelectionVectorEnv`: the ``B``
+    filters and gain states in arrays with a leading batch axis, stepped by the batched core
+    (:mod:`selenv.families.landmarks.batched`) this env runs with ``B = 1``. Autoreset is
+    Gymnasium's ``NEXT_STEP``; seeding is ``SyncVectorEnv``'s (``reset(seed=s)`` seeds sub-env
+    ``b`` with ``s + b``), so sub-env ``b`` replays ``gymnasium.make(id)`` reset with
+    ``seed=s + b`` under the same actions. ``vectorization_mode="sync"`` still gives the loop.
+
     ## Arguments
     ``gymnasium.make("selenv/LandmarkSelection-v1", n_landmarks=30, k=2, horizon=300,
     objective="logdet", landmarks=None, invalid_action="noop", invalid_action_penalty=0.0,
@@ -185,35 +320,33 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         render_mode: str | None = None,
         **config: Any,
     ) -> None:
-        fields = {f.name for f in dataclasses.fields(LandmarkConfig)}
-        check_known_keywords(
-            config,
-            fields - {"n_landmarks", "horizon", "landmarks"},
-            "LandmarkSelection-v1",
-            named_parameters(type(self)),
+        settings = landmark_settings(
+            type(self),
+            self.metadata,
+            n_landmarks=n_landmarks,
+            k=k,
+            horizon=horizon,
+            objective=objective,
+            landmarks=landmarks,
+            invalid_action=invalid_action,
+            invalid_action_penalty=invalid_action_penalty,
+            render_mode=render_mode,
+            config=config,
         )
-        self.render_mode = check_render_mode(render_mode, self.metadata)
-        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        check_choice(objective, "objective", objective_names())
-        if isinstance(k, bool | np.bool_) or not isinstance(k, int | np.integer):
-            raise ArgumentTypeError(f"k must be an int in [1, n_landmarks], got {describe(k)}")
-        self.config = LandmarkConfig(
-            n_landmarks=n_landmarks, horizon=horizon, landmarks=landmarks, **config
-        )
-        if not 1 <= k <= self.config.n_landmarks:
-            raise ValueError(f"k must lie in [1, n_landmarks={self.config.n_landmarks}], got {k}")
-        self.n = int(n_landmarks)
-        self.k = int(k)
-        self.objective = objective
-        self.horizon = int(horizon)
+        self.render_mode = settings.render_mode
+        self.invalid_rule = settings.invalid_rule
+        self.config = settings.config
+        self.n, self.k, self.horizon = settings.n, settings.k, settings.horizon
+        self.objective = settings.objective
+        self._gain_spec = settings.spec
         self.max_episode_steps = self.k * self.horizon
         self.action_space = gym.spaces.Discrete(self.n)
-        space = fim_observation_space(self.n, 2, 9)
-        space.spaces["features"] = gym.spaces.Box(-1.0, 1.0, (self.n, 4), np.float32)
-        self.observation_space = space  # type: ignore[assignment, unused-ignore]
+        self.observation_space = landmark_observation_space(self.n)  # type: ignore[assignment, unused-ignore]
         self.problem: LandmarkProblem | None = None
         self._ekf: LandmarkEKF | None = None
-        self._state: GainState | None = None
+        self._sel = SelectionBatch.empty(1, self.n)  # the gain state: a batch of one
+        self._open = False
+        self._features = np.zeros((self.n, 4), np.float32)
         self.picks: list[int] = []
         self.last_selection: tuple[int, ...] | None = None
         self._cost = float("nan")
@@ -231,11 +364,11 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         return self._ekf
 
     @property
-    def state(self) -> GainState:
+    def state(self) -> LandmarkGainView:
         """Gain state of the current filter step: prior ``P_pred^-1`` plus this step's picks."""
-        if self._state is None:
+        if not self._open:
             raise RuntimeError("call reset() before using the environment")
-        return self._state
+        return LandmarkGainView(self._sel, self.picks)
 
     @property
     def solver_objective(self) -> str:
@@ -245,7 +378,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         log-det gain, so ``"det"`` maps to ``"logdet"``; ``"trace"`` and ``"max_eig"`` are
         scored on :data:`POSITION` (:attr:`interest`).
         """
-        return get_objective(self.objective).solver_name
+        return self._gain_spec.objective
 
     @property
     def interest(self) -> tuple[int, ...] | None:
@@ -254,7 +387,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         The position for ``"trace"`` / ``"max_eig"``; ``None`` (the whole state) for
         ``"logdet"`` / ``"det"``.
         """
-        return landmark_interest(self.objective)
+        return self._gain_spec.interest
 
     @property
     def budget_left(self) -> int:
@@ -284,12 +417,12 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """Pick one landmark; after the ``k``-th pick, update the filter and propagate."""
         ekf = self.ekf
-        if self._state is None or self._done:
+        if not self._open or self._done:
             raise RuntimeError("episode is over: call reset()")
         a = check_discrete(action, self.n)
         reason = (
             f"masked: landmark {a} is already picked in this step"
-            if self.state.selected[a]
+            if self._sel.selected[0, a]
             else None
         )
         rule = self.invalid_rule
@@ -298,7 +431,7 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
             return self._obs(), rule.penalty, True, False, self._info(reason)
         penalty = rule.penalty if reason else 0.0
         if reason is None:
-            self.state.add(a)
+            add_picks(self._sel, _ROW0, np.array([a]), self._gain_spec)
             self.picks.append(a)
         self._slots += 1
         if self._slots < self.k:
@@ -341,27 +474,28 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     def _open_step(self) -> None:
         """Gain state over the landmarks at the new prediction: ``Q0 = P_pred^-1``."""
         ekf = self.ekf
-        H, self._h_pred = ekf.candidates()
-        G = whiten(H, np.broadcast_to(ekf.problem.R_landmark, (self.n, 2, 2)))
-        L = cholesky_spd(ekf.P, "P_pred")
-        Linv = np.linalg.solve(L, np.eye(9))
-        Q0 = Linv.T @ Linv  # P_pred^-1 from its Cholesky factor
-        self._state = make_gain_state(
-            0.5 * (Q0 + Q0.T),
-            G,
-            self.solver_objective,
-            interest=self.interest,
-            track_gains=True,
-            track_whitened=True,
-        )
+        H, h_pred = ekf.candidates()
+        G = whiten_landmarks(H[None], ekf.problem.R_landmark)
+        self._sel = SelectionBatch.empty(1, self.n)  # new arrays: older views stay as they were
+        open_selection(self._sel, _ROW0, ekf.P[None], G, self._gain_spec)
+        self._features = landmark_features(h_pred, ekf.k, self.horizon)
+        self._open = True
         self.picks = []
         self._slots = 0
 
     def _obs(self) -> dict[str, np.ndarray]:
-        st = self.state
-        assert st.gains is not None and st.Z is not None  # tracked by construction
-        feats = landmark_features(self._h_pred, self.ekf.k, self.horizon)
-        return fim_observation(st.gains, st.Z, st.selected, feats, self.budget_left / self.k)
+        n = self.n
+        out: dict[str, np.ndarray] = {
+            "gain": np.empty((1, n), np.float32),
+            "whitened": np.empty((1, n, 18), np.float32),
+            "selected": np.empty((1, n), np.int8),
+            "budget_left": np.empty((1, 1), np.float32),
+            "action_mask": np.empty((1, n), np.int8),
+        }
+        write_observation(out, _ROW0, self._sel, np.array([self.budget_left / self.k]))
+        obs = {key: value[0] for key, value in out.items()}
+        obs["features"] = self._features.copy()
+        return obs
 
     def _position_error(self) -> float:
         ekf = self.ekf

@@ -70,14 +70,35 @@ def fly(cfg: LandmarkConfig) -> tuple[FloatArray, FloatArray]:
     return states, imu
 
 
-def body_vectors_along(states: FloatArray, landmarks: FloatArray) -> FloatArray:
-    """``Delta`` of every landmark at every state: (S, N, 3) for states (S, 9)."""
-    d = landmarks[None, :, :] - states[:, None, 0:3]
-    return np.einsum("sna,sab->snb", d, euler_to_dcm(states[:, 6:9]))  # d^T C_b^e
+def body_vectors_along(
+    states: FloatArray, landmarks: FloatArray, dcm: FloatArray | None = None
+) -> FloatArray:
+    """``Delta = C_e^b (p_n - p)`` (eq. 17) of every landmark at every state.
+
+    Args:
+        states: (S, 9) states.
+        landmarks: (N, 3) or a batch (g, N, 3) of layouts.
+        dcm: (S, 3, 3) ``C_b^e`` of ``states`` if known (``None``: computed).
+
+    Returns:
+        (S, N, 3), or (g, S, N, 3) for a batch of layouts.
+    """
+    C = euler_to_dcm(states[:, 6:9]) if dcm is None else dcm
+    d = landmarks[..., None, :, :] - states[:, None, 0:3]  # (..., S, N, 3)
+    return d @ C  # rows d^T C_b^e = (C_e^b d)^T
 
 
-def draw_layout(cfg: LandmarkConfig, states: FloatArray, rng: np.random.Generator) -> FloatArray:
-    """Uniform landmarks around the track, away from the body z axis (module docstring)."""
+def draw_layout(
+    cfg: LandmarkConfig,
+    states: FloatArray,
+    rng: np.random.Generator,
+    dcm: FloatArray | None = None,
+) -> FloatArray:
+    """Uniform landmarks (N, 3) around the track, away from the body z axis (module docstring).
+
+    ``dcm`` (T + 1, 3, 3): ``C_b^e`` along ``states`` if known (``None``: computed).
+    """
+    C = euler_to_dcm(states[:, 6:9]) if dcm is None else dcm
     n, m = int(cfg.n_landmarks), float(cfg.landmark_margin)
     low = [*(states[:, 0:2].min(axis=0) - m), cfg.landmark_height[0]]
     high = [*(states[:, 0:2].max(axis=0) + m), cfg.landmark_height[1]]
@@ -86,7 +107,7 @@ def draw_layout(cfg: LandmarkConfig, states: FloatArray, rng: np.random.Generato
     count = 0
     for _ in range(200):
         cand = rng.uniform(low, high, size=(2 * n, 3))
-        delta = body_vectors_along(states, cand)
+        delta = body_vectors_along(states, cand, C)
         rho = np.hypot(delta[..., 0], delta[..., 1])
         ok = np.all(rho > sin_min * np.linalg.norm(delta, axis=-1), axis=0)
         kept.append(cand[ok])

@@ -68,6 +68,7 @@ __all__ = [
     "aoa_angles_jacobian",
     "body_rates_from_euler_rates",
     "body_vectors",
+    "dcm_batch",
     "euler_rate_matrix",
     "euler_to_dcm",
     "euler_to_dcm_derivatives",
@@ -81,6 +82,7 @@ __all__ = [
     "propagation_jacobians",
     "skew",
     "state_difference",
+    "strapdown_batch",
     "wrap_angle",
 ]
 
@@ -444,3 +446,74 @@ def paper_error_to_state(x: ArrayLike) -> FloatArray:
     T[3:6, 3:6] = np.eye(3)
     T[6:9, 0:3] = euler_rate_matrix(xa[6:9])
     return T
+
+
+# -- batched strapdown (the filter of B episodes at once) -----------------------------------------
+def dcm_batch(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``C_b^e`` (B, 3, 3) and ``dC_b^e/dtheta_i`` (B, 3, 3, 3) (``i`` second) of angles (B, 3).
+
+    The entries of :func:`euler_to_dcm` and :func:`euler_to_dcm_derivatives`, batched.
+    """
+    s, c = np.sin(theta), np.cos(theta)
+    sr, sp, sy = s[:, 0], s[:, 1], s[:, 2]
+    cr, cp, cy = c[:, 0], c[:, 1], c[:, 2]
+    srsp, crsp = sr * sp, cr * sp
+    B = theta.shape[0]
+    C = np.empty((B, 3, 3))  # rows E, N, -D of C_b^ned
+    C[:, 0, 0], C[:, 0, 1], C[:, 0, 2] = cp * sy, srsp * sy + cr * cy, crsp * sy - sr * cy
+    C[:, 1, 0], C[:, 1, 1], C[:, 1, 2] = cp * cy, srsp * cy - cr * sy, crsp * cy + sr * sy
+    C[:, 2, 0], C[:, 2, 1], C[:, 2, 2] = sp, -sr * cp, -cr * cp
+    D = np.zeros((B, 3, 3, 3))
+    D[:, 0, 0, 1], D[:, 0, 0, 2] = crsp * sy - sr * cy, -srsp * sy - cr * cy  # d/droll
+    D[:, 0, 1, 1], D[:, 0, 1, 2] = crsp * cy + sr * sy, -srsp * cy + cr * sy
+    D[:, 0, 2, 1], D[:, 0, 2, 2] = -cr * cp, sr * cp
+    D[:, 1, 0, 0], D[:, 1, 0, 1], D[:, 1, 0, 2] = -sp * sy, sr * cp * sy, cr * cp * sy  # d/dpitch
+    D[:, 1, 1, 0], D[:, 1, 1, 1], D[:, 1, 1, 2] = -sp * cy, sr * cp * cy, cr * cp * cy
+    D[:, 1, 2, 0], D[:, 1, 2, 1], D[:, 1, 2, 2] = cp, srsp, crsp
+    D[:, 2, 0:2] = C[:, 1::-1]  # d/dyaw: dE/dyaw = N, dN/dyaw = -E, U has no yaw
+    D[:, 2, 1] *= -1.0
+    return C, D
+
+
+def strapdown_batch(
+    x: FloatArray, u: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(x+, F, G)`` of :func:`propagate` and :func:`propagation_jacobians`, batched over B.
+
+    The same equations (module docstring and :func:`propagation_jacobians`) for ``B`` states at
+    once: ``x`` (B, 9), ``u`` (B, 6) -> ``x+`` (B, 9), ``F = dx+/dx`` (B, 9, 9),
+    ``G = dx+/du`` (B, 9, 6). Internal: the inputs are checked float64 arrays.
+    """
+    B, h = x.shape[0], float(dt)
+    th = x[:, 6:9]
+    s, c = np.sin(th[:, 0:2]), np.cos(th[:, 0:2])
+    sr, sp, cr, cp = s[:, 0], s[:, 1], c[:, 0], c[:, 1]
+    tp, c2 = sp / cp, cp * cp
+    C, D = dcm_batch(th)
+    f, w = u[:, 0:3], u[:, 3:6]
+    E = np.zeros((B, 3, 3))  # d theta / dt = E w_b (euler_rate_matrix)
+    E[:, 0, 0], E[:, 0, 1], E[:, 0, 2] = 1.0, sr * tp, cr * tp
+    E[:, 1, 1], E[:, 1, 2] = cr, -sr
+    E[:, 2, 1], E[:, 2, 2] = sr / cp, cr / cp
+    a = (C @ f[:, :, None])[:, :, 0] + _G_E  # a = C_b^e f_b + g_e
+    xp = np.empty((B, STATE_DIM))
+    xp[:, 0:3] = x[:, 0:3] + x[:, 3:6] * h + 0.5 * a * h * h  # p+ = p + v dt + a dt^2 / 2
+    xp[:, 3:6] = x[:, 3:6] + a * h  # v+ = v + a dt
+    xp[:, 6:9] = th + (E @ w[:, :, None])[:, :, 0] * h  # theta+ = theta + E w_b dt
+    At = (D @ f[:, None, :, None])[..., 0]  # (B, 3 angles, 3): row i = (dC/dtheta_i) f
+    A = np.swapaxes(At, 1, 2)
+    w1, w2 = w[:, 1], w[:, 2]
+    F = np.broadcast_to(_f_template(h), (B, STATE_DIM, STATE_DIM)).copy()
+    F[:, 0:3, 6:9] = 0.5 * h * h * A
+    F[:, 3:6, 6:9] = h * A
+    # F[6:9, 6] += dt dE/droll w, F[6:9, 7] += dt dE/dpitch w (E has no yaw)
+    F[:, 6, 6] += h * (cr * tp * w1 - sr * tp * w2)
+    F[:, 7, 6] += h * (-sr * w1 - cr * w2)
+    F[:, 8, 6] += h * (cr / cp * w1 - sr / cp * w2)
+    F[:, 6, 7] += h * (sr / c2 * w1 + cr / c2 * w2)
+    F[:, 8, 7] += h * (sr * sp / c2 * w1 + cr * sp / c2 * w2)
+    G = np.zeros((B, STATE_DIM, 6))
+    G[:, 0:3, 0:3] = 0.5 * h * h * C
+    G[:, 3:6, 0:3] = h * C
+    G[:, 6:9, 3:6] = h * E
+    return xp, F, G

@@ -38,17 +38,17 @@ from numpy.typing import ArrayLike
 
 from selenv.core.crlb import pcrlb_step_covariance
 from selenv.core.information import block_logdet_gains, whiten
-from selenv.core.kalman import KalmanUpdate, kf_predict, kf_update
+from selenv.core.kalman import KalmanUpdate
 from selenv.core.linalg import FloatArray, logdet_spd, validate_spd
+from selenv.families.landmarks.batched import aoa_candidates, ekf_predict, ekf_update
 from selenv.families.landmarks.flight import body_vectors_along, draw_layout, fly
 from selenv.families.landmarks.models import (
     GRAVITY,
     STATE_DIM,
     aoa_angles,
-    measure,
+    euler_to_dcm,
     measurement_jacobian,
     process_noise,
-    propagate,
     propagation_jacobians,
     wrap_angle,
 )
@@ -65,12 +65,16 @@ __all__ = [
     "MAX_LANDMARKS",
     "MAX_STEPS",
     "RANGES",
+    "EpisodeDraws",
     "LandmarkConfig",
     "LandmarkEKF",
     "LandmarkProblem",
+    "ScenarioStatic",
     "check_selection",
     "crlb_reference",
+    "draw_episodes",
     "make_landmark_problem",
+    "scenario_static",
     "selection_logdet_gain",
 ]
 
@@ -390,10 +394,159 @@ def _flight(cfg: LandmarkConfig) -> tuple[FloatArray, FloatArray, FloatArray, Fl
     return _FLIGHTS[key]
 
 
+@dataclass(frozen=True, eq=False)
+class ScenarioStatic:
+    """What a config fixes for every seed, computed once (:func:`scenario_static`, read-only).
+
+    Attributes:
+        states: (T + 1, 9) true states; imu_true: (T, 6); F_true, Q: (T, 9, 9) (the flight).
+        dcm: (T + 1, 3, 3) ``C_b^e`` along the true states.
+        imu_sigma: (6,) ``(sa, sa, sa, sg, sg, sg)``; imu_cov: (6, 6) its square.
+        aoa_sigma: (2,) angle noise (rad); R_landmark: (2, 2) ``diag(aoa_sigma^2)``.
+        P0: (9, 9) initial covariance; init_std: (9,) ``sqrt(diag P0)``.
+        landmarks: (N, 3) the user layout, or ``None`` (drawn per seed).
+        angles: (T, N, 2) noise-free angles of the user layout along the truth, or ``None``.
+    """
+
+    states: FloatArray
+    imu_true: FloatArray
+    F_true: FloatArray
+    Q: FloatArray
+    dcm: FloatArray
+    imu_sigma: FloatArray
+    imu_cov: FloatArray
+    aoa_sigma: FloatArray
+    R_landmark: FloatArray
+    P0: FloatArray
+    init_std: FloatArray
+    landmarks: FloatArray | None
+    angles: FloatArray | None
+
+
+#: :class:`ScenarioStatic` by :func:`_config_key` (oldest dropped first)
+_STATIC: dict[tuple[Any, ...], ScenarioStatic] = {}
+
+
+def _config_key(cfg: LandmarkConfig) -> tuple[Any, ...]:
+    """Every field of ``cfg`` as a hashable key (``repr`` of floats, the layout's bytes)."""
+    out: list[Any] = [*_flight_key(cfg), cfg.n_landmarks]
+    for name in ("aoa_sigma_deg", "init_sigma", "landmark_height"):
+        out += [name, *(repr(float(v)) for v in getattr(cfg, name))]
+    out += [repr(float(cfg.landmark_margin)), repr(float(cfg.min_off_nadir_deg))]
+    lm = cfg.landmarks
+    out.append(None if lm is None else (lm.shape, lm.tobytes()))
+    return tuple(out)
+
+
+def scenario_static(cfg: LandmarkConfig) -> ScenarioStatic:
+    """The seed-independent part of ``cfg``'s scenario, computed once per config (read-only).
+
+    The flight (:func:`_flight`), ``C_b^e`` along it, the noise scales, ``P0``, and for a user
+    layout the noise-free angles of arrival along the truth (then a reset only adds noise).
+    """
+    key = _config_key(cfg)
+    hit = _STATIC.get(key)
+    if hit is not None:
+        return hit
+    states, imu_true, F_true, Q = _flight(cfg)
+    imu_sigma = np.repeat([float(cfg.accel_sigma), cfg.gyro_sigma], 3)
+    P0 = cfg.P0
+    dcm = euler_to_dcm(states[:, 6:9])
+    landmarks = angles = None
+    if cfg.landmarks is not None:
+        landmarks = _check_layout(cfg.landmarks, int(cfg.n_landmarks))
+        angles = aoa_angles(body_vectors_along(states[1:], landmarks, dcm[1:]))
+    arrays = _readonly(
+        dcm=dcm,
+        imu_sigma=imu_sigma,
+        imu_cov=np.diag(imu_sigma**2),
+        aoa_sigma=cfg.aoa_sigma,
+        R_landmark=np.diag(cfg.aoa_sigma**2),
+        P0=P0,
+        init_std=np.sqrt(np.diag(P0)),
+    )
+    if landmarks is not None and angles is not None:
+        arrays.update(_readonly(landmarks=landmarks, angles=angles))
+    static = ScenarioStatic(
+        states=states,
+        imu_true=imu_true,
+        F_true=F_true,
+        Q=Q,
+        landmarks=arrays.pop("landmarks", None),
+        angles=arrays.pop("angles", None),
+        **arrays,
+    )
+    if len(_STATIC) >= _MAX_FLIGHTS:
+        _STATIC.pop(next(iter(_STATIC)))  # oldest first
+    _STATIC[key] = static
+    return static
+
+
+@dataclass(frozen=True, eq=False)
+class EpisodeDraws:
+    """The seeded part of ``g`` episodes (:func:`draw_episodes`), leading axis ``g``.
+
+    Attributes:
+        landmarks: (g, N, 3); imu_measured: (g, T, 6); measurement_noise, measurements:
+            (g, T, N, 2); x0_hat: (g, 9) (see :class:`LandmarkProblem`).
+    """
+
+    landmarks: FloatArray
+    imu_measured: FloatArray
+    measurement_noise: FloatArray
+    measurements: FloatArray
+    x0_hat: FloatArray
+
+
+def draw_episodes(cfg: LandmarkConfig, rngs: Sequence[np.random.Generator]) -> EpisodeDraws:
+    """Draw ``g = len(rngs)`` episodes, one per generator, then finish them batched.
+
+    Each generator is used exactly as :func:`make_landmark_problem` uses its own, in the order
+    of the module docstring (layout, IMU noise (T, 6), AOA noise (T, N, 2), initial error (9,));
+    the noisy IMU ``imu_true + noise``, the scaled noises, ``x0_hat = states[0] + e`` and the
+    measurements ``wrap(h(states[k + 1]) + noise[k])`` are then computed for all ``g`` at once.
+
+    Raises:
+        ValueError: no feasible layout.
+    """
+    st = scenario_static(cfg)
+    T, N, g = int(cfg.horizon), int(cfg.n_landmarks), len(rngs)
+    landmarks = np.empty((g, N, 3))
+    imu = np.empty((g, T, 6))
+    noise = np.empty((g, T, N, 2))
+    e = np.empty((g, STATE_DIM))
+    for i, rng in enumerate(rngs):
+        if st.landmarks is None:
+            landmarks[i] = draw_layout(cfg, st.states, rng, st.dcm)
+        else:
+            landmarks[i] = st.landmarks
+        imu[i] = rng.standard_normal((T, 6))
+        noise[i] = rng.standard_normal((T, N, 2))
+        e[i] = rng.standard_normal(STATE_DIM)
+    imu = st.imu_true + imu * st.imu_sigma
+    noise *= st.aoa_sigma
+    x0_hat = st.states[0] + st.init_std * e  # P0 diagonal
+    if st.angles is not None:
+        h = st.angles
+    else:
+        h = aoa_angles(body_vectors_along(st.states[1:], landmarks, st.dcm[1:]))
+    z = wrap_angle(h + noise)
+    return EpisodeDraws(
+        landmarks=landmarks,
+        imu_measured=imu,
+        measurement_noise=noise,
+        measurements=z,
+        x0_hat=x0_hat,
+    )
+
+
 def make_landmark_problem(
     config: LandmarkConfig | None, rng: np.random.Generator
 ) -> LandmarkProblem:
     """Fly the trajectory, draw the layout and every noise (module docstring), in that order.
+
+    The flight and everything else that does not depend on the seed come from
+    :func:`scenario_static` (computed once per config); the draws from :func:`draw_episodes`.
 
     Args:
         config: scenario parameters (``None``: the defaults).
@@ -405,33 +558,26 @@ def make_landmark_problem(
     cfg = LandmarkConfig() if config is None else config
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    states, imu_true, F_true, Q = _flight(cfg)
-    T, N = int(cfg.horizon), int(cfg.n_landmarks)
-    if cfg.landmarks is None:
-        landmarks = draw_layout(cfg, states, rng)
-    else:
-        landmarks = _check_layout(cfg.landmarks, N).copy()
-    imu_sigma = np.repeat([float(cfg.accel_sigma), cfg.gyro_sigma], 3)
-    imu_measured = imu_true + rng.standard_normal((T, 6)) * imu_sigma
-    noise = rng.standard_normal((T, N, 2)) * cfg.aoa_sigma
-    P0 = cfg.P0
-    x0_hat = states[0] + np.sqrt(np.diag(P0)) * rng.standard_normal(STATE_DIM)  # P0 diagonal
-    z = wrap_angle(aoa_angles(body_vectors_along(states[1:], landmarks)) + noise)
+    st = scenario_static(cfg)
+    draws = draw_episodes(cfg, [rng])
     arrays = _readonly(
-        landmarks=landmarks,
-        states=states,
-        imu_true=imu_true,
-        imu_measured=imu_measured,
-        F_true=F_true,
-        Q=Q,
-        imu_cov=np.diag(imu_sigma**2),
-        measurement_noise=noise,
-        measurements=z,
-        R_landmark=np.diag(cfg.aoa_sigma**2),
-        x0_hat=x0_hat,
-        P0=P0,
+        landmarks=draws.landmarks[0],
+        imu_measured=draws.imu_measured[0],
+        measurement_noise=draws.measurement_noise[0],
+        measurements=draws.measurements[0],
+        x0_hat=draws.x0_hat[0],
     )
-    return LandmarkProblem(config=cfg, **arrays)
+    return LandmarkProblem(
+        config=cfg,
+        states=st.states,
+        imu_true=st.imu_true,
+        F_true=st.F_true,
+        Q=st.Q,
+        imu_cov=st.imu_cov,
+        R_landmark=st.R_landmark,
+        P0=st.P0,
+        **arrays,
+    )
 
 
 def check_selection(selection: Any, n_landmarks: int) -> np.ndarray:
@@ -560,7 +706,6 @@ class LandmarkEKF:
         self.k = 0
         self._pending = False  # a prediction awaits its (optional) update
         self._cache: tuple[FloatArray, FloatArray] | None = None  # (H, h) at the prediction
-        self._R: dict[int, FloatArray] = {}  # blockdiag(R_landmark) per K
         cfg = problem.config
         self._sigmas = (float(cfg.accel_sigma), cfg.gyro_sigma)
 
@@ -596,10 +741,8 @@ class LandmarkEKF:
         if self.k >= self.problem.horizon:
             raise RuntimeError(f"horizon {self.problem.horizon} reached: no IMU sample left")
         u = self.problem.imu_measured[self.k]
-        F, G = propagation_jacobians(self.x, u, self.problem.dt)
-        Q = process_noise(G, *self._sigmas)
-        _, self.P = kf_predict(self.x, self.P, F, Q)  # P <- F P F^T + Q
-        self.x = propagate(self.x, u, self.problem.dt)  # x <- f(x, u)
+        x, P = ekf_predict(self.x[None], self.P[None], u[None], self.problem.dt, *self._sigmas)
+        self.x, self.P = x[0], P[0]  # x <- f(x, u), P <- F P F^T + Q
         self.k += 1
         self._pending = True
         self._cache = None
@@ -611,8 +754,8 @@ class LandmarkEKF:
         Cached until the estimate changes; :meth:`update` reuses them.
         """
         if self._cache is None:
-            lm = self.problem.landmarks
-            self._cache = (measurement_jacobian(self.x, lm), measure(self.x, lm))
+            H, h = aoa_candidates(self.x[None], self.problem.landmarks[None])
+            self._cache = (H[0], h[0])
         return self._cache
 
     def update(self, selection: Any) -> KalmanUpdate | None:
@@ -641,15 +784,13 @@ class LandmarkEKF:
         if self._cache is not None:
             H, hx = self._cache[0][idx], self._cache[1][idx]
         else:  # only the selected landmarks: the cheap path for small K
-            lm = self.problem.landmarks[idx]
-            H, hx = measurement_jacobian(self.x, lm), measure(self.x, lm)
-        H2 = H.reshape(-1, STATE_DIM)  # (2K, 9)
-        y = wrap_angle(self.measurements[idx] - hx).reshape(-1)  # y = wrap(z - h(x))
-        R = self._R.get(idx.size)
-        if R is None:
-            R = self._R[idx.size] = self.problem.selection_noise(idx.size)
-        # internal, well-formed arrays: skip kf_update's input checks (they dominate small K)
-        res = kf_update(self.x, self.P, H2 @ self.x + y, H2, R, validate=False)
+            Hb, hb = aoa_candidates(self.x[None], self.problem.landmarks[idx][None])
+            H, hx = Hb[0], hb[0]
+        z = self.measurements[idx]
+        R = self.problem.R_landmark
+        b = ekf_update(self.x[None], self.P[None], H[None], hx[None], z[None], R)  # B = 1
+        ll = float(np.asarray(b.log_likelihood).reshape(-1)[0])
+        res = KalmanUpdate(b.x[0], b.P[0], b.y[0], b.S[0], b.K[0], ll)
         self.x, self.P = res.x, res.P
         self._cache = None
         return res
