@@ -47,6 +47,7 @@ __all__ = [
     "aoa_candidates",
     "ekf_predict",
     "ekf_update",
+    "inv_lower",
     "joseph_update",
     "landmark_costs",
     "landmark_features",
@@ -245,6 +246,23 @@ def whiten_landmarks(H: FloatArray, R_landmark: FloatArray) -> FloatArray:
     return np.moveaxis(G.reshape(rows.shape), 0, -2)
 
 
+def inv_lower(L: FloatArray) -> FloatArray:
+    """``L^-1`` (B, n, n) of non-singular lower-triangular factors ``L`` (B, n, n).
+
+    Forward substitution row by row (LAPACK ``dtrtri``'s recurrence), batched over ``B``:
+    ``X[i, i] = 1 / L[i, i]`` and ``X[i, :i] = -L[i, :i] X[:i, :i] / L[i, i]``. Used where the
+    inverse factor itself is propagated (``L'^-1 = C^-1 L^-1``), never to solve a system.
+    """
+    n = L.shape[-1]
+    X = np.zeros_like(L)
+    d = 1.0 / np.diagonal(L, axis1=1, axis2=2)
+    X[:, 0, 0] = d[:, 0]
+    for i in range(1, n):
+        X[:, i, :i] = -(L[:, i : i + 1, :i] @ X[:, :i, :i])[:, 0] * d[:, i, None]
+        X[:, i, i] = d[:, i]
+    return X
+
+
 # -- the gain state of a filter step -------------------------------------------------------------
 @dataclass(frozen=True)
 class GainSpec:
@@ -329,13 +347,12 @@ def open_selection(
         G: (g, N, 2, 9) whitened Jacobians.
         spec: what the gains score.
     """
-    eye = np.eye(STATE_DIM)
     L = cholesky_spd(P_pred, "P_pred")
-    Linv = np.linalg.solve(L, np.broadcast_to(eye, L.shape))
+    Linv = inv_lower(L)
     Q0 = np.swapaxes(Linv, -1, -2) @ Linv  # P_pred^-1 from its Cholesky factor
     Q0 = 0.5 * (Q0 + np.swapaxes(Q0, -1, -2))
     L0 = cholesky_spd(Q0, "Q0")  # A = Q0 = L0 L0^T
-    L0inv = np.linalg.solve(L0, np.broadcast_to(eye, L0.shape))
+    L0inv = inv_lower(L0)
     sel.G[rows] = G
     sel.Q0[rows] = Q0
     sel.Linv[rows] = L0inv
@@ -365,7 +382,7 @@ def add_picks(sel: SelectionBatch, rows: np.ndarray, picks: np.ndarray, spec: Ga
     Zj = sel.Z[rows, picks]  # (g, 2, 9)
     M = eye + np.swapaxes(Zj, -1, -2) @ Zj
     C = cholesky_spd(0.5 * (M + np.swapaxes(M, -1, -2)), "I + Z_j^T Z_j")
-    Cinv = np.linalg.solve(C, np.broadcast_to(eye, C.shape))  # the inverse factor itself
+    Cinv = inv_lower(C)  # the inverse factor itself is propagated
     sel.Linv[rows] = Cinv @ sel.Linv[rows]  # L'^-1 = C^-1 L^-1
     sel.Z[rows] = sel.Z[rows] @ np.swapaxes(Cinv, -1, -2)[:, None]  # Z' = Z C^-T
     sel.selected[rows, picks] = True
