@@ -17,6 +17,12 @@ What this base does, the same way for every family:
 * **Autoreset** in Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env terminated
   or truncated resets it (with its own generator, as ``env.reset()`` without a seed would),
   returning its first observation with reward 0 and both flags false; its action is ignored.
+  ``gymnasium.make_vec(id, num_envs=B, autoreset_mode=...)`` (or :meth:`set_autoreset_mode`)
+  selects Gymnasium's other modes: ``SAME_STEP`` resets a finished sub-env within the step
+  that ended it (its last observation and info in ``infos["final_obs"]`` /
+  ``infos["final_info"]``, Gymnasium's keys), ``DISABLED`` never resets (stepping a finished
+  sub-env is a ``RuntimeError``; reset it with ``options={"reset_mask": mask}``); TorchRL
+  asks for one of these two. Every mode draws the same episodes for the same seeds.
 * **Partial resets** with ``options={"reset_mask": mask}`` (``(B,)`` bool), as Gymnasium 1.1+.
 * **Infos** batched the Gymnasium way: every key holds a ``(B,)`` (or ``(B, ...)``) array and
   ``"_key"`` a ``(B,)`` bool mask of the sub-envs that reported it.
@@ -113,6 +119,8 @@ class BatchedVectorEnv(VectorEnv):
         self.observation_space = batch_space(single_observation_space, self.num_envs)
         self.action_space = batch_space(single_action_space, self.num_envs)
         self.render_mode = render_mode
+        self.autoreset_mode = AutoresetMode.NEXT_STEP  # Gymnasium 1.1+ vector envs expose it
+        self.metadata = {**type(self).metadata, "autoreset_mode": self.autoreset_mode}
         #: one generator per sub-env, made as :meth:`gymnasium.Env.reset` makes one
         self.np_randoms: list[np.random.Generator | None] = [None] * self.num_envs
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
@@ -155,11 +163,30 @@ class BatchedVectorEnv(VectorEnv):
         merge_infos(out, infos, idx, self.num_envs)
         return self._observe(), out
 
+    def set_autoreset_mode(self, mode: Any) -> None:
+        """Select the autoreset mode: an :class:`~gymnasium.vector.AutoresetMode` or its value.
+
+        Raises:
+            ValueError: not one of ``"NextStep"``, ``"SameStep"``, ``"Disabled"``.
+        """
+        try:
+            self.autoreset_mode = AutoresetMode(mode)
+        except ValueError:
+            choices = [m.value for m in AutoresetMode]
+            raise ValueError(f"autoreset_mode must be one of {choices}, got {mode!r}") from None
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+
     @small_blas
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-env; those that ended at the previous step are reset instead."""
+        """Step every sub-env; what happens to finished ones depends on :attr:`autoreset_mode`."""
         if not self._has_reset:
             raise RuntimeError("call reset() before step()")
+        mode = self.autoreset_mode
+        if mode == AutoresetMode.DISABLED and self._autoreset.any():
+            raise RuntimeError(
+                f"sub-envs {np.flatnonzero(self._autoreset).tolist()} have ended: reset them "
+                "with reset(options={'reset_mask': mask}) first (autoreset_mode is DISABLED)"
+            )
         rewards = np.zeros(self.num_envs, dtype=np.float64)
         terminated = np.zeros(self.num_envs, dtype=np.bool_)
         truncated = np.zeros(self.num_envs, dtype=np.bool_)
@@ -170,12 +197,37 @@ class BatchedVectorEnv(VectorEnv):
         if step_idx.size:
             r, te, tr, infos = self._step_envs(acts[step_idx], step_idx)
             rewards[step_idx], terminated[step_idx], truncated[step_idx] = r, te, tr
-            merge_infos(out, infos, step_idx, self.num_envs)
+            done = np.asarray(te, dtype=bool) | np.asarray(tr, dtype=bool)
+            if mode == AutoresetMode.SAME_STEP and done.any():
+                self._finish_same_step(out, infos, step_idx, done)
+            else:
+                merge_infos(out, infos, step_idx, self.num_envs)
         if reset_idx.size:
             infos = self._reset_envs(reset_idx, {})
             merge_infos(out, infos, reset_idx, self.num_envs)
         self._autoreset = terminated | truncated
+        if mode == AutoresetMode.SAME_STEP:
+            self._autoreset[:] = False
         return self._observe(), rewards, terminated, truncated, out
+
+    def _finish_same_step(
+        self, out: dict[str, Any], infos: dict[str, Any], step_idx: np.ndarray, done: np.ndarray
+    ) -> None:
+        """``SAME_STEP``: keep the final observations and infos, reset the finished sub-envs."""
+        ended = step_idx[done]
+        final = self._observe()
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for b in ended:
+            final_obs[b] = _row(final, int(b))
+        rows = {key: _take(values, done) for key, values in infos.items()}
+        final_info: dict[str, Any] = {}
+        merge_infos(final_info, rows, ended, self.num_envs)
+        kept = {key: _take(values, ~done) for key, values in infos.items()}
+        if (~done).any():
+            merge_infos(out, kept, step_idx[~done], self.num_envs)
+        merge_infos(out, self._reset_envs(ended, {}), ended, self.num_envs)
+        out["final_obs"], out["_final_obs"] = final_obs, np.isin(np.arange(self.num_envs), ended)
+        out["final_info"], out["_final_info"] = final_info, out["_final_obs"].copy()
 
     def render(self) -> tuple[Any, ...] | None:
         """The frames of every sub-env (``render_mode="rgb_array"``), or ``None``."""
@@ -227,3 +279,19 @@ class BatchedVectorEnv(VectorEnv):
                 f"got shape {arr.shape}"
             )
         return arr
+
+
+def _row(tree: Any, b: int) -> Any:
+    """Sub-env ``b``'s part of a batched observation (a copy)."""
+    if isinstance(tree, dict):
+        return {k: _row(v, b) for k, v in tree.items()}
+    if isinstance(tree, tuple):
+        return tuple(_row(v, b) for v in tree)
+    return np.array(np.asarray(tree)[b], copy=True)
+
+
+def _take(values: Any, keep: np.ndarray) -> Any:
+    """The rows ``keep`` (a bool mask) of one batched info value (array or list)."""
+    if isinstance(values, list):
+        return [v for v, k in zip(values, keep, strict=True) if k]
+    return np.asarray(values)[keep]

@@ -170,7 +170,7 @@ def vector_factories(spec: FamilySpec) -> tuple[VectorFactory, VectorFactory]:
     """The vector entry points ``(make_vector_env, make_vector_env_v0)`` of a family.
 
     ``gymnasium.make_vec(id, num_envs=B, **kwargs)`` calls them with ``num_envs`` and the id's
-    keywords; ``make_vector_env_v0`` warns and maps the ``-v0`` presets as
+    keywords (``autoreset_mode``, if given, selects Gymnasium's autoreset mode); ``make_vector_env_v0`` warns and maps the ``-v0`` presets as
     :func:`env_factories` does. A family without :attr:`FamilySpec.vector_class` refuses.
     """
     from selenv.envs.versions import warn_deprecated
@@ -178,7 +178,11 @@ def vector_factories(spec: FamilySpec) -> tuple[VectorFactory, VectorFactory]:
     def make_vector_env(num_envs: int = 1, **kwargs: Any) -> Any:
         if spec.vector_class is None:
             raise ValueError(f"{spec.current_id} has no native vector env")
-        return load_attr(spec.vector_class)(num_envs=num_envs, **kwargs)
+        mode = kwargs.pop("autoreset_mode", None)
+        venv = load_attr(spec.vector_class)(num_envs=num_envs, **kwargs)
+        if mode is not None:
+            venv.set_autoreset_mode(mode)
+        return venv
 
     def make_vector_env_v0(num_envs: int = 1, **kwargs: Any) -> Any:
         warn_deprecated(f"selenv/{spec.env_name}-v0", spec.current_id)
