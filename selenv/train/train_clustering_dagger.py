@@ -11,6 +11,12 @@ starting from the checkpoint's weights. The result is saved with the source meta
 
     python -m selenv.train.train_clustering_dagger   # -> runs/train_clustering_dagger/policy.zip
 
+``--scorer checkpoint`` (default) fits the checkpoint's own architecture from its weights
+(``mlp`` or ``factorised``, whichever it has: :mod:`selenv.learned.rl.edit_policy`);
+``--scorer factorised`` / ``mlp`` fits a *fresh* policy of that scorer (the checkpoint's
+``hidden``, ``activation`` and ``gain_skip_init``) to the labels the checkpoint's behaviour
+collected, e.g. to distil the shipped ``mlp`` policy into the cheaper factorised one.
+
 The shipped ``checkpoints/receiver_clustering_ppo.zip`` is one such round on the ranking-trained
 policy: ``configs/receiver_clustering_ppo.toml`` (its header gives both commands).
 """
@@ -28,6 +34,13 @@ import torch
 
 from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
+from selenv.learned.rl.candidate_policy import make_ppo
+from selenv.learned.rl.edit_policy import (
+    SCORERS,
+    edit_model_from_checkpoint,
+    is_edit_architecture,
+    scorer_policy_kwargs,
+)
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
 from selenv.learned.rl.safe_load import model_from_checkpoint
 from selenv.learned.rl.training import evaluate_checkpoint
@@ -73,6 +86,61 @@ class Config:
     eval_seed: int = arg(10_000, "seed of the first held-out episode (then +1, +2, ...)")
     verify_top_k: str = arg("4,8", "evaluated variants ppo_topK: comma-separated K (empty: none)")
     baselines: str = arg("ga", "comma-separated registered agents evaluated next to the policy")
+    scorer: str = arg(
+        "checkpoint",
+        "the policy fitted: checkpoint (the checkpoint's architecture, from its weights), or "
+        "factorised / mlp (a fresh policy of that edit scorer, fitted to the labels of the "
+        "checkpoint's behaviour)",
+    )
+    edit_rank: int = arg(16, "rank k of a fresh factorised scorer (with --scorer factorised)")
+
+
+def fresh_model(
+    meta: dict[str, Any], env: gym.Env[Any, Any], scorer: str, rank: int, seed: int
+) -> tuple[Any, dict[str, Any]]:
+    """An untrained model of edit scorer ``scorer`` on ``env``, and its ``architecture`` block.
+
+    The widths, activation and gain skip are the source checkpoint's (``meta``); its algorithm
+    (``training.algorithm``) too; ``seed`` initialises the weights.
+
+    Raises:
+        ValueError: an unknown ``scorer`` or an incomplete ``meta["architecture"]``.
+    """
+    extractor, extra = scorer_policy_kwargs(scorer, rank)
+    src = meta.get("architecture")
+    if not isinstance(src, dict):
+        raise ValueError(f"--checkpoint metadata lacks an 'architecture' object: {src!r}")
+    try:
+        kw = {
+            "hidden": [int(h) for h in src["hidden"]],
+            "activation": str(src["activation"]),
+            "gain_skip_init": float(src.get("gain_skip_init", 0.0)),
+            **extra,
+        }
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"--checkpoint metadata: incomplete architecture: {exc!r}") from exc
+    training = meta.get("training")
+    is_ppo = isinstance(training, dict) and training.get("algorithm") == "PPO"
+    net_arch: dict[str, list[int]] = {"pi": [], "vf": [64]}
+    model = make_ppo(
+        env,
+        "ppo" if is_ppo else "maskable_ppo",
+        seed=seed,
+        policy_kwargs={
+            "net_arch": net_arch,
+            "features_extractor_class": extractor,
+            "features_extractor_kwargs": kw,
+        },
+    )
+    architecture = {
+        "policy": f"selenv.learned.rl.candidate_policy.{type(model.policy).__name__}",
+        "features_extractor": f"{extractor.__module__}.{extractor.__name__}",
+        **kw,
+        "net_arch": net_arch,
+        "n_parameters": int(sum(p.numel() for p in model.policy.parameters())),
+        "pool_size_independent": True,
+    }
+    return model, architecture
 
 
 def parse_args(argv: list[str] | None = None) -> Config:
@@ -93,6 +161,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     out = Path(cfg.out)
     if out.suffix != ".zip":
         raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
+    if cfg.scorer not in ("checkpoint", *SCORERS):
+        raise ValueError(f"--scorer must be one of {['checkpoint', *SCORERS]}, got {cfg.scorer!r}")
+    if cfg.edit_rank < 1:
+        raise ValueError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
     meta = load_metadata(cfg.checkpoint)
     if meta.get("env_id") != ENV_ID:
         raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {meta.get('env_id')!r}")
@@ -113,7 +185,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     # weights read safely (never SB3's load(), which unpickles the zip), onto a fresh model
     env = gym.make(ENV_ID, **{**kwargs, "action_mode": "edit"})
     env = CandidateViewWrapper(env, view_for(ENV_ID, env, meta.get("view")))
-    model = model_from_checkpoint(cfg.checkpoint, meta, env)
+    if cfg.scorer == "checkpoint":
+        loader = edit_model_from_checkpoint if is_edit_architecture(meta) else model_from_checkpoint
+        model = loader(cfg.checkpoint, meta, env)
+    else:
+        model, architecture = fresh_model(meta, env, cfg.scorer, cfg.edit_rank, cfg.seed)
+        meta = {**meta, "architecture": architecture}
     fit = fit_ranking(
         model.policy,
         data,

@@ -14,6 +14,15 @@ describes every edit by the receivers' noise levels, the clusters' composition a
    levels: the mean episode return drifted from -54 to -57 over 24k steps), which is why
    stage 1 exists; ``--rank-states 0 --total-timesteps 40000`` reproduces that run.
 
+The edit scorer (``--scorer``): ``factorised`` (default,
+:class:`selenv.learned.rl.edit_policy.FactorisedEditScorer`) embeds the ``n`` receivers once
+and scores each edit by a rank-``k`` bilinear plus additive combination of its receivers'
+embeddings -- per-receiver work instead of per-edit work, ~20x the PPO steps per second of
+``mlp`` (MaskablePPO, 4 envs x 128 steps, batch 256); ``mlp``
+(:class:`selenv.learned.rl.candidate_policy.CandidateScorer`, the shipped checkpoint's) runs
+an MLP on every one of the 1336 edit rows. ``--hidden`` are the widths of the per-receiver
+(factorised) or per-edit (mlp) network.
+
 Evaluation on held-out seeds (default assignment encoding): ``ppo`` (the policy's top edit:
 no cost evaluation at all), ``ppo_top4`` / ``ppo_top8`` (its 4 / 8 best edits costed, the
 best improving one played: <= 4 / 8 evaluations per step) against ``ga`` (20 per step),
@@ -21,9 +30,10 @@ best improving one played: <= 4 / 8 evaluations per step) against ``ga`` (20 per
 
     python -m selenv.train.train_clustering_ppo   # -> runs/train_clustering_ppo/policy.zip
 
-The shipped ``checkpoints/receiver_clustering_ppo.zip`` is this script's ranking stage
-(``configs/receiver_clustering_ppo_ranking.toml``) followed by one DAgger round
-(:mod:`selenv.train.train_clustering_dagger`, ``configs/receiver_clustering_ppo.toml``).
+The shipped ``checkpoints/receiver_clustering_ppo.zip`` is this script's ranking stage with
+the ``mlp`` scorer (``configs/receiver_clustering_ppo_ranking.toml`` plus ``--scorer mlp``)
+followed by one DAgger round (:mod:`selenv.train.train_clustering_dagger`,
+``configs/receiver_clustering_ppo.toml``).
 """
 
 from __future__ import annotations
@@ -36,6 +46,7 @@ from typing import Any
 import gymnasium as gym
 
 from selenv.learned.config import arg, parse_config
+from selenv.learned.rl.edit_policy import SCORERS, scorer_policy_kwargs
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
 from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
@@ -86,6 +97,14 @@ class Config(PPOConfig):
     rank_workers: int = arg(2, "labelling worker processes")
     rank_horizon: int = arg(500, "episode length of the labelling trajectories")
     verify_top_k: str = arg("4,8", "evaluated variants ppo_topK: comma-separated K (empty: none)")
+    # the edit scorer
+    scorer: str = arg(
+        "factorised",
+        "edit scorer: factorised (per-receiver embeddings, each edit a rank-k bilinear plus "
+        "additive combination of its receivers': cheap on 1336 edits) or mlp (one MLP on "
+        "every edit row, the shipped checkpoint's architecture)",
+    )
+    edit_rank: int = arg(16, "rank k of the factorised scorer's bilinear source-target term")
 
 
 def make_env(kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
@@ -108,6 +127,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
     check_run_outputs(cfg, f"python -m {SCRIPT}")
+    if cfg.scorer not in SCORERS:
+        raise ValueError(f"--scorer must be one of {list(SCORERS)}, got {cfg.scorer!r}")
+    if cfg.edit_rank < 1:
+        raise ValueError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
+    extractor, extractor_kwargs = scorer_policy_kwargs(cfg.scorer, cfg.edit_rank)
     kwargs = cfg.kwargs()
     eval_kwargs = {**kwargs, "horizon": cfg.eval_horizon}
     eval_kwargs.pop("action_mode", None)
@@ -148,6 +172,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         extra_meta={"eval_env_kwargs": eval_kwargs},
         pretrain=pretrain,
         policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
+        features_extractor=extractor,
+        extractor_kwargs=extractor_kwargs,
     )
 
 

@@ -17,7 +17,96 @@ from selenv.families.clustering.env import (
     edit_mask,
 )
 
-__all__ = ["VIEWS", "ClusteringEditView"]
+__all__ = [
+    "RECEIVER_FEATURES",
+    "SOURCE_COLUMNS",
+    "TARGET_COLUMNS",
+    "TIME_COLUMN",
+    "VIEWS",
+    "ClusteringEditView",
+    "edit_endpoints",
+    "leave_rows",
+    "receivers_for_count",
+]
+
+#: the per-receiver quantities an edit row describes, for its receiver ``i`` and its ``j``
+RECEIVER_FEATURES = (
+    "log_sigma_0",
+    "log_sigma_1",
+    "cluster_mean_log_sigma_0",
+    "cluster_mean_log_sigma_1",
+    "cluster_size",
+    "log_position_var",
+    "rel_log_position_var",
+    "rel_log_cluster_var",
+)
+#: columns of an edit row's ``whitened`` holding :data:`RECEIVER_FEATURES` of receiver ``i``
+SOURCE_COLUMNS = (0, 1, 4, 5, 8, 10, 13, 15)
+#: columns of an edit row's ``whitened`` holding :data:`RECEIVER_FEATURES` of receiver ``j``
+TARGET_COLUMNS = (2, 3, 6, 7, 9, 11, 14, 16)
+#: column of an edit row's ``whitened`` holding the time in the episode
+TIME_COLUMN = 12
+
+
+def _check_receivers(n: object) -> None:
+    """``TypeError`` / ``ValueError`` naming ``n`` unless it is an int >= 1."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        raise TypeError(f"n must be an int, got {type(n).__name__}")
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n!r}")
+
+
+def edit_endpoints(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Receivers ``(i, j)`` of every edit row, each ``(1 + n^2 + n(n-1)/2,)`` ``intp``.
+
+    Row 0 is the no-op (``(0, 0)``, its ``whitened`` is zero); row ``1 + i n + j`` moves ``i`` to
+    ``j``'s cluster (leaves to a singleton when ``i = j``); row ``1 + n^2 + p`` swaps the
+    ``p``-th pair ``i < j`` (``numpy.triu_indices(n, 1)`` order). This is the env's
+    ``action_mode="edit"`` encoding (:func:`selenv.families.clustering.env.edit_mask`).
+
+    Raises:
+        TypeError: ``n`` is not an int.
+        ValueError: ``n < 1``.
+    """
+    _check_receivers(n)
+    n = int(n)
+    iu, ju = np.triu_indices(n, k=1)
+    mi, mj = np.divmod(np.arange(n * n), n)
+    i = np.concatenate([[0], mi, iu]).astype(np.intp)
+    j = np.concatenate([[0], mj, ju]).astype(np.intp)
+    return i, j
+
+
+def leave_rows(n: int) -> np.ndarray:
+    """Rows ``1 + r (n + 1)`` of the "receiver ``r`` leaves" edits, ``(n,)`` ``intp``.
+
+    Such a row's :data:`SOURCE_COLUMNS` hold receiver ``r``'s :data:`RECEIVER_FEATURES` (every
+    row is filled, masked or not), so the ``n`` rows are the observation's receiver table.
+
+    Raises:
+        TypeError: ``n`` is not an int.
+        ValueError: ``n < 1``.
+    """
+    _check_receivers(n)
+    return (1 + np.arange(int(n)) * (int(n) + 1)).astype(np.intp)
+
+
+def receivers_for_count(count: int) -> int:
+    """The number of receivers ``n`` with ``1 + n^2 + n(n-1)/2 = count`` edits.
+
+    Raises:
+        TypeError: ``count`` is not an int.
+        ValueError: ``count`` is not such a number (not an edit-view pool size).
+    """
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
+        raise TypeError(f"count must be an int, got {type(count).__name__}")
+    if count < 2:
+        raise ValueError(f"count must be >= 2 (an edit count), got {count!r}")
+    # 3 n^2 - n + 2 - 2 count = 0
+    n = round((1.0 + np.sqrt(1.0 + 24.0 * (int(count) - 1))) / 6.0)
+    if n < 1 or edit_action_count(n) != int(count):
+        raise ValueError(f"count={count} is not 1 + n^2 + n(n-1)/2 for any receiver count n")
+    return int(n)
 
 
 class ClusteringEditView(CandidateView):
@@ -47,10 +136,8 @@ class ClusteringEditView(CandidateView):
 
         self.n, self.max_size, self.action_mode = int(n), int(max_size), action_mode
         self.count = edit_action_count(self.n)
-        iu, ju = np.triu_indices(self.n, k=1)
         mi, mj = np.divmod(np.arange(self.n * self.n), self.n)
-        self.i = np.concatenate([[0], mi, iu]).astype(np.intp)
-        self.j = np.concatenate([[0], mj, ju]).astype(np.intp)
+        self.i, self.j = edit_endpoints(self.n)
         kind = np.zeros((self.count, N_FEATURES), np.float32)
         kind[0, 0] = 1.0
         kind[1 : 1 + self.n * self.n, 1] = 1.0

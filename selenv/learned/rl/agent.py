@@ -12,6 +12,13 @@ plays any instance of its env with the same per-candidate width::
     agent.reset(env, seed=0)
     action = agent.act(obs, info)
 
+The policy is rebuilt from the JSON (never unpickled from the zip): the per-candidate
+``CandidateScorer`` (:mod:`selenv.learned.rl.safe_load`) or, when
+``architecture.features_extractor`` is exactly
+:data:`selenv.learned.rl.edit_policy.EDIT_EXTRACTOR`, the factorised edit scorer of
+``ReceiverClustering-v1`` (:func:`selenv.learned.rl.edit_policy.load_edit_policy`); either
+way only the zip's weight tensors are read.
+
 Every failure to load or to apply a checkpoint (missing file, another env, another width) is
 a ``ValueError`` naming the file and what was expected.
 """
@@ -33,6 +40,11 @@ from selenv.learned.rl.candidate_policy import (
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
     obs_layout,
+)
+from selenv.learned.rl.edit_policy import (
+    FactorisedEditScorer,
+    is_edit_architecture,
+    load_edit_policy,
 )
 from selenv.learned.rl.lean import LeanScorer, TopMScorer
 from selenv.learned.rl.safe_load import load_policy
@@ -147,8 +159,17 @@ class SB3PolicyAgent(Agent):
             raise ValueError(
                 f"checkpoint {self.checkpoint} was trained on {trained_on!r}, not {env_id!r}"
             )
-        # never SB3's load(): it unpickles the zip's data (code execution); see safe_load
-        policy = load_policy(self.checkpoint, self.metadata)
+        # never SB3's load(): it unpickles the zip's data (code execution); see safe_load.
+        # The architecture is chosen from two fixed loaders by an exact string of the JSON.
+        if is_edit_architecture(self.metadata):
+            policy = load_edit_policy(self.checkpoint, self.metadata)
+        else:
+            policy = load_policy(self.checkpoint, self.metadata)
+        if top_m and isinstance(policy.pi_features_extractor, FactorisedEditScorer):
+            raise ValueError(
+                f"top_m={top_m}: checkpoint {self.checkpoint} has a factorised edit scorer, "
+                "which scores every edit cheaply already (use top_m=0)"
+            )
         self.masked = isinstance(policy, CandidateScoringPolicy)  # MaskablePPO's policy
         layout = obs_layout(policy.observation_space)
         meta_layout = self.metadata["obs_layout"]

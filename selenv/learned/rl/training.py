@@ -43,7 +43,7 @@ from selenv.agents import Agent
 from selenv.bench.runner import AgentResult, run_episode
 from selenv.envs.resolved import resolved_env_config
 from selenv.learned.config import arg, check_outputs
-from selenv.learned.rl.candidate_policy import ALGORITHMS, make_ppo, obs_layout
+from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
 
 __all__ = [
     "PPOConfig",
@@ -215,6 +215,8 @@ def train(
     extra_meta: dict[str, Any] | None = None,
     pretrain: Callable[[Any], dict[str, Any]] | None = None,
     policy_variants: dict[str, dict[str, Any]] | None = None,
+    features_extractor: type[CandidateScorer] = CandidateScorer,
+    extractor_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Train, save ``cfg.out`` (+ JSON), evaluate against ``cfg.baselines``; return the metadata.
 
@@ -232,6 +234,10 @@ def train(
         policy_variants: further agents evaluated from the saved checkpoint, name ->
             keyword arguments of :class:`~selenv.learned.rl.agent.SB3PolicyAgent` (e.g.
             ``{"ppo_top4": {"verify_top_k": 4}}``).
+        features_extractor: the policy's scorer (a ``CandidateScorer`` or subclass, e.g.
+            :class:`~selenv.learned.rl.edit_policy.FactorisedEditScorer`); recorded in the
+            metadata's ``architecture`` with ``extractor_kwargs``.
+        extractor_kwargs: further keyword arguments of ``features_extractor`` (JSON values).
     """
     torch.set_num_threads(cfg.torch_threads)
     out = Path(cfg.out)
@@ -276,11 +282,13 @@ def train(
         gamma=cfg.gamma,
         tensorboard_log=cfg.tensorboard_dir or None,
         policy_kwargs={
+            "features_extractor_class": features_extractor,
             "features_extractor_kwargs": {
                 "hidden": hidden,
                 "activation": cfg.activation,
                 "gain_skip_init": cfg.gain_skip_init,
-            }
+                **(extractor_kwargs or {}),
+            },
         },
     )
 
@@ -312,10 +320,11 @@ def train(
         },
         "architecture": {
             "policy": f"selenv.learned.rl.candidate_policy.{type(model.policy).__name__}",
-            "features_extractor": "selenv.learned.rl.candidate_policy.CandidateScorer",
+            "features_extractor": f"{features_extractor.__module__}.{features_extractor.__name__}",
             "hidden": hidden,
             "activation": cfg.activation,
             "gain_skip_init": cfg.gain_skip_init,
+            **(extractor_kwargs or {}),
             "net_arch": {"pi": [], "vf": [64]},
             "n_parameters": int(sum(p.numel() for p in model.policy.parameters())),
             "pool_size_independent": True,
