@@ -329,6 +329,10 @@ def _recorded(module: ModuleType, meta: dict[str, Any]) -> dict[str, Any]:
             "hidden": ",".join(map(str, arch["hidden"])),
             "activation": arch["activation"],
             "gain_skip_init": arch["gain_skip_init"],
+            # the edit scorer (train_clustering_ppo): the factorised class or the MLP
+            "scorer": "factorised"
+            if arch.get("features_extractor", "").endswith("FactorisedEditScorer")
+            else "mlp",
         }
         if "episodes" in metrics:
             derived.update(eval_episodes=metrics["episodes"], eval_seed=metrics["eval_seeds"][0])

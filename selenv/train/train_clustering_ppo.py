@@ -31,7 +31,7 @@ best improving one played: <= 4 / 8 evaluations per step) against ``ga`` (20 per
     python -m selenv.train.train_clustering_ppo   # -> runs/train_clustering_ppo/policy.zip
 
 The shipped ``checkpoints/receiver_clustering_ppo.zip`` is this script's ranking stage with
-the ``mlp`` scorer (``configs/receiver_clustering_ppo_ranking.toml`` plus ``--scorer mlp``)
+the ``mlp`` scorer (``configs/receiver_clustering_ppo_ranking.toml``, which sets ``scorer = "mlp"``)
 followed by one DAgger round (:mod:`selenv.train.train_clustering_dagger`,
 ``configs/receiver_clustering_ppo.toml``).
 """
