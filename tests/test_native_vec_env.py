@@ -55,7 +55,10 @@ def _dummy(env_id: str, kwargs: dict, view: str | None, n: int) -> DummyVecEnv:
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_native_adapter_replays_dummy_vec_env(env_id: str) -> None:
-    kwargs, view = CASES[env_id]
+    _replay(env_id, *CASES[env_id])
+
+
+def _replay(env_id: str, kwargs: dict, view: str | None) -> None:
     n = 3
     native = make_native_vec_env(env_id, n, seed=11, view=view, env_kwargs=kwargs, monitor=False)
     dummy = _dummy(env_id, kwargs, view, n)
@@ -92,11 +95,34 @@ def test_maskable_ppo_trains_on_the_native_vec_env(env_id: str) -> None:
     venv.close()
 
 
-def test_live_views_are_refused() -> None:
+def test_a_single_live_view_is_refused() -> None:
+    """A view that reads the live env cannot be shared by the sub-envs: one per sub-env."""
     if "selenv/CLScheduling-v1" not in IDS:
         pytest.skip("no native CL vector env")
-    with pytest.raises(ValueError, match="reads the live env"):
-        make_native_vec_env("selenv/CLScheduling-v1", 2, view="cl_pairs_fused")
+    env = gym.make("selenv/CLScheduling-v1")
+    live = view_for("selenv/CLScheduling-v1", env, "cl_pairs_fused")
+    assert live.live
+    venv = gym.make_vec("selenv/CLScheduling-v1", num_envs=2)
+    with pytest.raises(ValueError, match="one view per sub-env"):
+        NativeVecEnv(venv, live)
+    with pytest.raises(ValueError, match="expected 2 views"):
+        NativeVecEnv(venv, [live])
+    venv.close()
+    env.close()
+
+
+def test_live_view_on_the_native_cl_env_replays_dummy_vec_env() -> None:
+    """``cl_pairs_fused`` (previewed fused gains) served by the vector env's ``sub_env``."""
+    venv = gym.make_vec("selenv/CLScheduling-v1", num_envs=2)
+    has = callable(getattr(venv, "sub_env", None))
+    venv.close()
+    if not has:
+        pytest.skip("the CL vector env serves no sub_env previews")
+    CASES["cl_fused"] = ({"horizon": 3}, "cl_pairs_fused")
+    try:
+        _replay("selenv/CLScheduling-v1", *CASES["cl_fused"])
+    finally:
+        del CASES["cl_fused"]
 
 
 def test_needs_next_step_autoreset_and_masks() -> None:

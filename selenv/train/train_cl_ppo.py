@@ -42,7 +42,7 @@ class Config(PPOConfig):
     )
     total_timesteps: int = 60_000
     n_envs: int = 4
-    vec_env: str = "subproc"
+    vec_env: str = "native"
     n_steps: int = 256
     batch_size: int = 256
     gain_skip_init: float = 2.0
@@ -83,6 +83,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cfg,
         env_id=ENV_ID,
         make_env=lambda: make_env(kwargs, cfg.view),
+        native={"env_id": ENV_ID, "env_kwargs": kwargs, "view": cfg.view},
         make_eval_env=lambda: gym.make(ENV_ID, **kwargs),
         view=cfg.view,
         tb_name="cl_ppo",

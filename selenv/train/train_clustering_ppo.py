@@ -67,7 +67,7 @@ class Config(PPOConfig):
         0, "PPO environment steps after the ranking stage (0: keep the ranked policy)"
     )
     n_envs: int = 4
-    vec_env: str = "subproc"
+    vec_env: str = "native"
     n_steps: int = 256
     batch_size: int = 256
     gamma: float = 0.98
@@ -166,6 +166,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cfg,
         env_id=ENV_ID,
         make_env=lambda: make_env(kwargs),
+        native={
+            "env_id": ENV_ID,
+            "env_kwargs": {**kwargs, "action_mode": "edit"},
+            "view": "clustering_edits",
+        },
         make_eval_env=lambda: gym.make(ENV_ID, **eval_kwargs),
         view="clustering_edits",
         tb_name="clustering_ppo",

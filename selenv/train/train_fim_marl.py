@@ -48,6 +48,10 @@ class Config(PPOConfig):
         choices=("cooperative", "independent"),
     )
     total_timesteps: int = 100_000
+    vec_env: str = arg(
+        "dummy",
+        "dummy or subproc (the shared-policy PettingZoo wrapper has no native vector env)",
+    )
     out: str = "runs/train_fim_marl/policy.zip"
     eval_episodes: int = arg(
         50, "held-out episodes of the policy and the greedy schemes, in both modes (0: none)"

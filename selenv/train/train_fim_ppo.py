@@ -60,6 +60,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         make_eval_env=lambda: gym.make(ENV_ID, **kwargs),
         view="identity",
         tb_name="fim_ppo",
+        native={"env_id": ENV_ID, "env_kwargs": kwargs, "view": None},
         extra_meta={
             "obs_layout": {
                 "m": m,

@@ -36,7 +36,7 @@ class Config(PPOConfig):
     env_kwargs: str = json.dumps({"n_landmarks": 30, "k": 2, "horizon": 100})
     total_timesteps: int = 100_000
     n_envs: int = 4
-    vec_env: str = "subproc"
+    vec_env: str = "native"
     n_steps: int = 256
     batch_size: int = 256
     gain_skip_init: float = 1.0
@@ -67,6 +67,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         make_eval_env=lambda: gym.make(ENV_ID, **kwargs),
         view="identity",
         tb_name="landmark_ppo",
+        native={"env_id": ENV_ID, "env_kwargs": kwargs, "view": None},
     )
 
 

@@ -61,8 +61,9 @@ MANAGED = {
     "progress": "the sweep (no bars)",
     "torch_threads": "the sweep (1 per trial)",
 }
-#: one CPU per trial: envs in the trial's process, no extra evaluation variants (--set undoes)
-SWEEP_DEFAULTS: dict[str, Any] = {"vec_env": "dummy", "rank_workers": 1, "verify_top_k": ""}
+#: one CPU per trial: the native vector env in the trial's process, no extra evaluation variants
+#: (--set undoes)
+SWEEP_DEFAULTS: dict[str, Any] = {"vec_env": "native", "rank_workers": 1, "verify_top_k": ""}
 POSITIVE = {"n_envs", "n_steps", "batch_size", "n_epochs", "learning_rate", "gamma"}
 
 
@@ -158,8 +159,8 @@ def _parse(cls: type, key: str, text: str, option: str) -> Any:
             raise ValueError("expected a JSON object")
         if key == "hidden" and not all(int(h) > 0 for h in text.split(",")):
             raise ValueError("expected comma-separated layer widths > 0")
-        if key == "vec_env" and text not in ("dummy", "subproc"):
-            raise ValueError("expected dummy or subproc")
+        if key == "vec_env" and text not in ("native", "dummy", "subproc"):
+            raise ValueError("expected native, dummy or subproc")
         if key == "activation" and text not in ("tanh", "relu"):
             raise ValueError("expected tanh or relu")
         if key == "algo":

@@ -3,9 +3,12 @@
 A script defines a :class:`PPOConfig` subclass with its env's defaults and calls
 :func:`train`, which reads top to bottom:
 
-1. envs: ``n_envs`` copies of ``make_env()`` (the env wrapped in its candidate view,
-   :mod:`selenv.learned.rl.views`), in one process (``vec_env="dummy"``) or in worker processes
-   (``"subproc"``, :class:`~stable_baselines3.common.vec_env.SubprocVecEnv`);
+1. envs: the family's native batched vector env (``vec_env="native"``, the default:
+   ``gymnasium.make_vec`` through :class:`~selenv.learned.rl.vec_env.NativeVecEnv`, the
+   candidate view applied per sub-env), or ``n_envs`` copies of ``make_env()`` (the env
+   wrapped in its candidate view, :mod:`selenv.learned.rl.views`) in one process
+   (``"dummy"``) or in worker processes (``"subproc"``,
+   :class:`~stable_baselines3.common.vec_env.SubprocVecEnv`);
 2. model: :func:`~selenv.learned.rl.candidate_policy.make_ppo` (candidate-scoring policy) with
    ``algo="maskable_ppo"`` (default: masks from the env's ``action_masks()``) or ``"ppo"``;
 3. training with a tqdm bar and TensorBoard logs (``runs/``);
@@ -44,8 +47,13 @@ from selenv.bench.runner import AgentResult, run_episode
 from selenv.envs.resolved import resolved_env_config
 from selenv.learned.config import arg, check_outputs
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
+from selenv.learned.rl.vec_env import make_native_vec_env
+
+#: the ``--vec-env`` choices
+VEC_ENVS = ("native", "dummy", "subproc")
 
 __all__ = [
+    "VEC_ENVS",
     "PPOConfig",
     "TqdmCallback",
     "check_run_outputs",
@@ -69,7 +77,9 @@ class PPOConfig:
     seed: int = arg(0, "seed of the training envs, the network initialisation and PPO")
     n_envs: int = arg(8, "training envs stepped together (one rollout: n_envs * n_steps)")
     vec_env: str = arg(
-        "dummy", "dummy (envs in this process) or subproc (one worker process per env)"
+        "native",
+        "native (the env's batched vector env: one numpy computation steps all n_envs), "
+        "dummy (n_envs Python envs in this process) or subproc (one worker process per env)",
     )
     n_steps: int = arg(128, "steps per env per rollout")
     batch_size: int = arg(512, "minibatch size of the PPO epochs")
@@ -217,6 +227,7 @@ def train(
     policy_variants: dict[str, dict[str, Any]] | None = None,
     features_extractor: type[CandidateScorer] = CandidateScorer,
     extractor_kwargs: dict[str, Any] | None = None,
+    native: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Train, save ``cfg.out`` (+ JSON), evaluate against ``cfg.baselines``; return the metadata.
 
@@ -238,6 +249,10 @@ def train(
             :class:`~selenv.learned.rl.edit_policy.FactorisedEditScorer`); recorded in the
             metadata's ``architecture`` with ``extractor_kwargs``.
         extractor_kwargs: further keyword arguments of ``features_extractor`` (JSON values).
+        native: how ``vec_env="native"`` builds the training envs: the keywords of
+            :func:`~selenv.learned.rl.vec_env.make_native_vec_env` (``env_id``,
+            ``env_kwargs``, ``view``) describing the same env as ``make_env``; ``None``: the
+            script's env has no native vector env (``--vec-env native`` is refused).
     """
     torch.set_num_threads(cfg.torch_threads)
     out = Path(cfg.out)
@@ -249,8 +264,13 @@ def train(
         raise ValueError(f"--eval-episodes must be >= 0, got {cfg.eval_episodes}")
     if cfg.algo not in ALGORITHMS:
         raise ValueError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
-    if cfg.vec_env not in ("dummy", "subproc"):
-        raise ValueError(f"--vec-env must be dummy or subproc, got {cfg.vec_env!r}")
+    if cfg.vec_env not in VEC_ENVS:
+        raise ValueError(f"--vec-env must be one of {list(VEC_ENVS)}, got {cfg.vec_env!r}")
+    if cfg.vec_env == "native" and native is None:
+        raise ValueError(
+            f"--vec-env native: {env_id} is trained through a wrapper without a native vector "
+            "env; use --vec-env dummy or subproc"
+        )
     check_run_outputs(cfg, "selenv.learned.rl.training.train")  # the scripts check first
     out.parent.mkdir(parents=True, exist_ok=True)
 
@@ -260,12 +280,17 @@ def train(
 
     factories = [monitored for _ in range(cfg.n_envs)]
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # workers: tiny matrices, no contention
-    venv: VecEnv = (
-        SubprocVecEnv(factories, start_method="spawn")
-        if cfg.vec_env == "subproc"
-        else DummyVecEnv(factories)
-    )
-    venv.seed(cfg.seed)
+    venv: VecEnv
+    if cfg.vec_env == "native":
+        assert native is not None  # checked above
+        venv = make_native_vec_env(n_envs=cfg.n_envs, seed=cfg.seed, **native)
+    else:
+        venv = (
+            SubprocVecEnv(factories, start_method="spawn")
+            if cfg.vec_env == "subproc"
+            else DummyVecEnv(factories)
+        )
+        venv.seed(cfg.seed)
     layout = obs_layout(venv.observation_space)
 
     # 2. model

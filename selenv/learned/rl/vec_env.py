@@ -19,8 +19,10 @@ conventions:
   :func:`sb3_contrib.common.maskable.utils.get_action_masks` and MaskablePPO work.
 * **Candidate views**: a pure :class:`~selenv.envs.views.CandidateView` (a function of the
   observation alone) is applied to each sub-env's observation and ``view.env_action`` maps the
-  policy's candidate back to the env's action. Views that read the live env (the previewed
-  fused gains of ``cl_pairs_fused``) need one env object per sub-env: use ``DummyVecEnv``.
+  policy's candidate back to the env's action. A view that reads the live env (the previewed
+  fused gains of ``cl_pairs_fused``) is built once per sub-env on the vector env's
+  ``sub_env(b)`` proxy, which serves those reads from one batched computation (the CL vector
+  env's ``preview_gains``); a vector env without ``sub_env`` refuses such views.
 * **Copies**: observations are copied out of the vector env, so SB3's rollout buffer, which
   stores the previous observation after the step, never sees a buffer the step overwrote.
 
@@ -63,26 +65,43 @@ class NativeVecEnv(VecEnv):
     Args:
         venv: the vector env (``gymnasium.make_vec(id, num_envs=B)``); it must offer
             ``action_masks()`` returning ``(B, ...)`` masks.
-        view: a pure candidate view applied per sub-env (``None``: the env's own observation).
+        view: a pure candidate view applied per sub-env (``None``: the env's own observation),
+            or a list of ``B`` views, one per sub-env (views that read the live env, built on
+            ``venv.sub_env(b)``).
 
     Raises:
         ValueError: ``venv`` does not autoreset in ``NEXT_STEP`` mode, has no
-            ``action_masks``, or ``view`` reads the live env.
+            ``action_masks``, ``view`` is a single view that reads the live env, or a list of
+            the wrong length.
     """
 
-    def __init__(self, venv: gym.vector.VectorEnv, view: CandidateView | None = None) -> None:
+    def __init__(
+        self,
+        venv: gym.vector.VectorEnv,
+        view: CandidateView | Sequence[CandidateView] | None = None,
+    ) -> None:
         mode = venv.metadata.get("autoreset_mode")
         if mode is not None and mode != gym.vector.AutoresetMode.NEXT_STEP:
             raise ValueError(f"venv must autoreset in NEXT_STEP mode, got {mode}")
         if not callable(getattr(venv, "action_masks", None)):
             raise ValueError(f"venv {type(venv).__name__} has no action_masks() method")
-        if view is not None and getattr(view, "live", False):
+        if isinstance(view, CandidateView) and view.live:
             raise ValueError(
-                f"the candidate view {view.name!r} reads the live env (previewed updates), "
-                "which a batched vector env does not provide; train it with vec_env='dummy'"
+                f"the candidate view {view.name!r} reads the live env (previewed updates): "
+                "pass one view per sub-env, built on venv.sub_env(b)"
             )
+        if isinstance(view, Sequence) and len(view) != venv.num_envs:
+            raise ValueError(f"view: expected {venv.num_envs} views (one per sub-env)")
         self.venv = venv
-        self.view = None if view is None or isinstance(view, IdentityView) else view
+        views: list[CandidateView] | None
+        if view is None or isinstance(view, IdentityView):
+            views = None
+        elif isinstance(view, CandidateView):
+            views = [view] * venv.num_envs
+        else:
+            views = list(view)
+        self.views = views
+        self.view = None if views is None else views[0]
         single = venv.single_observation_space
         obs_space = single if self.view is None else self.view.space(single)
         self._last_raw: Any = None
@@ -117,7 +136,7 @@ class NativeVecEnv(VecEnv):
             for b in map(int, np.flatnonzero(done)):
                 terminal = _index(obs, b)
                 out_infos[b]["terminal_observation"] = (
-                    terminal if self.view is None else self.view(terminal)
+                    terminal if self.views is None else self.views[b](terminal)
                 )
                 out_infos[b]["TimeLimit.truncated"] = bool(truncated[b] and not terminated[b])
             obs, reset_infos = self.venv.reset(options={"reset_mask": done})
@@ -167,15 +186,15 @@ class NativeVecEnv(VecEnv):
 
     def _out(self, obs: Any) -> Any:
         self._last_raw = obs
-        if self.view is None:
+        if self.views is None:
             return _copy(obs)
-        return _stack([self.view(_index(obs, b)) for b in range(self.num_envs)])
+        return _stack([self.views[b](_index(obs, b)) for b in range(self.num_envs)])
 
     def _env_actions(self, actions: np.ndarray) -> np.ndarray:
-        if self.view is None:
+        if self.views is None:
             return actions
         rows = [
-            self.view.env_action(_index(self._last_raw, b), int(actions[b]))
+            self.views[b].env_action(_index(self._last_raw, b), int(actions[b]))
             for b in range(self.num_envs)
         ]
         return np.asarray(rows)
@@ -213,7 +232,8 @@ def make_native_vec_env(
         monitor: wrap in SB3's ``VecMonitor`` (episode returns and lengths for the logs).
 
     Raises:
-        ValueError: ``env_id`` has no native vector env, or the view reads the live env.
+        ValueError: ``env_id`` has no native vector env, or the view reads the live env and
+            the vector env cannot serve it (no ``sub_env``).
     """
     from selenv.envs.vector import BatchedVectorEnv
 
@@ -222,20 +242,23 @@ def make_native_vec_env(
     if not isinstance(venv, BatchedVectorEnv):
         venv.close()
         raise ValueError(f"{env_id} has no native vector env (gymnasium.make_vec looped)")
-    cand = None
+    cand: CandidateView | list[CandidateView] | None = None
     if view is not None:
         from selenv.learned.rl.views import view_for
 
         template = gym.make(env_id, **kwargs)
         cand = view_for(env_id, template, view)
-        if getattr(cand, "live", False):
-            template.close()
-            venv.close()
-            raise ValueError(
-                f"the candidate view {view!r} reads the live env (previewed updates), which a "
-                "batched vector env does not provide; train it with vec_env='dummy'"
-            )
         template.close()
+        if cand.live:
+            sub_env = getattr(venv, "sub_env", None)
+            if not callable(sub_env):
+                venv.close()
+                raise ValueError(
+                    f"the candidate view {view!r} reads the live env (previewed updates), "
+                    f"which {type(venv).__name__} does not serve (no sub_env); train it "
+                    "with vec_env='dummy'"
+                )
+            cand = [view_for(env_id, sub_env(b), view) for b in range(n_envs)]
     out: VecEnv = NativeVecEnv(venv, cand)
     if seed is not None:
         out.seed(seed)
