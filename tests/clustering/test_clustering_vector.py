@@ -19,7 +19,7 @@ from selenv.agents import make as make_agent
 from selenv.envs.vector_check import check_vector_equivalence, random_masked_action
 from selenv.families.clustering.batched import clustering_costs
 from selenv.families.clustering.env import ReceiverClusteringEnv, edit_action_count
-from selenv.families.clustering.scenario import clustering_cost
+from selenv.families.clustering.scenario import clustering_cost, make_clustering_problem
 from selenv.families.clustering.vector import ReceiverClusteringVectorEnv
 
 ID = "selenv/ReceiverClustering-v1"
@@ -157,6 +157,21 @@ def test_invalid_reason_is_reported_only_for_invalid_sub_envs() -> None:
     assert info["invalid_action"].tolist() == [False, True, False]
     assert info["_invalid_reason"].tolist() == [False, True, False]
     assert "infeasible" in info["invalid_reason"][1]
+
+
+def test_same_step_mode_reports_the_terminating_reason_in_final_info() -> None:
+    env = gym.make_vec(ID, num_envs=3, autoreset_mode="SameStep", invalid_action="terminate")
+    obs, _ = env.reset(seed=0)
+    actions = obs["assignment"].copy()
+    actions[0] = 0  # infeasible: sub-env 0 ends and is reset within the step
+    obs, rewards, terminated, _, info = env.step(actions)
+    assert terminated.tolist() == [True, False, False]
+    assert info["_final_info"].tolist() == [True, False, False]
+    final = info["final_info"]
+    assert final["_invalid_reason"].tolist() == [True, False, False]
+    assert "infeasible" in final["invalid_reason"][0]
+    assert not info.get("_invalid_reason", np.zeros(3, bool)).any()
+    assert obs["time"][0, 0] == 0.0  # the new episode's first observation
 
 
 @pytest.mark.parametrize("action_mode", ["assignment", "edit"])
@@ -324,3 +339,31 @@ def test_batched_costs_equal_the_per_clustering_cost() -> None:
         mine = [P for P, o in zip(posteriors, owner, strict=True) if o == b]
         ref = clustering_cost(mine, weights)
         np.testing.assert_array_equal(costs[b], [ref.J, ref.J_G, ref.J_C, ref.J_L])
+
+
+def test_histories_handed_out_stay_valid_as_banks_and_forks_step() -> None:
+    banks = []
+    for _ in range(2):  # a bank that is forked, and its untouched twin
+        env = gym.make(ID, tau=3, horizon=40)
+        env.reset(seed=2)
+        banks.append(env.unwrapped.bank)  # type: ignore[attr-defined]
+    bank, twin = banks
+    for _ in range(6):  # fill the windows: then histories are appended in place
+        bank.step()
+        twin.step()
+    key = bank.clusters[0]
+    seen = bank.history(key)
+    frozen = seen.copy()
+    other = make_clustering_problem(bank.problem.config, np.random.default_rng(9), 40)
+    fork = bank.fork(other)  # other noise: the forks' posteriors differ from the banks'
+    fork2 = twin.fork(other)
+    for _ in range(12):  # several buffer refills; the pairs step in opposite orders
+        fork.step()
+        bank.step()
+        twin.step()
+        fork2.step()
+        np.testing.assert_array_equal(bank.history(key), twin.history(key))
+        np.testing.assert_array_equal(fork.history(key), fork2.history(key))
+        np.testing.assert_array_equal(seen, frozen)
+    assert bank.history(key).shape[0] == 4
+    assert not np.array_equal(fork.history(key), bank.history(key))

@@ -161,19 +161,27 @@ def _raise_singular(err: str, flag: int) -> None:
 
 
 def window_pass(
-    P0: FloatArray, F: FloatArray, Q: FloatArray, H: FloatArray, R: FloatArray, steps: int
+    P0: FloatArray,
+    F: FloatArray,
+    Q: FloatArray,
+    H: FloatArray,
+    R: FloatArray,
+    steps: int,
+    out: FloatArray | None = None,
 ) -> FloatArray:
     """Algorithm 1's forward pass (steps 3-9) of ``M`` clusters of one size, batched.
 
     :func:`~selenv.core.riccati.riccati_pass` for valid float64 arrays: the same operations in
     the same order (bit-identical, tested), without the per-call input validation and with the
     solve's wrapper trimmed. ``P0`` ``(M, d, d)``; ``R`` ``(M, p, p)`` or, per step,
-    ``(M, steps, p, p)`` (``R[:, t - 1]`` for step ``t``); returns ``(M, steps + 1, d, d)``.
-    Singular ``S`` and overflow raise riccati_pass's ``ValueError``.
+    ``(M, steps, p, p)`` (``R[:, t - 1]`` for step ``t``); returns ``(M, steps + 1, d, d)``,
+    written into ``out`` if given (a float64 array or view of that shape). Singular ``S`` and
+    overflow raise riccati_pass's ``ValueError``.
     """
     B, n = P0.shape[0], P0.shape[1]
     per_step = R.ndim == 4
-    out = np.empty((B, steps + 1, n, n))
+    if out is None:
+        out = np.empty((B, steps + 1, n, n))
     out[:, 0] = P0
     P, Ft, Ht = P0, F.T, H.T
     # np.linalg.solve's error state, set once per pass (an invalid result anywhere in a step

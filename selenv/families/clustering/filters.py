@@ -118,6 +118,7 @@ class ClusterFilterBank:
         }
         self.n_cost_evaluations = 0
         self.n_cluster_passes = 0
+        self._ring: dict[Key, tuple[FloatArray, int, FloatArray]] = {}
         self._new_time_step()
 
     def fork(self, problem: ClusteringProblem | None = None) -> ClusterFilterBank:
@@ -134,7 +135,8 @@ class ClusterFilterBank:
         new._R = self._R if problem is None else {}
         new._key_cache = self._key_cache if problem is None else {}
         new._keys = list(self._keys)
-        new._hist = dict(self._hist)  # arrays are never written in place
+        new._hist = dict(self._hist)  # handed-out rows are never written
+        new._ring = {}  # the buffers stay this bank's: the fork copies on its first step
         new.n_cost_evaluations = new.n_cluster_passes = 0
         new._new_time_step()
         new._window.update(self._window)
@@ -306,6 +308,31 @@ class ClusterFilterBank:
         return bool(recluster_banks([self], [canon])[0])
 
     # -- internals --------------------------------------------------------------------------
+    def _append(self, key: Key, hist: FloatArray, P: FloatArray) -> FloatArray:
+        """History ``hist`` of cluster ``key`` with ``P`` appended, its last ``tau + 1`` rows.
+
+        Histories live in buffers owned by one bank (``_ring``: buffer, rows used, the view
+        handed out): while ``hist`` is this bank's latest view of its buffer and the buffer has
+        room, ``P`` is written into the next, never handed-out row (no copy; every view ever
+        handed out stays valid). Otherwise (a new cluster's window, a fork's shared history,
+        a full buffer) the kept rows move to a new buffer (:func:`_capacity` rows).
+        """
+        tau1 = self.tau + 1
+        ring = self._ring.get(key)
+        if ring is not None and ring[2] is hist and ring[1] < ring[0].shape[0]:
+            buf, end = ring[0], ring[1]
+        else:
+            L = hist.shape[0]
+            keep = min(L, self.tau)
+            buf = np.empty((_capacity(self.tau), *hist.shape[1:]))
+            buf[:keep] = hist[L - keep :]
+            end = keep
+        buf[end] = P
+        end += 1
+        view = buf[max(0, end - tau1) : end]
+        self._ring[key] = (buf, end, view)
+        return view
+
     def _noise(self, keys: list[Key], k0: int, k1: int) -> FloatArray:
         """``R`` of clusters ``keys`` (one size) for steps ``k0 .. k1 - 1``.
 
@@ -327,6 +354,8 @@ class ClusterFilterBank:
     def _new_time_step(self) -> None:
         """Reset the per-step caches: current clusters are known, the rest is computed lazily."""
         self._window = dict(self._hist)
+        if len(self._ring) > len(self._hist):  # buffers of windows not adopted
+            self._ring = {key: ring for key, ring in self._ring.items() if key in self._hist}
         self._stats = {}
         self._costs = {}
         self._prior_parts = None
@@ -404,6 +433,11 @@ def _flatten(banks: Sequence[ClusterFilterBank]) -> tuple[list[Key], IntArray, I
     return keys, np.array(owner, dtype=np.int64), sizes
 
 
+def _capacity(tau: int) -> int:
+    """Rows of a history buffer: the ``tau + 1`` kept and ``min(tau + 1, 32)`` to grow into."""
+    return tau + 1 + min(tau + 1, 32)
+
+
 def step_banks(banks: Sequence[ClusterFilterBank]) -> BankStep:
     """Advance every cluster filter of every bank one step (eqs. 11b, 12c) with its ``R_{k+1}``.
 
@@ -417,7 +451,7 @@ def step_banks(banks: Sequence[ClusterFilterBank]) -> BankStep:
     :func:`~selenv.families.clustering.batched.clustering_costs`. Banks may be at different
     times; they must share the model (``n_agents``, ``dt``, ``noise_correlation``, ``tau``).
     """
-    dt, r, tau = _shared_model(banks)
+    dt, r, _ = _shared_model(banks)
     B, n = len(banks), banks[0].problem.n
     keys, owner, sizes = _flatten(banks)
     M = len(keys)
@@ -425,49 +459,33 @@ def step_banks(banks: Sequence[ClusterFilterBank]) -> BankStep:
     trace2, mean, worst = np.empty(M), np.empty(M), np.empty(M)
     position_var = np.empty((B, n))
     hists = [banks[o]._hist[key] for o, key in zip(owner.tolist(), keys, strict=True)]
-    new_hists: list[FloatArray] = [hists[0]] * M
+    stats: list[dict[Key, tuple[float, int, float, float]]] = [{} for _ in banks]
     for s in np.unique(sizes).tolist():
         sel = np.flatnonzero(sizes == s)
         own = owner[sel]
         members = np.array([keys[m] for m in sel.tolist()], dtype=np.int64)  # (M_s, s)
-        group = [hists[m] for m in sel.tolist()]
-        P = np.stack([h[-1] for h in group])
+        P = np.stack([hists[m][-1] for m in sel.tolist()])
         F, Q, H = axis_model(dt, s)
         R = noise_covariances(levels[own[:, None], members], correlation(r, s))  # R_{k+1}
         P_new = filter_step(P, F, Q, H, R)
-        trace2[sel], mean[sel], worst[sel] = cluster_statistics(P_new)
+        tr, mn, wr = cluster_statistics(P_new)
+        trace2[sel], mean[sel], worst[sel] = tr, mn, wr
         position_var[own[:, None], members] = np.diagonal(P_new, axis1=1, axis2=2)[:, 0 : 2 * s : 2]
-        for L in {h.shape[0] for h in group}:  # histories of one length, appended at once
-            part = [j for j, h in enumerate(group) if h.shape[0] == L]
-            keep = min(L, tau)  # posteriors kept besides the new one
-            out = np.empty((len(part), keep + 1, 2 * s + 1, 2 * s + 1))
-            out[:, :keep] = np.stack([group[j][L - keep :] for j in part])
-            out[:, keep] = P_new[part]
-            for j, h in zip(part, out, strict=True):
-                new_hists[int(sel[j])] = h
+        ns = n_states(s)
+        rows = zip(
+            sel.tolist(), own.tolist(), P_new, tr.tolist(), mn.tolist(), wr.tolist(), strict=True
+        )
+        for m, o, Pk, tr_m, mn_m, wr_m in rows:
+            key = keys[m]
+            bank = banks[o]
+            bank._hist[key] = bank._append(key, hists[m], Pk)
+            stats[o][key] = (tr_m, ns, mn_m, wr_m)
     states = (4 * sizes + 2).astype(np.float64)  # N(C) = 4s + 2
     costs = clustering_costs(trace2, states, mean, worst, owner, B, banks[0].weights)
-    rows = zip(
-        owner.tolist(),
-        keys,
-        new_hists,
-        trace2.tolist(),
-        sizes.tolist(),
-        mean.tolist(),
-        worst.tolist(),
-        strict=True,
-    )
-    for bank in banks:
+    for bank, c, st in zip(banks, costs.tolist(), stats, strict=True):
         bank.k += 1
-        bank._stats = {}
-    for o, key, h, tr, s, mn, wr in rows:
-        bank = banks[o]
-        bank._hist[key] = h
-        bank._stats[key] = (tr, n_states(s), mn, wr)
-    for bank, c in zip(banks, costs.tolist(), strict=True):
-        stats = bank._stats
         bank._new_time_step()
-        bank._stats = stats
+        bank._stats = st
         bank._cost = CostBreakdown(*c)
     return BankStep(costs=costs, position_var=position_var)
 
@@ -599,7 +617,7 @@ def ensure_windows(banks: Sequence[ClusterFilterBank], keysets: Sequence[Any]) -
     """
     if not banks:
         return
-    dt, _, _ = _shared_model(banks)
+    dt, _, tau = _shared_model(banks)
     groups: dict[tuple[int, int, bool], list[tuple[int, Key]]] = defaultdict(list)
     passes = [0] * len(banks)
     for b, (bank, keys) in enumerate(zip(banks, keysets, strict=True)):
@@ -620,11 +638,15 @@ def ensure_windows(banks: Sequence[ClusterFilterBank], keysets: Sequence[Any]) -
         F, Q, H = axis_model(dt, s)
         P0 = _compose_priors(banks, owner, keys)
         R = _window_noise(banks, owner, members, steps)
-        hist = window_pass(P0, F, Q, H, R, steps)
+        # the windows are the first rows of history buffers with room to grow (_append)
+        block = np.empty((len(items), _capacity(tau), 2 * s + 1, 2 * s + 1))
+        hist = window_pass(P0, F, Q, H, R, steps, out=block[:, : steps + 1])
         rows = zip(*(a.tolist() for a in cluster_statistics(hist[:, -1])), strict=True)
-        for (b, key), h, (tr, mn, wr) in zip(items, hist, rows, strict=True):
-            banks[b]._window[key] = h
-            banks[b]._stats[key] = (tr, n_states(s), mn, wr)
+        for (b, key), buf, h, (tr, mn, wr) in zip(items, block, hist, rows, strict=True):
+            bank = banks[b]
+            bank._window[key] = h
+            bank._ring[key] = (buf, steps + 1, h)
+            bank._stats[key] = (tr, n_states(s), mn, wr)
     for bank, n_new in zip(banks, passes, strict=True):
         bank.n_cluster_passes += n_new
     _ensure_stats(banks, keysets)

@@ -33,7 +33,7 @@ from gymnasium.vector import AutoresetMode
 
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
-from selenv.envs.vector import BatchedVectorEnv, check_num_envs, merge_infos
+from selenv.envs.vector import BatchedVectorEnv, check_num_envs
 from selenv.families.clustering.batched import assignment_masks, edit_masks, label_counts
 from selenv.families.clustering.env import (
     ClusteringEnvSettings,
@@ -161,18 +161,21 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
         if st.observes_mask:
             self._buf["action_mask"] = np.zeros((B, st.mask_size), np.int8)
         self._masks = np.zeros((B, st.mask_size), np.bool_)
-        self._reasons: tuple[np.ndarray, list[str]] | None = None
         self._renderer = Renderer(render_mode, self.metadata["render_fps"])
 
     # -- vector API -----------------------------------------------------------------------------
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-env (see :class:`~selenv.envs.vector.BatchedVectorEnv`)."""
-        self._reasons = None
+        """Step every sub-env (see :class:`~selenv.envs.vector.BatchedVectorEnv`).
+
+        ``invalid_reason`` is reported (its ``"_invalid_reason"`` mask true) only for the
+        sub-envs whose action was invalid, in ``infos`` or, for a sub-env that ended in
+        ``SAME_STEP`` mode, in ``infos["final_info"]``.
+        """
         obs, rewards, terminated, truncated, infos = super().step(actions)
-        if self._reasons is not None:  # only the invalid sub-envs report a reason
-            idx, reasons = self._reasons
-            merge_infos(infos, {"invalid_reason": reasons}, idx, self.num_envs)
-            self._reasons = None
+        for part in (infos, infos.get("final_info")):
+            if isinstance(part, dict) and "invalid_reason" in part:
+                given = [reason is not None for reason in part["invalid_reason"]]
+                part["_invalid_reason"] &= np.array(given, dtype=np.bool_)
         return obs, rewards, terminated, truncated, infos
 
     def action_masks(self) -> np.ndarray:
@@ -260,8 +263,6 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
             rule.check(what, reasons[j])
         invalid = np.zeros(idx.size, np.bool_)
         invalid[bad] = True
-        if bad:
-            self._reasons = (idx[bad], [reasons[j] for j in bad])  # type: ignore[misc]
         ends = invalid & rule.terminates
         changed = ~invalid & np.any(new != current, axis=1)
         moved = np.flatnonzero(changed)
@@ -284,6 +285,8 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
             costs[stay] = bank_costs([banks[j] for j in stay.tolist()])
         infos = self._infos(idx, banks, costs, changed)
         infos["invalid_action"] = invalid
+        if bad:  # None for the valid ones: step() clears their "_invalid_reason" mask
+            infos["invalid_reason"] = reasons
         return rewards, terminated, np.zeros(idx.size, np.bool_), infos
 
     def _observe(self) -> dict[str, np.ndarray]:
