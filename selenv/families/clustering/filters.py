@@ -546,16 +546,26 @@ def _prior_parts(banks: Sequence[ClusterFilterBank]) -> None:
     n = need[0].problem.n
     U = np.zeros((len(need), 2 * n, 2 * n))
     keys, owner, sizes = _flatten(need)
+    firsts = [need[o]._hist[key][0] for o, key in zip(owner.tolist(), keys, strict=True)]
+    theta = np.empty(len(keys))  # bias variance of each old cluster at l
     for s in np.unique(sizes).tolist():
-        sel = np.flatnonzero(sizes == s).tolist()
+        sel = np.flatnonzero(sizes == s)
         own = owner[sel]
-        members = np.array([keys[m] for m in sel], dtype=np.int64)
-        rows = np.stack([2 * members, 2 * members + 1], axis=2).reshape(len(sel), 2 * s)
-        blocks = np.stack([need[owner[m]]._hist[keys[m]][0][: 2 * s, : 2 * s] for m in sel])
-        U[own[:, None, None], rows[:, :, None], rows[:, None, :]] = blocks
-    for j, bank in enumerate(need):
-        theta = [hist[0][-1, -1] for hist in bank._hist.values()]
-        bank._prior_parts = (U[j], float(np.mean(theta)))  # bias: mean over old clusters
+        members = np.array([keys[m] for m in sel.tolist()], dtype=np.int64)
+        rows = np.stack([2 * members, 2 * members + 1], axis=2).reshape(sel.size, 2 * s)
+        P_l = np.stack([firsts[m] for m in sel.tolist()])  # (M_s, 2s+1, 2s+1)
+        U[own[:, None, None], rows[:, :, None], rows[:, None, :]] = P_l[:, : 2 * s, : 2 * s]
+        theta[sel] = P_l[:, 2 * s, 2 * s]
+    # the mean over each bank's clusters: banks with as many clusters as rows of one array
+    # (a row's mean has the bits of np.mean of that bank's list)
+    counts = np.bincount(owner, minlength=len(need))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    mean_theta = np.empty(len(need))
+    for c in np.unique(counts).tolist():
+        which = np.flatnonzero(counts == c)
+        mean_theta[which] = theta[starts[which][:, None] + np.arange(c)].mean(axis=1)
+    for j, (bank, t) in enumerate(zip(need, mean_theta.tolist(), strict=True)):
+        bank._prior_parts = (U[j], t)  # bias: mean over old clusters
 
 
 def _compose_priors(
