@@ -23,9 +23,10 @@ from selenv.families.cooperative.scenario import (
     make_cl_problem,
     relative_noise_cov,
 )
-from selenv.scenarios.validation import ArgumentTypeError, describe
+from selenv.scenarios.validation import ArgumentTypeError, check_integer, describe
+from selenv.threads import small_blas
 
-__all__ = ["CLSchedulingVectorEnv"]
+__all__ = ["CLSchedulingVectorEnv", "CLSubEnv"]
 
 
 class CLSchedulingVectorEnv(BatchedVectorEnv):
@@ -60,6 +61,12 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
     single env's keys batched (``processed`` an object array of lists, ``invalid_reason``
     where an action was invalid). ``invalid_action="raise"`` raises a ``ValueError`` naming
     the sub-env before any sub-env steps.
+
+    Previews: :meth:`preview_gains` is the ``(B, P)`` single env's ``preview_gain`` of every
+    open pair of every sub-env, one batched fusion per state (cached until the next step or
+    reset); :meth:`sub_env` hands out a read-only :class:`CLSubEnv` with the single env's
+    ``pairs``, ``preview_gain`` and ``action_masks``, so the candidate views that preview
+    (``cl_pairs_fused``, ``cl_pairs_fused_top3``) run on sub-env ``b`` unchanged.
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
@@ -129,6 +136,8 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         self._masks = np.zeros((B, self.n_pairs + 1), dtype=np.bool_)
         self._masks[:, -1] = True
         self._reasons: dict[int, str] = {}
+        #: (B, P) previewed gains of the current state (None: not computed since it changed)
+        self._previews: np.ndarray | None = None
         self._renderer = Renderer(render_mode, self.metadata["render_fps"])
 
     # -- state helpers -------------------------------------------------------------------------
@@ -206,6 +215,7 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
     # -- BatchedVectorEnv hooks ----------------------------------------------------------------
     def _reset_envs(self, idx: np.ndarray, options: dict[str, Any]) -> dict[str, Any]:
         """New realisations for ``idx`` (each from its own generator); propagate to step 1."""
+        self._previews = None
         cfg = self.config
         for i in idx.tolist():
             rng = self.np_randoms[i]
@@ -245,6 +255,7 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
     ) -> tuple[Any, dict[str, Any]]:
         """Reset every sub-env (or ``options["reset_mask"]``'s); see :mod:`selenv.envs.vector`."""
         self._reasons = {}
+        self._previews = None
         return super().reset(seed=seed, options=options)
 
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -254,6 +265,7 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         sub-envs whose action was invalid, as the single env reports it only then.
         """
         self._reasons = {}
+        self._previews = None
         obs, rewards, terminated, truncated, infos = super().step(actions)
         if self._reasons:
             rows = np.array(sorted(self._reasons), dtype=np.intp)
@@ -270,6 +282,7 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         ends (stop, budget spent or no pair left), the next prediction and its ZUPT and beacon
         updates; reward = the decrease of the objective.
         """
+        self._previews = None
         P1 = self.n_pairs
         bad = np.flatnonzero((actions < 0) | (actions > P1))
         if bad.size:
@@ -322,14 +335,20 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
             rewards[adv] += before - self._objective[b]
         return rewards, terminated, np.zeros(idx.size, dtype=np.bool_), self._infos(idx)
 
-    def _relative_updates(self, b: np.ndarray, p: np.ndarray) -> None:
-        """Fuse pair ``p[r]`` into agent ``i`` of sub-env ``b[r]`` for every row (batched)."""
+    def _relative_terms(
+        self, b: np.ndarray, p: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(H_i, H_j (K, m, n), residual (K, m))`` of pair ``p[r]`` of sub-env ``b[r]`` now.
+
+        The measurement of the current step ``k``: ``z = h(t_i, t_j) + noise[k - 1, p]`` from
+        the true states at ``k``, ``residual = z - h(x_i, x_j)``, Jacobians at the estimates.
+        """
         ij = self._pair_index[p]
         i, j = ij[:, 0], ij[:, 1]
         k = self.k[b]
         truth = self.states[k]  # (K, A, n)
         rows = np.arange(b.size)
-        H_i, H_j, res = batched.relative_terms(
+        return batched.relative_terms(
             self.model,
             self.x[b, i],
             self.x[b, j],
@@ -338,10 +357,37 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
             self._relative_noise[b, k - 1, p],
             self._bearing,
         )
+
+    def _relative_updates(self, b: np.ndarray, p: np.ndarray) -> None:
+        """Fuse pair ``p[r]`` into agent ``i`` of sub-env ``b[r]`` for every row (batched)."""
+        ij = self._pair_index[p]
+        i, j = ij[:, 0], ij[:, 1]
+        H_i, H_j, res = self._relative_terms(b, p)
         x, P = batched.fuse(
             self.fusion, self.x[b, i], self.P[b, i], self.P[b, j], H_i, H_j, self._R, res
         )
         self.x[b, i], self.P[b, i] = x, P
+
+    def _preview_rows(self, b: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(K,) objective decrease of fusing pair ``p[r]`` into sub-env ``b[r]`` now (no change).
+
+        Agent ``i``'s posterior ``P_i+`` of the env's ``fusion`` (``dmv``: eqs. 4-6, batched
+        over the rows; ``ci``, ``pecmv`` and the learned rules one row at a time, as
+        :func:`~selenv.families.cooperative.batched.fuse` runs them), then
+        ``agent_objective(P_i) - agent_objective(P_i+)``: ``log det P_i - log det P_i+`` or the
+        drop of ``tr P_i[:2, :2]`` (negative when the update would raise it).
+        """
+        if b.size == 0:
+            return np.zeros(0)
+        ij = self._pair_index[p]
+        i, j = ij[:, 0], ij[:, 1]
+        H_i, H_j, res = self._relative_terms(b, p)
+        P_i = self.P[b, i]
+        _, P_new = batched.fuse(
+            self.fusion, self.x[b, i], P_i, self.P[b, j], H_i, H_j, self._R, res
+        )
+        before = agent_objective(P_i, self.objective)
+        return np.asarray(before - agent_objective(P_new, self.objective), dtype=np.float64)
 
     def _observe(self) -> dict[str, np.ndarray]:
         """The batched observation (the single env's ``Dict``, every entry ``(B, ...)``)."""
@@ -390,6 +436,40 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         """(B, P + 1) bool: available, unprocessed pairs of every sub-env; stop always allowed."""
         return self._masks.copy()
 
+    def preview_gains(self) -> np.ndarray:
+        """(B, P) previewed objective decrease of every open pair of every sub-env; 0 if masked.
+
+        Entry ``[b, p]`` is the single env's ``preview_gain(p)`` of sub-env ``b`` (rtol 1e-9):
+        one previewed ``fusion`` update of agent ``i``'s belief with pair ``p = (i, j)``'s
+        measurement, undone, ``agent_objective(P_i) - agent_objective(P_i+)``, with ``P_i+``
+        of eqs. (4)-(6) for ``dmv`` (the weight ``w*`` of eq. (6), then eq. (5)). All open
+        ``(sub-env, pair)`` rows (:meth:`action_masks`, stop excluded) go through one call of
+        :func:`~selenv.families.cooperative.batched.fuse` (``dmv``, ``naive``: batched; the
+        other rules: one row at a time). The array is computed once per state and returned
+        again (the same read-only object) until the next :meth:`step` or :meth:`reset`.
+
+        Raises:
+            RuntimeError: before ``reset``.
+        """
+        if self._previews is None:
+            self.states  # noqa: B018 -- RuntimeError before reset
+            with small_blas():
+                out = np.zeros((self.num_envs, self.n_pairs))
+                b, p = np.nonzero(self._masks[:, :-1])
+                out[b, p] = self._preview_rows(b, p)
+            out.flags.writeable = False
+            self._previews = out
+        return self._previews
+
+    def sub_env(self, b: int) -> CLSubEnv:
+        """A read-only :class:`CLSubEnv` of sub-env ``b`` (what a candidate view reads).
+
+        Raises:
+            TypeError: ``b`` not an int.
+            ValueError: ``b`` outside ``[0, B - 1]``.
+        """
+        return CLSubEnv(self, check_integer(b, "b (the sub-env index)", 0, self.num_envs - 1))
+
     def render_env(self, i: int) -> Any:
         """Sub-env ``i``'s frame (``render_mode="rgb_array"``: ``(H, W, 3)`` uint8), or ``None``."""
         if self.render_mode is None:
@@ -413,3 +493,64 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         if renderer is not None:
             renderer.close()
         super().close(**kwargs)
+
+
+class CLSubEnv:
+    """Read-only proxy of sub-env ``b`` of a :class:`CLSchedulingVectorEnv` (live, no copy).
+
+    What the candidate views read from a single env: ``unwrapped`` (the proxy itself),
+    ``pairs`` and ``n_pairs``, ``preview_gain(p)`` and ``action_masks()``; so
+    ``VIEWS["cl_pairs_fused"](venv.sub_env(b))`` builds the view of sub-env ``b``. Every read
+    sees the vector env's current state. Attributes cannot be set.
+    """
+
+    __slots__ = ("b", "venv")
+    venv: CLSchedulingVectorEnv  #: the vector env
+    b: int  #: the sub-env index
+
+    def __init__(self, venv: CLSchedulingVectorEnv, b: int) -> None:
+        object.__setattr__(self, "venv", venv)
+        object.__setattr__(self, "b", b)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"CLSubEnv is read-only: cannot set {name!r}")
+
+    def __repr__(self) -> str:
+        return f"CLSubEnv(b={self.b}, num_envs={self.venv.num_envs})"
+
+    @property
+    def unwrapped(self) -> CLSubEnv:
+        """The proxy itself (as ``env.unwrapped`` of an unwrapped single env)."""
+        return self
+
+    @property
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        """The directed pairs ``(i, j)`` (the env's ``pairs``)."""
+        return self.venv.pairs
+
+    @property
+    def n_pairs(self) -> int:
+        """``P``, the number of directed pairs."""
+        return self.venv.n_pairs
+
+    def preview_gain(self, p: int) -> float:
+        """The single env's ``preview_gain(p)`` of sub-env ``b`` (see ``preview_gains``).
+
+        An open pair reads ``venv.preview_gains()[b, p]``. A masked pair (processed in this
+        step, or not measured now) is previewed like the single env previews it (one row:
+        the same measurement, fused into the current belief), not read as the array's 0.
+
+        Raises:
+            TypeError: ``p`` not an int.
+            ValueError: ``p`` outside ``[0, P - 1]`` (stop is not a pair).
+        """
+        venv = self.venv
+        p = check_integer(p, "p (the pair index)", 0, venv.n_pairs - 1)
+        if venv._masks[self.b, p]:
+            return float(venv.preview_gains()[self.b, p])
+        rows = venv._preview_rows(np.array([self.b]), np.array([p]))
+        return float(rows[0])
+
+    def action_masks(self) -> np.ndarray:
+        """(P + 1,) bool: sub-env ``b``'s mask (a copy)."""
+        return self.venv._masks[self.b].copy()
