@@ -551,6 +551,20 @@ class CLSubEnv:
         rows = venv._preview_rows(np.array([self.b]), np.array([p]))
         return float(rows[0])
 
+    def preview_gains_of(self, ps: np.ndarray) -> np.ndarray:
+        """``preview_gain(p)`` for every pair of ``ps`` (int array), in one read when open.
+
+        What :class:`~selenv.families.cooperative.view.CLView` calls for the open pairs of an
+        observation: one indexed read of ``venv.preview_gains()`` instead of ``len(ps)`` calls.
+        """
+        ps = np.asarray(ps, dtype=np.intp)
+        venv = self.venv
+        if ps.size and (ps.min() < 0 or ps.max() >= venv.n_pairs):
+            raise ValueError(f"ps: pair indices must lie in [0, {venv.n_pairs - 1}]")
+        if venv._masks[self.b, ps].all():
+            return np.array(venv.preview_gains()[self.b, ps], dtype=float)
+        return np.array([self.preview_gain(int(p)) for p in ps], dtype=float)
+
     def action_masks(self) -> np.ndarray:
         """(P + 1,) bool: sub-env ``b``'s mask (a copy)."""
         return self.venv._masks[self.b].copy()

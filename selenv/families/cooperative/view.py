@@ -73,7 +73,11 @@ class CLView(CandidateView):
             gain[:P] = obs["pair_gain"]
         else:
             open_ = np.flatnonzero(mask[:P])
-            raw = np.array([self.previewer(int(p)) for p in open_])
+            many = getattr(getattr(self.previewer, "__self__", None), "preview_gains_of", None)
+            if callable(many):  # a vector env's sub-env: every open pair in one read
+                raw = np.asarray(many(open_), dtype=float)
+            else:
+                raw = np.array([self.previewer(int(p)) for p in open_])
             gain[open_] = np.maximum(raw, 0.0)
             if self.top_k is not None and open_.size > self.top_k:
                 keep = open_[np.lexsort((open_, -raw))[: self.top_k]]  # rollout's ranking
