@@ -69,9 +69,14 @@ class FIMBatchState:
             (``None``: all).
 
     Attributes (batch arrays, updated in place):
-        G, Z: ``(B, N, m, d)``; Linv: ``(B, d, d)``; S: ``(B, N, m, m)`` (log det only);
-        gains: ``(B, N)``; selected: ``(B, N)`` bool; objective: ``(B,)`` ``f(S_b)``;
-        order: ``(B, N)`` picks in order, the first ``count[b]`` valid.
+        G, Z: ``(B, N, m, d)``; Linv: ``(B, d, d)``; S: ``(B, N, m, m)`` (log det only, a view
+        of the gram's layout); gains: ``(B, N)``; selected: ``(B, N)`` bool; objective:
+        ``(B,)`` ``f(S_b)``; order: ``(B, N)`` picks in order, the first ``count[b]`` valid.
+
+    Layout: besides ``G`` and ``Z`` the state keeps their transposes ``(B, d, m, N)`` (parameter
+    axis first), in which the gram ``S_k = Z_k Z_k^T`` is a few long elementwise products
+    (:func:`_gram`) instead of ``B N`` tiny ones; ``Z`` (the observation's ``whitened``) and
+    its transpose are each one stacked BLAS product per step.
 
     Raises:
         TypeError, ValueError: an unknown ``objective``, a bad ``interest`` or ``Q0`` not SPD.
@@ -99,74 +104,77 @@ class FIMBatchState:
             if self.logdet
             else float(covariance_criterion(self.P0, self.objective_name, self.interest))
         )
-        self._eye_d = np.eye(d)
         self.G = np.zeros((B, N, m, d))
         self.Z = np.zeros((B, N, m, d))
+        self._GT = np.zeros((B, d, m, N)) if self.logdet else None  # G_b^T, parameter-major
+        self._ZT = np.zeros((B, d, m, N)) if self.logdet else None  # Z_b^T
         self.Linv = np.broadcast_to(self.Linv0, (B, d, d)).copy()
-        self.S: FloatArray | None = np.zeros((B, N, m, m)) if self.logdet else None
+        self._ST = np.zeros((B, m, m, N)) if self.logdet else None  # S, candidate axis last
         self.gains = np.zeros((B, N))
         self.selected = np.zeros((B, N), dtype=bool)
         self.objective = np.zeros(B)
         self.order = np.zeros((B, N), dtype=np.intp)
         self.count = np.zeros(B, dtype=np.intp)
 
+    @property
+    def S(self) -> FloatArray | None:
+        """``(B, N, m, m)`` ``S_k = Z_k Z_k^T`` (log det only, else ``None``; a live view)."""
+        return None if self._ST is None else self._ST.transpose(0, 3, 1, 2)
+
     # -- episodes --------------------------------------------------------------------------
     def start(self, idx: np.ndarray, G: FloatArray) -> None:
-        """New episodes for sub-envs ``idx`` ``(k,)`` over pools ``G`` ``(k, N, m, d)``.
+        """New episodes for sub-envs ``idx`` ``(k,)`` (sorted) over pools ``G`` ``(k, N, m, d)``.
 
-        ``Z = G L0^-T`` (one product for all ``k`` pools), ``L^-1 = L0^-1``, gains
-        against the prior: log det ``log det(I + Z_k Z_k^T)`` or
-        :func:`~selenv.core.objectives.criterion_gains` at ``P0 = Q0^-1``; nothing selected.
+        ``Z = G L0^-T``, ``L^-1 = L0^-1``, gains against the prior: log det
+        ``log det(I + Z_k Z_k^T)`` or :func:`~selenv.core.objectives.criterion_gains` at
+        ``P0 = Q0^-1``; nothing selected. The products are those of :meth:`add` (same stacked
+        shapes), so a sub-env that does not pick keeps its values bit for bit.
         """
-        k, (N, m, d) = idx.size, (self.N, self.m, self.d)
-        self.G[idx] = G
-        W = np.matmul(G.reshape(k * N * m, d), self.Linv0.T)  # rows g L0^-T
-        self.Z[idx] = W.reshape(k, N, m, d)
-        self.Linv[idx] = self.Linv0
-        if self.S is not None:
-            S = _gram(W.reshape(k, N, m, d))  # S_k = G_k Q0^-1 G_k^T
-            self.S[idx] = S
-            self.gains[idx] = block_logdet_gains(S.reshape(k * N, m, m)).reshape(k, N)
-        else:
-            gains = criterion_gains(self.P0, G.reshape(k * N, m, d), self.objective_name,
-                                    self.interest)  # fmt: skip
-            self.gains[idx] = gains.reshape(k, N)
-        self.selected[idx] = False
-        self.objective[idx] = 0.0
-        self.count[idx] = 0
+        k = idx.size
+        rows: np.ndarray | slice = slice(None) if k == self.num_envs else idx
+        self.G[rows] = G
+        GT = None
+        if self._GT is not None:
+            GT = np.ascontiguousarray(G.transpose(0, 3, 2, 1))  # (k, d, m, N)
+            self._GT[rows] = GT
+        Linv = np.broadcast_to(self.Linv0, (k, self.d, self.d)).copy()
+        self.Linv[rows] = Linv
+        self._refresh(rows, G, GT, Linv)
+        if not self.logdet:
+            gains = criterion_gains(self.P0, G.reshape(k * self.N, self.m, self.d),
+                                    self.objective_name, self.interest)  # fmt: skip
+            self.gains[rows] = gains.reshape(k, self.N)
+        self.selected[rows] = False
+        self.objective[rows] = 0.0
+        self.count[rows] = 0
 
     def add(self, idx: np.ndarray, picks: np.ndarray) -> FloatArray:
-        """Sub-env ``idx[i]`` selects candidate ``picks[i]`` (unselected: not re-checked).
+        """Sub-env ``idx[i]`` (sorted) selects candidate ``picks[i]`` (unselected: not re-checked).
 
-        The block update of the module docstring for all ``k`` sub-envs at once: one batched
-        Cholesky ``(k, d, d)``, one batched solve for ``L'^-1``, one batched product for
-        ``Z'``, the ``S`` entries by row-wise dots and the closed-form gains.
+        The block update of the module docstring for all ``k`` sub-envs at once:
+        ``C^-1`` of ``C C^T = I + Z_j^T Z_j`` in closed form (:func:`_inverse_factor`, ``m``
+        rank-one factors), ``L'^-1 = C^-1 L^-1`` (one stacked ``(k, d, d)`` product), then
+        ``Z' = G L'^-T``, ``S'`` and the closed-form gains (:meth:`_refresh`; over all ``B``
+        sub-envs when at least half pick: a sub-env whose ``L^-1`` did not change gets its
+        values again, bit for bit, and no gather or scatter of the pools is needed).
 
         Returns:
             ``(k,)`` the change of each sub-env's objective ``f`` (the step reward).
         """
-        k, (N, m, d) = idx.size, (self.N, self.m, self.d)
-        rows: np.ndarray | slice = slice(None) if k == self.num_envs else idx  # views if all
-        before = self.objective[rows].copy()
-        Zj = self.Z[idx, picks]  # (k, m, d)
-        M = np.matmul(np.swapaxes(Zj, 1, 2), Zj) + self._eye_d  # I + Z_j^T Z_j
-        C = _cholesky(M)
-        Linv = np.linalg.solve(C, self.Linv[rows])  # L'^-1 = C^-1 L^-1
-        self.Linv[rows] = Linv
-        Linv_T = np.swapaxes(Linv, 1, 2)
-        if k == self.num_envs:  # every sub-env: write Z' = G L'^-T in place
-            np.matmul(self.G.reshape(k, N * m, d), Linv_T, out=self.Z.reshape(k, N * m, d))
-            Z = self.Z
+        k, B = idx.size, self.num_envs
+        before = self.objective[idx]
+        Cinv, logdet = _inverse_factor(self.Z[idx, picks])  # (k, d, d), log det(I + Zj^T Zj)
+        Linv = np.matmul(Cinv, self.Linv[idx])  # L'^-1 = C^-1 L^-1
+        self.Linv[idx] = Linv
+        if 2 * k >= B:
+            self._refresh(slice(None), self.G, self._GT, self.Linv)
         else:
-            Z = np.matmul(self.G[idx].reshape(k, N * m, d), Linv_T).reshape(k, N, m, d)
-            self.Z[idx] = Z
-        if self.S is not None:  # log det
-            after = before + 2.0 * np.sum(np.log(np.diagonal(C, axis1=1, axis2=2)), axis=1)
-            S = _gram(Z)
-            self.S[rows] = S
-            self.gains[rows] = block_logdet_gains(S.reshape(k * N, m, m)).reshape(k, N)
+            GT = None if self._GT is None else self._GT[idx]
+            self._refresh(idx, self.G[idx], GT, Linv)
+        if self.logdet:
+            after = before + logdet  # eq. (9): log det A' = log det A + log det(I + Z_j^T Z_j)
         else:
-            P = np.matmul(Linv_T, Linv)  # P = L^-T L^-1, the CRLB
+            P = np.matmul(np.swapaxes(Linv, 1, 2), Linv)  # P = L^-T L^-1, the CRLB
             crit = covariance_criterion(P, self.objective_name, self.interest)
             after = self._crit0 - crit
             G = self.G
@@ -179,34 +187,101 @@ class FIMBatchState:
         gain: FloatArray = after - before
         return gain
 
+    def _refresh(
+        self, rows: np.ndarray | slice, G: FloatArray, GT: FloatArray | None, Linv: FloatArray
+    ) -> None:
+        """``Z = G L^-T`` of the sub-envs ``rows`` (with their ``G``, ``G^T``, ``L^-1``).
+
+        One stacked BLAS product ``(k, N m, d) @ (k, d, d)`` for ``Z``; for log det also
+        ``Z^T = L^-1 G^T`` ``(k, d, d) @ (k, d, m N)``, the gram ``S`` from it and the gains
+        (the non-log-det gains are the caller's). In place when ``rows`` is every sub-env.
+        """
+        k, (N, m, d) = Linv.shape[0], (self.N, self.m, self.d)
+        everyone = isinstance(rows, slice)
+        LinvT = np.ascontiguousarray(np.swapaxes(Linv, 1, 2))
+        if everyone:
+            np.matmul(G.reshape(k, N * m, d), LinvT, out=self.Z.reshape(k, N * m, d))
+        else:
+            self.Z[rows] = np.matmul(G.reshape(k, N * m, d), LinvT).reshape(k, N, m, d)
+        if GT is None or self._ZT is None or self._ST is None:  # not log det
+            return
+        if everyone:
+            ZT = self._ZT
+            np.matmul(Linv, GT.reshape(k, d, m * N), out=ZT.reshape(k, d, m * N))
+            ST, gains = self._ST, self.gains
+        else:
+            ZT = np.matmul(Linv, GT.reshape(k, d, m * N)).reshape(k, d, m, N)
+            self._ZT[rows] = ZT
+            ST, gains = np.empty((k, m, m, N)), np.empty((k, N))
+        _gram(ZT, ST, gains)
+        if not everyone:
+            self._ST[rows] = ST
+            self.gains[rows] = gains
+
     def view(self, b: int) -> SubEnvGainState:
         """Sub-env ``b``'s gain state (live view; the ``GainState`` interface)."""
         return SubEnvGainState(self, b)
 
 
-def _gram(Z: FloatArray) -> FloatArray:
-    """``S_k = Z_k Z_k^T`` ``(k, N, m, m)`` of ``Z`` ``(k, N, m, d)`` (unique entries by dots)."""
-    k, N, m, _ = Z.shape
-    S = np.empty((k, N, m, m))
+def _gram(ZT: FloatArray, ST: FloatArray, gains: FloatArray) -> None:
+    """``S_k = Z_k Z_k^T`` into ``ST`` ``(k, m, m, N)`` and ``log det(I + S_k)`` into ``gains``.
+
+    ``ZT`` ``(k, d, m, N)``: each entry ``S[a, c] = sum_i Z[i, a] Z[i, c]`` is one
+    ``einsum`` over long rows. Gains in closed form for ``m = 1`` (``log1p(s)``) and ``m = 2``
+    (``log1p(a + c + a c - b^2)``, :func:`~selenv.core.information.block_logdet_gains`'s
+    formula); a batched Cholesky otherwise.
+    """
+    m = ZT.shape[2]
     for a in range(m):
-        for b in range(a, m):
-            v = np.einsum("knd,knd->kn", Z[:, :, a], Z[:, :, b])
-            S[:, :, a, b] = v
-            S[:, :, b, a] = v
-    return S
+        for c in range(a, m):
+            np.einsum("kin,kin->kn", ZT[:, :, a], ZT[:, :, c], out=ST[:, a, c])
+            if c != a:
+                ST[:, c, a] = ST[:, a, c]
+    if m == 1:
+        np.log1p(ST[:, 0, 0], out=gains)
+    elif m == 2:
+        s00, s01, s11 = ST[:, 0, 0], ST[:, 0, 1], ST[:, 1, 1]
+        np.log1p(s00 + s11 + s00 * s11 - s01 * s01, out=gains)
+    else:
+        S = np.ascontiguousarray(ST.transpose(0, 3, 1, 2))
+        gains[:] = block_logdet_gains(S.reshape(-1, m, m)).reshape(gains.shape)
 
 
-def _cholesky(M: FloatArray) -> FloatArray:
-    """Batched lower Cholesky factor of ``(k, d, d)`` SPD matrices (``I + Z^T Z`` >= I).
+def _inverse_factor(X: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``C^-1`` ``(k, d, d)`` and ``log det(C C^T)`` ``(k,)`` for ``C C^T = I + X^T X``.
+
+    ``X`` ``(k, m, d)``: the picked candidates' whitened rows. ``C`` is the product of ``m``
+    rank-one factors ``C_a = chol(I + w_a w_a^T)``, ``w_a = (C_1 .. C_{a-1})^-1 x_a``, each
+    inverted in closed form with ``beta_i = 1 + sum_{l <= i} w_l^2`` (``beta_{-1} = 1``)::
+
+        (C_a^-1)_ii = sqrt(beta_{i-1} / beta_i),
+        (C_a^-1)_il = -w_i w_l / sqrt(beta_i beta_{i-1})   (l < i),
+
+    and ``log det(I + X^T X) = sum_a log(1 + |w_a|^2)`` (the log-det step of eq. 9). A zero
+    row (a padded scalar candidate) gives ``C_a = I``.
 
     Raises:
-        ValueError: a factor failed (NaN/inf in the state), naming the matrix.
+        ValueError: a non-finite row (NaN/inf in the state).
     """
-    try:
-        C: FloatArray = np.linalg.cholesky(M).astype(np.float64, copy=False)
-    except np.linalg.LinAlgError:
-        return cholesky_spd(M, "I + Z_j^T Z_j")  # the canonical error
-    return C
+    k, m, d = X.shape
+    if not np.isfinite(X).all():
+        raise ValueError("I + Z_j^T Z_j is not finite: the gain state holds NaN or inf")
+    Cinv: FloatArray | None = None
+    logdet = np.zeros(k)
+    diag = np.arange(d)
+    for a in range(m):
+        w = X[:, a] if Cinv is None else np.matmul(Cinv, X[:, a, :, None])[..., 0]
+        cum = np.cumsum(w * w, axis=1)
+        beta = 1.0 + cum
+        beta_prev = np.empty_like(beta)
+        beta_prev[:, 0] = 1.0
+        beta_prev[:, 1:] = beta[:, :-1]
+        F = np.tril((w / -np.sqrt(beta * beta_prev))[:, :, None] * w[:, None, :], -1)
+        F[:, diag, diag] = np.sqrt(beta_prev / beta)
+        Cinv = F if Cinv is None else np.matmul(F, Cinv)
+        logdet += np.log1p(cum[:, -1])
+    assert Cinv is not None
+    return Cinv, logdet
 
 
 class SubEnvGainState:

@@ -579,6 +579,175 @@ def _whiten_pools(const: ProblemConstants, H: FloatArray) -> FloatArray:
     return whiten(H, np.broadcast_to(R, (K, N, m, m)).reshape(K * N, m, m))
 
 
+def _closed_form_pools(
+    const: ProblemConstants,
+    rot: FloatArray,
+    scales: FloatArray,
+    offsets: FloatArray,
+    out: FloatArray,
+) -> dict[str, Any] | None:
+    """Times and whitened pools ``G`` of ``K`` problems, small-matrix ops written out.
+
+    What an episode needs of :func:`_geometry` (the rest is computed on demand,
+    :class:`FIMProblemBatch`), to rounding (the tests hold the two to ``rtol = 1e-12``), on
+    ``(K, A, S, n)`` arrays: one numpy op per scalar formula instead of the models' stacked
+    ``(T, 3, 3)`` products and per-sensor gathers:
+
+    * eq. (18) at the prior mean: ``q = theta1 + s theta2 + s^2/2 theta3``, ``qdot``;
+    * the spiral paths (:func:`~models.spiral_path`) and, for cameras, the look-at rotation
+      rows ``x, y, z`` (:func:`~models.look_at_rotation`: ``z`` towards the target,
+      ``x = z x e_up / |.|``, ``y = z x x``);
+    * camera rows (eq. 23): ``dI/dr = M / dd - U m / dd^2`` with ``M = [I2 0] A R_c``,
+      ``m = e3^T A R_c``, ``U = M r``, ``dd = m r`` at ``r = [q; 0] - p``;
+    * Doppler (eq. 22): ``-(d_q b + e bdot)`` with ``d_q = (v - (v.e) e) / rho``, ``v = [qdot;
+      0] - pdot``, then 1 in its ``lambdaDf`` column; TOA (eq. 20): ``e b``, then ``k`` and 1
+      in ``cT``, ``cT0``;
+    * chained through ``b = (1, s, s^2/2)``, ``bdot = (0, 1, s)`` (column ``2 j + i`` is
+      ``grad[i] b[j]``), the ``free`` columns kept, each row divided by its sensor's sigma
+      (``G_k = L_k^-1 H_k``, ``R_k`` diagonal).
+
+    Args:
+        const: the config's constants.
+        rot: ``(K,)`` rotation of all paths about the target (rad).
+        scales: ``(K, A)`` range scale per agent.
+        offsets: ``(K, A, S, n)`` position of each candidate time in its grid cell, in [0, 1).
+        out: ``(K, N, m, d)``, receives ``G`` (zeroed here).
+
+    Returns:
+        ``times`` ``(K, N)`` and ``cameras``: ``(s, px, py, pz, mx, my, mz)`` of the camera
+        slot (``(K, A, n)`` arrays or floats; ``m = e3^T A R_c``) for :func:`_camera_depths`,
+        ``None`` without cameras. ``None`` instead if ``R`` is not diagonal and equal within a
+        sensor or a camera looks straight down (the look-at rotation's fallback axis):
+        :func:`_geometry` handles those.
+    """
+    cfg = const.config
+    K, A, S, n = offsets.shape
+    m, d = const.shape[1:]
+    lay = _slot_layout(cfg)
+    if not lay["diagonal"]:
+        return None
+    th = const.mean  # the Jacobians at the prior mean
+    s = (np.arange(n) + offsets) * (cfg.window_s / cfg.n_candidates)  # (K, A, S, n)
+    s2 = 0.5 * s**2
+    qx, qy = th[0] + s * th[2] + s2 * th[4], th[1] + s * th[3] + s2 * th[5]
+    qdx, qdy = th[2] + s * th[4], th[3] + s * th[5]
+    u = s / cfg.window_s  # spiral paths: range r(u), bearing phi(u)
+    r0 = (scales * cfg.start_radius_m)[:, :, None, None]
+    r1 = (scales * cfg.end_radius_m)[:, :, None, None]
+    r = r0 + (r1 - r0) * u
+    rdot = (r1 - r0) / cfg.window_s
+    sweep = np.deg2rad(cfg.sweep_deg)
+    bearing = rot[:, None] + np.pi / 2 + 2.0 * np.pi * np.arange(A) / A  # (K, A)
+    phi = bearing[:, :, None, None] - sweep * (1.0 - u)
+    cos, sin = np.cos(phi), np.sin(phi)
+    px, py, pz = qx + r * cos, qy + r * sin, cfg.altitude_m
+    rx, ry, rz = qx - px, qy - py, 0.0 - pz  # [q; 0] - p
+    G = out.reshape(K, A, S, n, m, d)
+    G[...] = 0.0
+    col, scale, nuisance = lay["col"], lay["scale"], lay["nuisance"]
+    cameras = None
+
+    def chain(j: int, a: int, gx: Any, gy: Any) -> None:
+        """Row ``a`` of slot ``j``: column ``col[2 jb + i]`` gets ``g_i b_jb / sigma``."""
+        for jb, b in enumerate((None, s[:, :, j], s2[:, :, j])):
+            for i, g in enumerate((gx, gy)):
+                if col[2 * jb + i] >= 0:
+                    G[:, :, j, :, a, col[2 * jb + i]] = (g if b is None else g * b) * scale[j, a]
+
+    if lay["camera"] >= 0:
+        j = lay["camera"]
+        zx, zy, zz = rx[:, :, j], ry[:, :, j], rz
+        nz = np.sqrt(zx * zx + zy * zy + zz * zz)
+        zx, zy, zz = zx / nz, zy / nz, zz / nz
+        nx = np.sqrt(zy * zy + zx * zx)  # |z x e_up|
+        if np.any(nx < 1e-9):
+            return None
+        xx, xy = zy / nx, -zx / nx  # x = z x e_up / |.|, x_z = 0
+        R = ((xx, xy, None), (-zz * xy, zz * xx, zx * xy - zy * xx), (zx, zy, zz))  # y = z x x
+        AR = [[_lincomb(const.intrinsics[a], [R[e][c] for e in range(3)]) for c in range(3)]
+              for a in range(3)]  # fmt: skip
+        rel = (rx[:, :, j], ry[:, :, j], rz)
+        cameras = (s[:, :, j], px[:, :, j], py[:, :, j], pz, *AR[2])
+        dd = _dot3(AR[2], rel)
+        dd2 = dd**2
+        for a in range(2):  # image rows u, v
+            U = _dot3(AR[a], rel)
+            chain(j, a, AR[a][0] / dd - U * AR[2][0] / dd2, AR[a][1] / dd - U * AR[2][1] / dd2)
+    for j, code in ((lay["toa"], TOA), (lay["doppler"], DOPPLER)):
+        if j < 0:
+            continue
+        ex, ey = rx[:, :, j], ry[:, :, j]
+        rho = np.sqrt(ex * ex + ey * ey + rz * rz)
+        ex, ey = ex / rho, ey / rho
+        if code == TOA:
+            chain(j, 0, ex, ey)
+            for i in range(A):  # symbol index k in cT, 1 in cT0
+                G[:, i, j, :, 0, nuisance[i, j, 0]] = np.arange(n) * scale[j, 0]
+                G[:, i, j, :, 0, nuisance[i, j, 1]] = 1.0 * scale[j, 0]
+            continue
+        sj, cj, snj, rj = s[:, :, j], cos[:, :, j], sin[:, :, j], r[:, :, j]
+        rphidot = rj * (sweep / cfg.window_s)
+        vx = qdx[:, :, j] + rdot[:, :, 0] * cj + rphidot * -snj  # agent velocity
+        vy = qdy[:, :, j] + rdot[:, :, 0] * snj + rphidot * cj
+        wx, wy = qdx[:, :, j] - vx, qdy[:, :, j] - vy  # v = [qdot; 0] - pdot (v_z = 0)
+        ve = wx * ex + wy * ey
+        dqx, dqy = (wx - ve * ex) / rho, (wy - ve * ey) / rho
+        for jb, (b, bd) in enumerate(((None, None), (sj, None), (s2[:, :, j], sj))):
+            for i, (dq, e) in enumerate(((dqx, ex), (dqy, ey))):
+                if col[2 * jb + i] < 0:
+                    continue
+                if b is None:  # b = 1, bdot = 0
+                    value = -dq
+                else:  # bdot = 1 (theta2) or s (theta3)
+                    value = -(dq * b + (e if bd is None else e * bd))
+                G[:, :, j, :, 0, col[2 * jb + i]] = value * scale[j, 0]
+        for i in range(A):
+            G[:, i, j, :, 0, nuisance[i, j, 0]] = 1.0 * scale[j, 0]
+    return {"times": s.reshape(K, -1), "cameras": cameras}
+
+
+def _lincomb(coeffs: np.ndarray, terms: list[Any]) -> Any:
+    """``sum_e coeffs[e] terms[e]`` skipping zero coefficients and ``None`` (zero) terms."""
+    out: Any = 0.0
+    for c, t in zip(coeffs.tolist(), terms, strict=True):
+        if c != 0.0 and t is not None:
+            out = out + (t if c == 1.0 else c * t)
+    return out
+
+
+def _dot3(a: list[Any], b: tuple[Any, ...]) -> Any:
+    """``a . b`` of two 3-vectors given by components (arrays or floats)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@functools.lru_cache(maxsize=64)
+def _slot_layout(config: FIMScenarioConfig) -> dict[str, Any]:
+    """Where each sensor sits in the ``(A, S, n)`` candidate layout and its columns.
+
+    ``camera`` / ``toa`` / ``doppler``: the sensor's slot ``j`` in ``S`` (-1: absent);
+    ``col`` ``(6,)``: free column of each motion parameter (-1: not estimated);
+    ``nuisance`` ``(A, S, 2)``: free columns of the slot's nuisance parameters.
+    """
+    const = problem_constants(config)
+    A, S, n = config.n_agents, len(config.sensors), config.n_candidates
+    full = -np.ones(const.mean.size, dtype=np.intp)
+    full[const.free] = np.arange(const.free.size)
+    nuisance = const.nuisance.reshape(A, S, n, 2)[:, :, 0, :]
+    m = const.shape[1]
+    sigma = np.sqrt(np.diagonal(const.R, axis1=1, axis2=2)).reshape(A, S, n, m)
+    slots = {name: config.sensors.index(name) if name in config.sensors else -1
+             for name in SENSOR_NAMES}  # fmt: skip
+    return {
+        **slots,
+        "col": full[: km.N_MOTION].tolist(),
+        "nuisance": np.where(nuisance >= 0, full[np.maximum(nuisance, 0)], -1),
+        "scale": 1.0 / sigma[0, :, 0],
+        "diagonal": bool(
+            not np.count_nonzero(const.R - const.R * np.eye(m)) and np.all(sigma == sigma[0, :, :1])
+        ),
+    }
+
+
 def _draw_geometry(
     const: ProblemConstants, rng: np.random.Generator
 ) -> tuple[float, FloatArray, FloatArray]:
@@ -620,6 +789,38 @@ def _in_front(const: ProblemConstants, theta: FloatArray, geo: dict[str, FloatAr
     return bool(np.all(depth > 0.0))
 
 
+def _camera_depths(
+    const: ProblemConstants, theta: FloatArray, geo: dict[str, FloatArray]
+) -> FloatArray:
+    """Projective depths ``(K, n_cam)`` of every camera candidate of ``K`` problems.
+
+    :func:`~models.camera_depth` (``dd = m ([q; 0] - p)``, ``m = e3^T A R_c``, eq. 23) of
+    problem ``i``'s cameras at its truth ``theta[i]`` (``theta`` ``(K, D)``; ``q`` by eq. 18),
+    written out elementwise over the ``(K, n_cam)`` candidates.
+    """
+    if geo.get("cameras") is not None:  # the closed forms' camera slot: (K, A, n) arrays
+        t, px, py, pz, mx, my, mz = geo["cameras"]
+        K = t.shape[0]
+        th_ = theta[:, :6, None, None]
+        t2_ = 0.5 * t**2
+        qx_ = th_[:, 0] + t * th_[:, 2] + t2_ * th_[:, 4]
+        qy_ = th_[:, 1] + t * th_[:, 3] + t2_ * th_[:, 5]
+        out: FloatArray = _dot3([mx, my, mz], (qx_ - px, qy_ - py, 0.0 - pz))
+        return np.broadcast_to(out, t.shape).reshape(K, -1)
+    cam = const.camera
+    t = geo["times"][:, cam]
+    p = geo["positions"][:, cam]
+    Rc = geo["camera_rotation"][:, cam]
+    A2 = const.intrinsics[2]
+    m = [_lincomb(A2, [Rc[..., e, c] for e in range(3)]) for c in range(3)]
+    th = theta[:, :6, None]
+    t2 = 0.5 * t**2
+    qx = th[:, 0] + t * th[:, 2] + t2 * th[:, 4]
+    qy = th[:, 1] + t * th[:, 3] + t2 * th[:, 5]
+    depth: FloatArray = _dot3(m, (qx - p[..., 0], qy - p[..., 1], 0.0 - p[..., 2]))
+    return depth
+
+
 #: margin (m) under which a depth of the batched front check is re-tested exactly
 _DEPTH_MARGIN = 1e-6
 
@@ -630,22 +831,51 @@ class FIMProblemBatch:
 
     Attributes:
         constants: the config's :class:`ProblemConstants` (shared).
-        theta_true: ``(K, d)``; ``times`` ``(K, N)``; ``positions``, ``velocities``
-            ``(K, N, 3)``; ``camera_rotation`` ``(K, N, 3, 3)``; ``H``, ``G`` ``(K, N, m, d)``
-            (read-only).
+        theta_true: ``(K, d)``; ``times`` ``(K, N)``; ``G`` ``(K, N, m, d)`` (read-only).
+        draws: the geometry draws ``(rot (K,), scales (K, A), offsets (K, A, S, n))`` (see
+            :func:`_geometry`), ``None`` for a fixed geometry.
+        geometry: the rest of the geometry once computed (``positions``, ``velocities``
+            ``(K, N, 3)``, ``camera_rotation`` ``(K, N, 3, 3)``, ``H`` ``(K, N, m, d)``); an
+            episode needs only ``G`` and ``times``, so these are computed from ``draws`` on
+            first access (the same values as if drawn eagerly) and kept.
     """
 
     constants: ProblemConstants
     theta_true: FloatArray
     times: FloatArray
-    positions: FloatArray
-    velocities: FloatArray
-    camera_rotation: FloatArray
-    H: FloatArray
     G: FloatArray
+    draws: tuple[FloatArray, FloatArray, FloatArray] | None = None
+    geometry: dict[str, FloatArray] = dataclasses.field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
         return int(self.theta_true.shape[0])
+
+    def _part(self, key: str) -> FloatArray:
+        if not self.geometry:
+            assert self.draws is not None
+            geo = _geometry(self.constants, *self.draws)
+            self.geometry.update({k: _readonly(geo[k]) for k in _LAZY})
+        return self.geometry[key]
+
+    @property
+    def positions(self) -> FloatArray:
+        """``(K, N, 3)`` agent positions at the candidates."""
+        return self._part("positions")
+
+    @property
+    def velocities(self) -> FloatArray:
+        """``(K, N, 3)`` agent velocities at the candidates."""
+        return self._part("velocities")
+
+    @property
+    def camera_rotation(self) -> FloatArray:
+        """``(K, N, 3, 3)`` world-to-camera rotations (identity for non-cameras)."""
+        return self._part("camera_rotation")
+
+    @property
+    def H(self) -> FloatArray:
+        """``(K, N, m, d)`` Jacobians at the prior mean."""
+        return self._part("H")
 
     def problem(self, i: int) -> FIMProblem:
         """Problem ``i`` as a :class:`FIMProblem` (views of the batch, no copies)."""
@@ -678,27 +908,26 @@ def make_problems(
     K = len(rngs)
     if K == 0:
         raise ValueError("rngs must hold at least one generator")
+    args: tuple[FloatArray, FloatArray, FloatArray] | None = None
     if const.fixed is None:
-        draws = [_draw_geometry(const, rng) for rng in rngs]
-        geo = _geometry(
-            const,
-            np.array([d[0] for d in draws]),
-            np.stack([d[1] for d in draws]),
-            np.stack([d[2] for d in draws]),
+        drawn = [_draw_geometry(const, rng) for rng in rngs]
+        args = (
+            np.array([d[0] for d in drawn]),
+            np.stack([d[1] for d in drawn]),
+            np.stack([d[2] for d in drawn]),
         )
+        geo = _chunked_geometry(const, args)
     else:
         geo = {key: np.broadcast_to(val, (K, *val.shape[1:])) for key, val in const.fixed.items()}
     theta = np.stack([_draw_truth(const, rng) for rng in rngs])
     cam = const.camera
-    if cam.any():  # camera depth of every first draw in one call, each at its own truth
-        n_cam = int(cam.sum())
-        depth = km.camera_depth(
-            np.repeat(theta, n_cam, axis=0), geo["times"][:, cam].reshape(-1),
-            geo["positions"][:, cam].reshape(-1, 3),
-            geo["camera_rotation"][:, cam].reshape(-1, 3, 3), const.intrinsics,
-        ).reshape(K, n_cam)  # fmt: skip
+    if cam.any():  # camera depth of every first draw at once, each at its own truth
+        depth = _camera_depths(const, theta, geo)
         for i in np.flatnonzero(depth.min(axis=1) <= _DEPTH_MARGIN).tolist():
-            one = {key: val[i] for key, val in geo.items()}
+            if "positions" not in geo:  # the exact check needs the whole geometry
+                assert args is not None
+                geo = {**_geometry(const, *args), **geo}
+            one = {key: geo[key][i] for key in ("times", "positions", "camera_rotation")}
             for attempt in range(100):  # exactly the scalar check; redraws from rngs[i] alone
                 if attempt:
                     theta[i] = _draw_truth(const, rngs[i])
@@ -706,8 +935,53 @@ def make_problems(
                     break
             else:
                 raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
-    ro = {key: _readonly(val) if val.flags.writeable else val for key, val in geo.items()}
-    return FIMProblemBatch(constants=const, theta_true=_readonly(theta[:, const.free]), **ro)
+    ro = {
+        key: _readonly(val) if val.flags.writeable else val
+        for key, val in geo.items()
+        if key in ("times", "G", *_LAZY)
+    }
+    return FIMProblemBatch(
+        constants=const, theta_true=_readonly(theta[:, const.free]), times=ro.pop("times"),
+        G=ro.pop("G"), draws=args, geometry=ro,
+    )  # fmt: skip
+
+
+#: problems per pass of the closed forms (their temporaries stay in the CPU caches)
+_CHUNK = 16
+
+
+def _chunked_geometry(
+    const: ProblemConstants, args: tuple[FloatArray, FloatArray, FloatArray]
+) -> dict[str, Any]:
+    """``times``, ``G`` and the camera data of ``K`` problems, :data:`_CHUNK` at a time.
+
+    :func:`_closed_form_pools` per chunk of problems (its temporaries stay in the CPU caches),
+    ``G`` written into one ``(K, N, m, d)`` array; the whole :func:`_geometry` if the closed
+    forms decline.
+    """
+    K = args[0].shape[0]
+    N, m, d = const.shape
+    G = np.empty((K, N, m, d))
+    times = np.empty((K, N))
+    cams: list[Any] = []
+    for lo in range(0, K, _CHUNK):
+        rot, scales, offsets = (a[lo : lo + _CHUNK] for a in args)
+        geo = _closed_form_pools(const, rot, scales, offsets, G[lo : lo + _CHUNK])
+        if geo is None:
+            return _geometry(const, *args)
+        times[lo : lo + _CHUNK] = geo["times"]
+        cams.append(geo["cameras"])
+    cameras = None
+    if cams[0] is not None:
+        cameras = tuple(
+            np.concatenate([np.broadcast_to(c[i], c[0].shape) for c in cams])
+            for i in range(len(cams[0]))
+        )
+    return {"times": times, "G": G, "cameras": cameras}
+
+
+#: the geometry of a :class:`FIMProblemBatch` computed on demand
+_LAZY = ("positions", "velocities", "camera_rotation", "H")
 
 
 def make_problem(config: FIMScenarioConfig, rng: np.random.Generator) -> FIMProblem:
