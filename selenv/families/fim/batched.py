@@ -10,10 +10,13 @@ with it, so the per-step math exists once. It is the math of
 * information ``A_b = Q0 + sum_{k in S_b} G_k^T G_k`` (eq. 2) kept as ``L_b^-1``
   (``A_b = L_b L_b^T``);
 * ``Z_b = G_b L_b^-T`` ``(N, m, d)``: every candidate whitened in the current information;
-* pick ``j``: ``C = chol(I + Z_j^T Z_j)``, ``L'^-1 = C^-1 L^-1`` (a batched solve),
-  ``Z' = G L'^-T``; the log-det gain is ``log det(I + Z_j^T Z_j) = 2 sum log diag C``
-  (eq. 9 accumulated: ``f(S) = log det A_S - log det Q0``);
-* ``"logdet"`` gains ``log det(I + S_k)``, ``S_k = Z_k Z_k^T`` (batched closed forms);
+* pick ``j``: ``C = chol(I + Z_j^T Z_j)`` as ``m`` rank-one factors whose inverses are closed
+  forms (:func:`_inverse_factor`), ``L'^-1 = C^-1 L^-1`` (one stacked ``(d, d)`` product),
+  ``Z' = G L'^-T`` (one stacked BLAS product); the log-det gain is
+  ``log det(I + Z_j^T Z_j) = sum_a log(1 + |w_a|^2)`` (eq. 9 accumulated:
+  ``f(S) = log det A_S - log det Q0``);
+* ``"logdet"`` gains ``log det(I + S_k)``, ``S_k = Z_k Z_k^T`` (:func:`_gram`: long
+  elementwise products in a parameter-major copy of ``Z``, closed forms for ``m <= 2``);
   other objectives (eqs. 6, 7, ``"det"``, user-registered): ``f = c(E P0 E^T) - c(E P E^T)``
   batched over ``B`` with ``P = L^-T L^-1``; their candidate gains are
   :func:`~selenv.core.objectives.criterion_gains` per sub-env (the registry's downdate takes
@@ -226,17 +229,20 @@ class FIMBatchState:
 def _gram(ZT: FloatArray, ST: FloatArray, gains: FloatArray) -> None:
     """``S_k = Z_k Z_k^T`` into ``ST`` ``(k, m, m, N)`` and ``log det(I + S_k)`` into ``gains``.
 
-    ``ZT`` ``(k, d, m, N)``: each entry ``S[a, c] = sum_i Z[i, a] Z[i, c]`` is one
-    ``einsum`` over long rows. Gains in closed form for ``m = 1`` (``log1p(s)``) and ``m = 2``
-    (``log1p(a + c + a c - b^2)``, :func:`~selenv.core.information.block_logdet_gains`'s
-    formula); a batched Cholesky otherwise.
+    ``ZT`` ``(k, d, m, N)``: ``S[a, c] = sum_i Z[i, a] Z[i, c]``, the diagonal entries in one
+    ``einsum`` over the contiguous ``(m, N)`` rows, each off-diagonal pair in one more. Gains
+    in closed form for ``m = 1`` (``log1p(s)``) and ``m = 2`` (``log1p(a + c + a c - b^2)``,
+    :func:`~selenv.core.information.block_logdet_gains`'s formula); a batched Cholesky
+    otherwise.
     """
-    m = ZT.shape[2]
+    k, m, N = ZT.shape[0], ZT.shape[2], ZT.shape[3]
+    assert ST.flags.c_contiguous  # the diagonal below is a view
+    diagonal = ST.reshape(k, m * m, N)[:, :: m + 1]  # (k, m, N) view of S[a, a]
+    np.einsum("kian,kian->kan", ZT, ZT, out=diagonal)
     for a in range(m):
-        for c in range(a, m):
+        for c in range(a + 1, m):
             np.einsum("kin,kin->kn", ZT[:, :, a], ZT[:, :, c], out=ST[:, a, c])
-            if c != a:
-                ST[:, c, a] = ST[:, a, c]
+            ST[:, c, a] = ST[:, a, c]
     if m == 1:
         np.log1p(ST[:, 0, 0], out=gains)
     elif m == 2:

@@ -924,10 +924,12 @@ def make_problems(
     if cam.any():  # camera depth of every first draw at once, each at its own truth
         depth = _camera_depths(const, theta, geo)
         for i in np.flatnonzero(depth.min(axis=1) <= _DEPTH_MARGIN).tolist():
-            if "positions" not in geo:  # the exact check needs the whole geometry
+            if "positions" in geo:
+                one = {key: geo[key][i] for key in ("times", "positions", "camera_rotation")}
+            else:  # the exact check needs problem i's whole geometry
                 assert args is not None
-                geo = {**_geometry(const, *args), **geo}
-            one = {key: geo[key][i] for key in ("times", "positions", "camera_rotation")}
+                full = _geometry(const, *(a[i : i + 1] for a in args))
+                one = {key: full[key][0] for key in ("times", "positions", "camera_rotation")}
             for attempt in range(100):  # exactly the scalar check; redraws from rngs[i] alone
                 if attempt:
                     theta[i] = _draw_truth(const, rngs[i])

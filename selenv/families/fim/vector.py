@@ -6,8 +6,10 @@
 the single env :class:`~selenv.families.fim.env.FIMSelectionEnv` calls (its ``B = 1`` case).
 Resets draw each sub-env's problem from its own generator exactly as the single env does
 (:func:`~selenv.families.fim.scenario.make_problems`: the seed-independent part cached per
-config, geometry, Jacobians, whitening and the initial gains batched over the sub-envs reset
-together). Seeding, ``NEXT_STEP`` autoreset, ``reset_mask`` and batched infos are those of
+config; times and whitened pools ``G`` by closed-form geometry and Jacobians over all the
+sub-envs reset together, the rest of each problem's geometry only when asked for, e.g. by
+:meth:`FIMSelectionVectorEnv.problem`; the initial gains batched). Seeding, ``NEXT_STEP``
+autoreset, ``reset_mask`` and batched infos are those of
 :class:`~selenv.envs.vector.BatchedVectorEnv`.
 """
 
@@ -58,8 +60,10 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
     sub-env (for every sub-env, also one that autoresets this step). :meth:`action_masks`
     returns ``(B, N)`` bool.
 
-    Steps: the log-det objective (the default) is batched throughout: one batched Cholesky,
-    solve and product per step for all sub-envs that pick (block update, eq. 9). Other
+    Steps: the log-det objective (the default) is batched throughout: closed-form inverse
+    factors of the picks' rank-``m`` updates, then a few stacked products and elementwise
+    passes for all sub-envs that pick (block update, eq. 9;
+    :class:`~selenv.families.fim.batched.FIMBatchState`). Other
     objectives (``"trace"`` eq. 6, ``"max_eig"`` eq. 7, ``"det"``, user-registered): the
     state update and ``f`` are batched; the candidate gains fall back to
     :func:`~selenv.core.objectives.criterion_gains` per sub-env that picked (the same core
