@@ -124,3 +124,37 @@ def test_sub_envs_that_do_not_pick_keep_their_values_bit_for_bit() -> None:
     for name in ("Z", "S", "gains", "Linv", "objective"):
         np.testing.assert_allclose(getattr(other, name), getattr(core, name), rtol=1e-12,
                                    atol=1e-14)  # fmt: skip
+
+
+def _reference_truths(cfg: sc.FIMScenarioConfig, seeds: range) -> np.ndarray:
+    """The truths of the scalar path: models' geometry, ``_in_front`` on every draw."""
+    const = sc.problem_constants(cfg)
+    out = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        rot, scales, offsets = sc._draw_geometry(const, rng)
+        geo = sc._geometry(const, np.array([rot]), scales[None], offsets[None])
+        one = {key: val[0] for key, val in geo.items()}
+        theta = sc._draw_truth(const, rng)
+        while not sc._in_front(const, theta, one):
+            theta = sc._draw_truth(const, rng)
+        out.append(theta[const.free])
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("preset", ["example2_moving", "example3_moving"])
+def test_truths_behind_a_camera_are_redrawn_as_the_scalar_check_does(preset: str) -> None:
+    cfg = sc.config_from(preset, n_candidates=30, randomize=True)
+    seeds = range(600)  # about 1 in 100 first truths falls behind a camera
+    batch = sc.make_problems(cfg, [np.random.default_rng(s) for s in seeds])
+    ref = _reference_truths(cfg, seeds)
+    const = sc.problem_constants(cfg)
+    first = np.stack([sc._draw_truth(const, _after_geometry(const, s)) for s in seeds])
+    assert (first[:, const.free] != ref).any(axis=1).sum() >= 2  # redraws happened
+    np.testing.assert_array_equal(batch.theta_true, ref)
+
+
+def _after_geometry(const: sc.ProblemConstants, seed: int) -> np.random.Generator:
+    rng = np.random.default_rng(seed)
+    sc._draw_geometry(const, rng)
+    return rng

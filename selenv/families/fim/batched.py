@@ -247,7 +247,10 @@ def _gram(ZT: FloatArray, ST: FloatArray, gains: FloatArray) -> None:
         np.log1p(ST[:, 0, 0], out=gains)
     elif m == 2:
         s00, s01, s11 = ST[:, 0, 0], ST[:, 0, 1], ST[:, 1, 1]
-        np.log1p(s00 + s11 + s00 * s11 - s01 * s01, out=gains)
+        x = s00 + s11  # det(I + S) - 1 = a + c + a c - b^2, in that order
+        x += np.multiply(s00, s11, out=gains)
+        x -= np.multiply(s01, s01, out=gains)
+        np.log1p(x, out=gains)
     else:
         S = np.ascontiguousarray(ST.transpose(0, 3, 1, 2))
         gains[:] = block_logdet_gains(S.reshape(-1, m, m)).reshape(gains.shape)

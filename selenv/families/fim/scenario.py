@@ -652,7 +652,8 @@ def _closed_form_pools(
         for jb, b in enumerate((None, s[:, :, j], s2[:, :, j])):
             for i, g in enumerate((gx, gy)):
                 if col[2 * jb + i] >= 0:
-                    G[:, :, j, :, a, col[2 * jb + i]] = (g if b is None else g * b) * scale[j, a]
+                    dst = G[:, :, j, :, a, col[2 * jb + i]]
+                    np.multiply(g if b is None else g * b, scale[j, a], out=dst)
 
     if lay["camera"] >= 0:
         j = lay["camera"]
@@ -697,10 +698,10 @@ def _closed_form_pools(
                 if col[2 * jb + i] < 0:
                     continue
                 if b is None:  # b = 1, bdot = 0
-                    value = -dq
+                    value = dq
                 else:  # bdot = 1 (theta2) or s (theta3)
-                    value = -(dq * b + (e if bd is None else e * bd))
-                G[:, :, j, :, 0, col[2 * jb + i]] = value * scale[j, 0]
+                    value = dq * b + (e if bd is None else e * bd)
+                np.multiply(value, -scale[j, 0], out=G[:, :, j, :, 0, col[2 * jb + i]])
         for i in range(A):
             G[:, i, j, :, 0, nuisance[i, j, 0]] = 1.0 * scale[j, 0]
     return {"times": s.reshape(K, -1), "cameras": cameras}
@@ -821,6 +822,54 @@ def _camera_depths(
     return depth
 
 
+def _problem_part(geo: dict[str, Any], i: int) -> dict[str, Any]:
+    """Problem ``i`` of a batch's geometry (a batch of one), as :func:`_camera_depths` reads it."""
+    if geo.get("cameras") is not None:
+        cams = tuple(c[i : i + 1] if isinstance(c, np.ndarray) else c for c in geo["cameras"])
+        return {"cameras": cams}
+    return {key: geo[key][i : i + 1] for key in ("times", "positions", "camera_rotation")}
+
+
+def _truth_in_front(
+    const: ProblemConstants,
+    rng: np.random.Generator,
+    theta: FloatArray,
+    part: dict[str, Any],
+    args: tuple[FloatArray, FloatArray, FloatArray] | None,
+    i: int,
+) -> FloatArray:
+    """The first of ``theta`` and its redraws from ``rng`` in front of every camera.
+
+    Decided as :func:`make_problem`'s scalar check (:func:`_in_front` on the models'
+    geometry) decides: a depth farther than :data:`_DEPTH_MARGIN` from 0 by the batched depths
+    (``part``: problem ``i``'s, :func:`_problem_part`), one within it by the exact check
+    (problem ``i``'s whole geometry computed for it, from ``args[.][i]`` when the batch has
+    only the closed forms' part).
+
+    Raises:
+        ValueError: no truth in 100 prior draws keeps the target in front of every camera.
+    """
+    one: dict[str, FloatArray] | None = None
+    for attempt in range(100):  # redraws from rng alone
+        if attempt:
+            theta = _draw_truth(const, rng)
+        low = float(_camera_depths(const, theta[None], part).min())
+        if low > _DEPTH_MARGIN:
+            return theta
+        if low < -_DEPTH_MARGIN:
+            continue  # behind a camera for sure
+        if one is None:
+            if "positions" in part:
+                one = {key: val[0] for key, val in part.items()}
+            else:
+                assert args is not None
+                full = _geometry(const, *(a[i : i + 1] for a in args))
+                one = {key: full[key][0] for key in ("times", "positions", "camera_rotation")}
+        if _in_front(const, theta, one):
+            return theta
+    raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
+
+
 #: margin (m) under which a depth of the batched front check is re-tested exactly
 _DEPTH_MARGIN = 1e-6
 
@@ -924,19 +973,7 @@ def make_problems(
     if cam.any():  # camera depth of every first draw at once, each at its own truth
         depth = _camera_depths(const, theta, geo)
         for i in np.flatnonzero(depth.min(axis=1) <= _DEPTH_MARGIN).tolist():
-            if "positions" in geo:
-                one = {key: geo[key][i] for key in ("times", "positions", "camera_rotation")}
-            else:  # the exact check needs problem i's whole geometry
-                assert args is not None
-                full = _geometry(const, *(a[i : i + 1] for a in args))
-                one = {key: full[key][0] for key in ("times", "positions", "camera_rotation")}
-            for attempt in range(100):  # exactly the scalar check; redraws from rngs[i] alone
-                if attempt:
-                    theta[i] = _draw_truth(const, rngs[i])
-                if _in_front(const, theta[i], one):
-                    break
-            else:
-                raise ValueError("prior_* std devs too wide: the true target falls behind a camera")
+            theta[i] = _truth_in_front(const, rngs[i], theta[i], _problem_part(geo, i), args, i)
     ro = {
         key: _readonly(val) if val.flags.writeable else val
         for key, val in geo.items()
