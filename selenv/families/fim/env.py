@@ -17,6 +17,7 @@ from selenv.families.fim.batched import FIMBatchState, SubEnvGainState, batched_
 from selenv.families.fim.scenario import (
     SENSOR_NAMES,
     FIMProblem,
+    FIMProblemBatch,
     FIMScenarioConfig,
     config_from,
     make_problems,
@@ -335,7 +336,8 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self.max_episode_steps = self.budget
         self.action_space = spaces.Discrete(self.n)
         self.observation_space = fim_observation_space(self.n, self.m, self.d)  # type: ignore[assignment, unused-ignore]
-        self.problem: FIMProblem | None = None
+        self._batch: FIMProblemBatch | None = None
+        self._problem: FIMProblem | None = None
         #: the batched core holding this env's one episode (the ``B = 1`` case)
         self.core = FIMBatchState(
             1, problem_constants(self.config).Q0, (self.n, self.m, self.d), self.objective,
@@ -347,6 +349,17 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         self._renderer = Renderer(self.render_mode, self.metadata["render_fps"])
 
     # -- oracle view used by heuristic agents ---------------------------------------------
+    @property
+    def problem(self) -> FIMProblem | None:
+        """The current problem (``None`` before :meth:`reset`).
+
+        Built on first access after a reset (its geometry beyond ``G`` and ``times`` is not
+        needed to step the episode; :class:`~selenv.families.fim.scenario.FIMProblemBatch`).
+        """
+        if self._problem is None and self._batch is not None:
+            self._problem = self._batch.problem(0)
+        return self._problem
+
     @property
     def state(self) -> SubEnvGainState:
         """The live gain state (information, gains, selection); requires :meth:`reset`.
@@ -383,7 +396,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         """Draw a new scenario from ``np_random`` and clear the selection."""
         super().reset(seed=seed)
         batch = make_problems(self.config, [self.np_random])
-        self.problem = batch.problem(0)
+        self._batch, self._problem = batch, None
         self.core.start(_ONE, batch.G)
         self._state = self.core.view(0)
         self._features = batched_features(batch.times, batch.constants.sensor)
