@@ -41,13 +41,14 @@ def _draws(const: sc.ProblemConstants, K: int) -> tuple[np.ndarray, np.ndarray, 
 @pytest.mark.parametrize("kwargs", CONFIGS)
 def test_closed_form_pools_match_the_models(kwargs: dict[str, Any]) -> None:
     const = sc.problem_constants(sc.config_from(n_candidates=13, randomize=True, **kwargs))
-    args = _draws(const, 2 * sc._CHUNK + 3)  # chunks of the closed forms, one partial
+    K = 2 * sc._CHUNK + 3  # chunks of the closed forms, one partial
+    args = _draws(const, K)
     ref, fast = sc._geometry(const, *args), sc._chunked_geometry(const, args)
     np.testing.assert_array_equal(fast["times"], ref["times"])
     scale = np.abs(ref["G"]).max(axis=-1, keepdims=True)  # per row: zeros stay exact zeros
     assert np.all(np.abs(fast["G"] - ref["G"]) <= 1e-12 * scale)
     if const.camera.any():
-        theta = np.stack([sc._draw_truth(const, np.random.default_rng(i)) for i in range(35)])
+        theta = np.stack([sc._draw_truth(const, np.random.default_rng(i)) for i in range(K)])
         np.testing.assert_allclose(
             sc._camera_depths(const, theta, fast), sc._camera_depths(const, theta, ref),
             rtol=1e-12, atol=1e-9,

@@ -986,7 +986,7 @@ def make_problems(
 
 
 #: problems per pass of the closed forms (their temporaries stay in the CPU caches)
-_CHUNK = 16
+_CHUNK = 32
 
 
 def _chunked_geometry(
