@@ -76,10 +76,11 @@ class FIMBatchState:
         of the gram's layout); gains: ``(B, N)``; selected: ``(B, N)`` bool; objective:
         ``(B,)`` ``f(S_b)``; order: ``(B, N)`` picks in order, the first ``count[b]`` valid.
 
-    Layout: besides ``G`` and ``Z`` the state keeps their transposes ``(B, d, m, N)`` (parameter
-    axis first), in which the gram ``S_k = Z_k Z_k^T`` is a few long elementwise products
-    (:func:`_gram`) instead of ``B N`` tiny ones; ``Z`` (the observation's ``whitened``) and
-    its transpose are each one stacked BLAS product per step.
+    Layout: besides ``G`` the state keeps its transpose ``(B, d, m, N)`` (parameter axis
+    first); ``Z^T = L^-1 G^T`` in that layout, a scratch array of :data:`_CHUNK` sub-envs at a
+    time, makes the gram ``S_k = Z_k Z_k^T`` a few long elementwise products (:func:`_gram`)
+    instead of ``B N`` tiny ones; ``Z`` (the observation's ``whitened``) and ``Z^T`` are each
+    one stacked BLAS product per step.
 
     Raises:
         TypeError, ValueError: an unknown ``objective``, a bad ``interest`` or ``Q0`` not SPD.
@@ -110,7 +111,8 @@ class FIMBatchState:
         self.G = np.zeros((B, N, m, d))
         self.Z = np.zeros((B, N, m, d))
         self._GT = np.zeros((B, d, m, N)) if self.logdet else None  # G_b^T, parameter-major
-        self._ZT = np.zeros((B, d, m, N)) if self.logdet else None  # Z_b^T
+        #: scratch ``Z_b^T`` of :data:`_CHUNK` sub-envs at a time (the gram's input)
+        self._ZT = np.zeros((min(B, _CHUNK), d, m, N)) if self.logdet else None
         self.Linv = np.broadcast_to(self.Linv0, (B, d, d)).copy()
         self._ST = np.zeros((B, m, m, N)) if self.logdet else None  # S, candidate axis last
         self.gains = np.zeros((B, N))
@@ -196,8 +198,10 @@ class FIMBatchState:
         """``Z = G L^-T`` of the sub-envs ``rows`` (with their ``G``, ``G^T``, ``L^-1``).
 
         One stacked BLAS product ``(k, N m, d) @ (k, d, d)`` for ``Z``; for log det also
-        ``Z^T = L^-1 G^T`` ``(k, d, d) @ (k, d, m N)``, the gram ``S`` from it and the gains
-        (the non-log-det gains are the caller's). In place when ``rows`` is every sub-env.
+        ``Z^T = L^-1 G^T`` ``(c, d, d) @ (c, d, m N)`` into a scratch array, :data:`_CHUNK`
+        sub-envs at a time, and the gram ``S`` and the gains from it while it is in the CPU
+        caches (the non-log-det gains are the caller's). In place when ``rows`` is every
+        sub-env.
         """
         k, (N, m, d) = Linv.shape[0], (self.N, self.m, self.d)
         everyone = isinstance(rows, slice)
@@ -209,14 +213,16 @@ class FIMBatchState:
         if GT is None or self._ZT is None or self._ST is None:  # not log det
             return
         if everyone:
-            ZT = self._ZT
-            np.matmul(Linv, GT.reshape(k, d, m * N), out=ZT.reshape(k, d, m * N))
             ST, gains = self._ST, self.gains
         else:
-            ZT = np.matmul(Linv, GT.reshape(k, d, m * N)).reshape(k, d, m, N)
-            self._ZT[rows] = ZT
             ST, gains = np.empty((k, m, m, N)), np.empty((k, N))
-        _gram(ZT, ST, gains)
+        c = self._ZT.shape[0]
+        for lo in range(0, k, c):
+            hi = min(lo + c, k)
+            ZT = self._ZT[: hi - lo]
+            np.matmul(Linv[lo:hi], GT[lo:hi].reshape(hi - lo, d, m * N),
+                      out=ZT.reshape(hi - lo, d, m * N))  # fmt: skip
+            _gram(ZT, ST[lo:hi], gains[lo:hi])
         if not everyone:
             self._ST[rows] = ST
             self.gains[rows] = gains
@@ -224,6 +230,10 @@ class FIMBatchState:
     def view(self, b: int) -> SubEnvGainState:
         """Sub-env ``b``'s gain state (live view; the ``GainState`` interface)."""
         return SubEnvGainState(self, b)
+
+
+#: sub-envs per pass of the gram (their scratch ``Z^T`` stays in the CPU caches)
+_CHUNK = 64
 
 
 def _gram(ZT: FloatArray, ST: FloatArray, gains: FloatArray) -> None:
