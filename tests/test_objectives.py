@@ -163,7 +163,7 @@ def test_trace_greedy_can_be_suboptimal_so_the_gap_is_real() -> None:
     assert min(gaps) >= -1e-12 and max(gaps) > 1e-6
 
 
-def test_logdet_default_is_bit_identical_to_a_fresh_logdet_gain_state() -> None:
+def test_logdet_default_matches_a_fresh_logdet_gain_state() -> None:
     Q0, G = _instance(5, N=12)
     state = LogDetGainState(Q0, G, track_gains=True)
     for _ in range(4):
@@ -176,18 +176,20 @@ def test_logdet_default_is_bit_identical_to_a_fresh_logdet_gain_state() -> None:
         assert sol.objective == logdet_objective(Q0, G, state.order)  # exact, not approx
         assert sol.objective_name == "logdet"
     assert type(make_gain_state(Q0, G)) is LogDetGainState
-    # the default env: rewards and observed gains exactly those of a fresh log-det state
+    # the default env (its batched core, shared with the vector env): rewards and observed
+    # gains those of a fresh log-det state, within the portability tolerances
     env = gym.make(FIM_ID, n_candidates=8, budget=4).unwrapped
     obs, info = env.reset(seed=3)
     ref = LogDetGainState(env.problem.Q0, env.problem.G, track_gains=True, track_whitened=True)
     assert info["objective_name"] == "logdet"
     for a in (5, 0, 11, 2):
-        np.testing.assert_array_equal(
-            obs["gain"], np.where(ref.selected, 0.0, ref.gains).astype(np.float32)
-        )
+        np.testing.assert_allclose(
+            obs["gain"], np.where(ref.selected, 0.0, ref.gains).astype(np.float32),
+            rtol=3e-7, atol=1e-6,
+        )  # fmt: skip
         obs, r, _, _, info = env.step(a)
-        assert r == ref.add(a)
-        assert info["objective"] == ref.objective
+        np.testing.assert_allclose(r, ref.add(a), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(info["objective"], ref.objective, rtol=1e-9, atol=1e-12)
 
 
 def test_bad_objective_or_interest_is_a_clear_error() -> None:
