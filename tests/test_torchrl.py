@@ -11,9 +11,9 @@ from __future__ import annotations
 import warnings
 
 import gymnasium as gym
-from gymnasium.vector import AutoresetMode
 import numpy as np
 import pytest
+from gymnasium.vector import AutoresetMode
 
 torchrl = pytest.importorskip("torchrl")
 torch = pytest.importorskip("torch")

@@ -251,4 +251,4 @@ def vns(
             :func:`vns_whitened`.
     """
     Q0_a, G = as_candidates(Q0, H, R)
-    return vns_whitened(Q0_a, G, budget, **kwargs)  # type: ignore[arg-type]
+    return vns_whitened(Q0_a, G, budget, **kwargs)

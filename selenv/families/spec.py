@@ -170,8 +170,9 @@ def vector_factories(spec: FamilySpec) -> tuple[VectorFactory, VectorFactory]:
     """The vector entry points ``(make_vector_env, make_vector_env_v0)`` of a family.
 
     ``gymnasium.make_vec(id, num_envs=B, **kwargs)`` calls them with ``num_envs`` and the id's
-    keywords (``autoreset_mode``, if given, selects Gymnasium's autoreset mode); ``make_vector_env_v0`` warns and maps the ``-v0`` presets as
-    :func:`env_factories` does. A family without :attr:`FamilySpec.vector_class` refuses.
+    keywords (``autoreset_mode``, if given, selects Gymnasium's autoreset mode);
+    ``make_vector_env_v0`` warns and maps the ``-v0`` presets as :func:`env_factories` does. A
+    family without :attr:`FamilySpec.vector_class` refuses.
     """
     from selenv.envs.versions import warn_deprecated
 
