@@ -45,8 +45,7 @@ def check_known_keywords(given: dict[str, Any], known: Any, env_name: str, named
         accepted = sorted(set(known) | set(named))
         more = f" (and {unknown[1:]})" if len(unknown) > 1 else ""
         raise TypeError(
-            f"{env_name} got an unexpected keyword argument {unknown[0]!r}{more}; "
-            f"known: {accepted}"
+            f"{env_name} got an unexpected keyword argument {unknown[0]!r}{more}; known: {accepted}"
         )
 
 
