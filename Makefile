@@ -1,5 +1,6 @@
 # Two commands do all set-up on a fresh machine with Python 3.11:
-#   make bench   -> heuristics-vs-policies benchmark on built-in defaults (every registered env)
+#   make bench   -> heuristics-vs-policies benchmark on built-in defaults (every registered env),
+#                   then the native vector envs' throughput against SyncVectorEnv
 #   make test    -> the test suite (what CI runs)
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
@@ -29,6 +30,7 @@ $(STAMP): pyproject.toml constraints.txt
 
 bench: $(STAMP)
 	$(VENV)/bin/selenv bench --episodes 5 --json bench_results.json --plot bench_plots
+	$(PY) benchmarks/bench_vector.py --rounds 3 --steps 10
 
 test: $(STAMP)
 	$(PYTEST)
