@@ -178,3 +178,18 @@ def test_merge_infos_masks_and_object_values() -> None:
     merge_infos(out, {"x": np.array([5.0])}, np.array([1]), 3)
     np.testing.assert_array_equal(out["x"], [1.0, 5.0, 2.0])
     assert out["_x"].all() and not out["_s"][1]
+
+
+@pytest.mark.parametrize("family", [f for f in FAMILIES if f.vector_class is not None])
+def test_vector_env_takes_exactly_the_single_envs_keywords(family) -> None:
+    """The two constructors list the same keywords with the same defaults (plus num_envs)."""
+    import inspect
+
+    from selenv.families.spec import load_attr
+
+    def params(cls: type) -> dict[str, object]:
+        sig = inspect.signature(cls.__init__)
+        return {n: p.default for n, p in sig.parameters.items() if n not in ("self", "num_envs")}
+
+    single, vector = load_attr(family.env_class), load_attr(family.vector_class)
+    assert params(vector) == params(single)
