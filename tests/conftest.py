@@ -103,16 +103,22 @@ def pytest_configure(config: pytest.Config) -> None:
 #: them a second time under another OpenBLAS kernel (``make test-numerics``), see the README
 NUMERICS_FILES = frozenset(
     {
+        "test_cl_vector.py",
+        "test_cl_vector_previews.py",
         "test_clustering_ga.py",
         "test_clustering_regimes.py",
         "test_clustering_speed_identity.py",
+        "test_clustering_vector.py",
         "test_env_speed_identity.py",
         "test_estimation.py",
+        "test_fim_fast_paths.py",
+        "test_fim_vector.py",
         "test_fim_solvers.py",
         "test_fusion.py",
         "test_fusion_accuracy.py",
         "test_information.py",
         "test_kalman.py",
+        "test_landmark_vector.py",
         "test_numpy_fallbacks.py",
         "test_objective_registry.py",
         "test_objectives.py",
@@ -120,6 +126,7 @@ NUMERICS_FILES = frozenset(
         "test_speed_identity_core.py",
         "test_speed_identity_greedy.py",
         "test_validation.py",
+        "test_vector_base.py",
     }
 )
 
