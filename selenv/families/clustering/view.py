@@ -168,13 +168,16 @@ class ClusteringEditView(CandidateView):
         lcv = np.log(cv / sizes)[labels]  # (n,) log mean position var of own cluster
         rel_pv, rel_cv = lpv - lpv.max(), lcv - lcv.max()
         t = float(np.asarray(obs["time"]).reshape(-1)[0])
-        i, j = self.i, self.j
-        w = np.concatenate(
-            [ls[i], ls[j], cl_mean[i], cl_mean[j], size[i, None], size[j, None],
-             lpv[i, None], lpv[j, None], np.full((self.count, 1), t),
-             rel_pv[i, None], rel_pv[j, None], rel_cv[i, None], rel_cv[j, None]],
-            axis=1,
-        ).astype(np.float32)  # fmt: skip
+        # per-receiver table, gathered once for each end of every edit (the columns of
+        # [ls_i, ls_j, cl_mean_i, cl_mean_j, size_i, size_j, lpv_i, lpv_j, t, rel_pv_i,
+        # rel_pv_j, rel_cv_i, rel_cv_j]); float64 then one cast, as the concatenation did
+        table = np.empty((self.n, 8))
+        table[:, 0:2], table[:, 2:4], table[:, 4] = ls, cl_mean, size
+        table[:, 5], table[:, 6], table[:, 7] = lpv, rel_pv, rel_cv
+        w = np.empty((self.count, self.WIDTH), np.float32)
+        w[:, SOURCE_COLUMNS] = table[self.i]
+        w[:, TARGET_COLUMNS] = table[self.j]
+        w[:, TIME_COLUMN] = t
         w[0] = 0.0
         mask = edit_mask(labels, self.max_size).astype(np.int8)
         features = self.kind.copy()
