@@ -80,10 +80,9 @@ from selenv.learned.rl.candidate_policy import (
     CandidateScorer,
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
-    make_ppo,
     obs_layout,
 )
-from selenv.learned.rl.safe_load import read_weights
+from selenv.learned.rl.safe_load import model_from_checkpoint, read_weights
 
 __all__ = [
     "EDIT_EXTRACTOR",
@@ -403,12 +402,4 @@ def edit_model_from_checkpoint(
     Raises:
         ValueError: as :func:`load_edit_policy`.
     """
-    name = str(checkpoint)
-    algo, policy_kwargs = edit_policy_spec(metadata, name)
-    key = "maskable_ppo" if algo == "MaskablePPO" else "ppo"
-    model = make_ppo(env, key, policy_kwargs=policy_kwargs, **ppo_kwargs)
-    try:
-        model.policy.load_state_dict(read_weights(checkpoint), strict=True)
-    except RuntimeError as exc:
-        raise ValueError(f"checkpoint {name}: weights do not fit its metadata: {exc}") from exc
-    return model
+    return model_from_checkpoint(checkpoint, metadata, env, spec=edit_policy_spec, **ppo_kwargs)

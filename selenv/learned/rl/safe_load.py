@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import io
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -158,19 +159,26 @@ def build_policy(
 
 
 def model_from_checkpoint(
-    checkpoint: str | Path, metadata: dict[str, Any], env: Any, **ppo_kwargs: Any
+    checkpoint: str | Path,
+    metadata: dict[str, Any],
+    env: Any,
+    *,
+    spec: Callable[[dict[str, Any], str], tuple[str, dict[str, Any]]] | None = None,
+    **ppo_kwargs: Any,
 ) -> MaskablePPO | PPO:
     """A new SB3 model on ``env`` (a candidate view) holding the checkpoint's weights.
 
     For code that continues training from a file (DAgger, fine-tuning): the model is built by
     :func:`~selenv.learned.rl.candidate_policy.make_ppo` with the metadata's architecture, then the
-    weights are read safely (:func:`read_weights`). The optimizer starts afresh.
+    weights are read safely (:func:`read_weights`). The optimizer starts afresh. ``spec``
+    reads the architecture from the metadata (default :func:`policy_spec`; the factorised edit
+    scorer passes its own).
 
     Raises:
         ValueError: as :func:`load_policy`.
     """
     name = str(checkpoint)
-    algo, policy_kwargs = policy_spec(metadata, name)
+    algo, policy_kwargs = (spec or policy_spec)(metadata, name)
     key = "maskable_ppo" if algo == "MaskablePPO" else "ppo"
     model = make_ppo(env, key, policy_kwargs=policy_kwargs, **ppo_kwargs)
     try:
