@@ -2,6 +2,7 @@
 #   make bench   -> heuristics-vs-policies benchmark on built-in defaults (every registered env),
 #                   then the native vector envs' throughput against SyncVectorEnv
 #   make test    -> the test suite (what CI runs)
+# and, once set up: make docs (the documentation site), make lint, make figures, make perf
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -18,13 +19,13 @@ TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 PYTEST_WORKERS ?= 2
 PYTEST := $(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadscope
 
-.PHONY: bench test test-numerics lint figures perf perf-vector overheads clean
+.PHONY: bench test test-numerics lint docs docs-linkcheck figures perf perf-vector overheads clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	# torch first, so that nothing later resolves another build
 	$(PY) -c "import torch" 2>/dev/null || { test -n "$(TORCH_INDEX)" && $(PIP) install --quiet --retries 0 --timeout 20 --index-url "$(TORCH_INDEX)" -c constraints.txt "$(TORCH)"; } || $(PIP) install --quiet -c constraints.txt "$(TORCH)"
-	$(PIP) install --quiet -c constraints.txt -e '.[dev,ray,torchrl]'
+	$(PIP) install --quiet -c constraints.txt -e '.[dev,ray,torchrl,docs]'
 	$(PY) -c "import torch; print('selenv: torch', torch.__version__, '(CUDA build)' if torch.version.cuda else '(CPU build)')"
 	touch $(STAMP)
 
@@ -39,6 +40,15 @@ test: $(STAMP)
 # than Haswell / SkylakeX): decisions must be identical and values within the stated tolerances
 test-numerics: $(STAMP)
 	OPENBLAS_CORETYPE=Prescott $(PYTEST) -m numerics
+
+# the documentation site (docs/, Sphinx + furo + MyST) into docs/_build/html, warnings as
+# errors; docs-linkcheck checks the site's own links (no network)
+docs: $(STAMP)
+	$(VENV)/bin/sphinx-build -q -W --keep-going -b html docs docs/_build/html
+	@echo "docs: open docs/_build/html/index.html"
+
+docs-linkcheck: $(STAMP)
+	$(VENV)/bin/sphinx-build -q -W --keep-going -b linkcheck docs docs/_build/linkcheck
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check . && $(VENV)/bin/mypy
@@ -60,4 +70,4 @@ overheads: $(STAMP)
 	export OPENBLAS_NUM_THREADS=1; $(PY) benchmarks/bench_greedy_setup.py && $(PY) benchmarks/bench_clustering.py --compare --rounds 300 && $(PY) benchmarks/bench_clustering.py --env-step --rounds 100 && $(PY) benchmarks/bench_env_step.py --target overheads --rounds 15 && $(PY) benchmarks/bench_fusion.py --scaling --rounds 31 && $(PY) benchmarks/bench_kalman.py --rounds 41
 
 clean:
-	rm -rf $(VENV) bench_results.json bench_plots .pytest_cache .ruff_cache .mypy_cache
+	rm -rf $(VENV) bench_results.json bench_plots docs/_build .pytest_cache .ruff_cache .mypy_cache

@@ -12,8 +12,9 @@ Shape convention: a pool of ``N`` candidate measurements, each with at most ``m`
 zero row adds no information, so padding is exact). Every candidate is whitened once,
 ``G_k = L_k^-1 H_k`` with ``R_k = L_k L_k^T``, so that ``Q_k = G_k^T G_k``.
 
-Marginal gains (see ``shared/notes/selection_math.md``): with ``A`` the current information and
-``P = A^-1``, the gain of candidate ``k`` is ``log det(I_m + S_k)``, ``S_k = G_k P G_k^T``.
+Marginal gains (matrix determinant lemma; Kirchner et al. 2020, eq. 9): with ``A`` the current
+information and ``P = A^-1``, the gain of candidate ``k`` is ``log det(I_m + S_k)``,
+``S_k = G_k P G_k^T``.
 Adding a row ``g`` is a rank-one update; with ``u = P g``, ``q = g^T u`` and ``c = G u``::
 
     S <- S - c c^T / (1 + q),   P <- P - u u^T / (1 + q),   f <- f + log(1 + q)

@@ -16,7 +16,7 @@ stays symmetric positive (semi-)definite even when the gain is computed inaccura
 Validation (``validate=True``, the default) goes through :mod:`selenv.core.linalg`: real
 numeric types only (complex, bool, str, object raise ``TypeError``), shapes (a mismatch names
 the argument that disagrees with the others), finiteness, SPD-ness and the valid range
-``|entry| <= MAX_ABS`` (diagonals of ``P``, ``R`` >= ``MIN_PD_DIAG``); a result that still
+``abs(entry) <= MAX_ABS`` (diagonals of ``P``, ``R`` >= ``MIN_PD_DIAG``); a result that still
 overflows float64 raises ``ValueError`` instead of being returned as inf/NaN.
 """
 
@@ -324,7 +324,7 @@ def kf_predict(
     Raises:
         TypeError: an argument is not real numeric (complex, bool, str, object).
         ValueError: wrong shape (naming the argument that disagrees with the others), NaN/inf,
-            ``P``/``Q`` not SPD/PSD, entries outside the valid range (|entry| <= ``MAX_ABS``,
+            ``P``/``Q`` not SPD/PSD, entries outside the valid range (``abs(entry) <= MAX_ABS``,
             diagonal of ``P`` >= ``MIN_PD_DIAG``) or a result that overflows float64.
     """
     xa, Pa, Fa, Qa = _checked_model(x, P, F, Q)
@@ -381,7 +381,7 @@ def kf_update(
     Raises:
         TypeError: an argument is not real numeric (complex, bool, str, object).
         ValueError: wrong shape (naming the argument that disagrees with the others), NaN/inf,
-            ``P``/``R`` not SPD, entries outside the valid range (|entry| <= ``MAX_ABS``,
+            ``P``/``R`` not SPD, entries outside the valid range (``abs(entry) <= MAX_ABS``,
             diagonals of ``P``, ``R`` >= ``MIN_PD_DIAG``) or a result that overflows float64.
     """
     if not validate:

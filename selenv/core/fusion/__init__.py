@@ -34,7 +34,7 @@ and posterior mean ``x`` when asked for, the optimiser (``omega`` or ``X`` and
 optimiser instead of solving for it; ``validate=False`` skips the input checks on hot paths.
 
 Bad input (non-symmetric, not positive definite, NaN/inf, mismatched shapes) raises
-``ValueError`` naming the argument. The derivations are in ``shared/notes/fusion_math.md`` and
+``ValueError`` naming the argument. The derivations (Chen & Kia 2022, Sec. III-IV) are
 in the docstrings of :mod:`~selenv.core.fusion.dmv` and :mod:`~selenv.core.fusion.pecmv`
 (the exact m-dimensional reduction of PECMV). Layout of this subpackage: ``ci``, ``dmv``,
 ``pecmv``, ``surrogate`` (surrogate-driven updates), ``sdp`` (conic solvers), ``batch``

@@ -132,13 +132,13 @@ class ClusteringConfig:
             zero.
         prior_std: 1-sigma of the initial belief ``(position, velocity, bias)`` per axis (the
             paper does not give ``P_0|0``), each in ``[1e-3, 1e2]``.
+        regimes: time-varying noise (:class:`MultipathRegimes`), ``sigma`` being the base
+            levels; ``None`` (the paper) keeps ``sigma`` fixed.
 
     The ranges keep the Kalman filters of every cluster well conditioned in float64: prior
     variances up to 1e8 times the smallest noise variance, with correlations up to 0.99 and
     degraded noise up to 100 times the base level (wider ratios make ``H P H^T + R`` singular
     to machine precision).
-        regimes: time-varying noise (:class:`MultipathRegimes`), ``sigma`` being the base
-            levels; ``None`` (the paper) keeps ``sigma`` fixed.
     """
 
     n_agents: int = 30

@@ -52,8 +52,9 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
 
     Args:
         num_envs: ``B``, an int in ``[1, 65536]``.
-        preset, n_agents, budget, fusion, horizon, objective, topology, invalid_action,
-        invalid_action_penalty, **config: the single env's keywords, validated by it.
+        **config: the single env's keywords (``preset``, ``n_agents``, ``budget``,
+            ``fusion``, ``horizon``, ``objective``, ``topology``, ``invalid_action``,
+            ``invalid_action_penalty``, ...), validated by it.
         render_mode: ``None`` or ``"rgb_array"`` (:meth:`render_env`).
 
     Spaces: the single env's, batched: observations ``Dict`` of ``(B, ...)`` arrays, actions

@@ -132,10 +132,10 @@ def spiral_path(
         end_radius: horizontal range at ``s = window_s`` (m).
         sweep_rad: bearing swept over the window (rad).
         end_bearing: bearing at the end of the window (rad, from world x).
+        altitude: constant height above the ground plane (m).
 
     ``start_radius``, ``end_radius`` and ``end_bearing`` are scalars or ``(T,)`` (one per time:
     the paths of many agents or problems in one call).
-        altitude: constant height above the ground plane (m).
 
     Returns:
         Positions and velocities ``(T, 3)``.

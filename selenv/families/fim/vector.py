@@ -46,11 +46,12 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
 
     Args:
         num_envs: ``B``, an int in ``[1, 65536]``.
-        preset, n_candidates, budget, sensors, n_agents, camera_sigma_px, toa_sigma_m,
-            doppler_sigma_mps, randomize, invalid_action, invalid_action_penalty, objective:
-            exactly the single env's keywords, validated by the same code
-            (:func:`~selenv.families.fim.env.fim_settings`).
         render_mode: ``None`` or ``"rgb_array"`` (``render()``: one frame per sub-env).
+
+    The other keywords (``preset``, ``n_candidates``, ``budget``, ``sensors``, ``n_agents``,
+    ``camera_sigma_px``, ``toa_sigma_m``, ``doppler_sigma_mps``, ``randomize``,
+    ``invalid_action``, ``invalid_action_penalty``, ``objective``) are exactly the single
+    env's, validated by the same code (:func:`~selenv.families.fim.env.fim_settings`).
 
     Spaces: ``single_observation_space`` is the single env's ``Dict`` (``gain (N,)``,
     ``whitened (N, m d)``, ``features (N, 4)``, ``selected (N,)``, ``budget_left (1,)``,
@@ -62,12 +63,11 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
 
     Steps: the log-det objective (the default) is batched throughout: closed-form inverse
     factors of the picks' rank-``m`` updates, then a few stacked products and elementwise
-    passes for all sub-envs that pick (block update, eq. 9;
-    :class:`~selenv.families.fim.batched.FIMBatchState`). Other
-    objectives (``"trace"`` eq. 6, ``"max_eig"`` eq. 7, ``"det"``, user-registered): the
-    state update and ``f`` are batched; the candidate gains fall back to
-    :func:`~selenv.core.objectives.criterion_gains` per sub-env that picked (the same core
-    function ``CriterionGainState`` calls).
+    passes for all sub-envs that pick (block update, eq. 9; the batch state is a
+    :class:`~selenv.families.fim.batched.FIMBatchState`). Other objectives (``"trace"``
+    eq. 6, ``"max_eig"`` eq. 7, ``"det"``, user-registered): the state update and ``f`` are
+    batched; the candidate gains fall back to the core function that ``CriterionGainState``
+    calls, :func:`~selenv.core.objectives.criterion_gains`, per sub-env that picked.
 
     Invalid actions (a masked candidate), per sub-env as the single env: ``"noop"`` spends the
     slot (reward ``invalid_action_penalty``, ``info["invalid_action"]``,

@@ -46,10 +46,10 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
 
     Args:
         num_envs: ``B``, an int in ``[1, 65536]``.
-        n_landmarks, k, horizon, objective, landmarks, invalid_action,
-        invalid_action_penalty, **config: as
-            :class:`~selenv.families.landmarks.env.LandmarkSelectionEnv` (validated by the same
-            code).
+        **config: the keywords of
+            :class:`~selenv.families.landmarks.env.LandmarkSelectionEnv` (``n_landmarks``,
+            ``k``, ``horizon``, ``objective``, ``landmarks``, ``invalid_action``,
+            ``invalid_action_penalty``, ...), validated by the same code.
         render_mode: ``None`` or ``"rgb_array"`` (:meth:`render_env` draws one sub-env).
 
     Spaces: the single env's, batched: actions ``(B,)`` ints, observations a ``Dict`` of

@@ -100,7 +100,8 @@ __all__ = [
 EDIT_EXTRACTOR = "selenv.learned.rl.edit_policy.FactorisedEditScorer"
 #: the ``--scorer`` choices of the clustering training scripts
 SCORERS = ("factorised", "mlp")
-#: pairwise edit features per (i, j): |ls_i - cm_j| (2), |ls_i - ls_j| (2), |cm_i - cm_j| (2)
+#: pairwise edit features per (i, j): ``|ls_i - cm_j|`` (2), ``|ls_i - ls_j|`` (2),
+#: ``|cm_i - cm_j|`` (2)
 N_PAIR_FEATURES = 6
 #: ``training.algorithm`` -> the policy class (the candidate-scoring policies, unchanged)
 _POLICY_CLASSES: dict[str, type[Any]] = {
