@@ -57,10 +57,14 @@ def test_readme_python_block_runs(block: Block, sandbox: Path) -> None:
 
 
 def test_readme_has_python_blocks_and_skips_are_rare() -> None:
-    """The README is parsed (blocks found) and most blocks really run."""
-    assert len(BLOCKS) >= 10
+    """The README is parsed (its quick start found) and no block is skipped.
+
+    The README is short (the site's pages hold the examples, run by ``tests/test_docs.py``);
+    whatever python it shows must run.
+    """
+    assert len(BLOCKS) >= 1
     skipped = [b for b in BLOCKS if b.skip_reason is not None]
-    assert len(skipped) <= 2, [f"README.md:{b.line}: {b.skip_reason}" for b in skipped]
+    assert not skipped, [f"README.md:{b.line}: {b.skip_reason}" for b in skipped]
 
 
 def test_only_python_fences_are_collected() -> None:
