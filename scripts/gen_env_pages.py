@@ -168,11 +168,13 @@ def multiagent_page(module_name: str, family: Any, superseded: str | None) -> st
         penv = module.parallel_env()
         penv.reset(seed=0)
         agent = penv.agents[0]
+        names = penv.agents if len(penv.agents) <= 4 else [penv.agents[0], "...", penv.agents[-1]]
         rows = [
-            ("Import", f"`from selenv.multiagent import {short}`"),
-            ("API", "`parallel_env(...)`, `env(...)` (AEC), `raw_env(...)`"),
             ("Single-agent env", f"[{family.env_name}]({snake(family.env_name)}.md)"),
-            ("Agents at defaults", f"{len(penv.agents)}: `{'`, `'.join(penv.agents)}`"),
+            (
+                "Agents at defaults",
+                f"{len(penv.agents)}: " + ", ".join(n if n == "..." else f"`{n}`" for n in names),
+            ),
             (f"Action space of `{agent}`", space_rows(penv.action_space(agent))),
             (f"Observation space of `{agent}`", space_rows(penv.observation_space(agent))),
         ]
@@ -182,7 +184,8 @@ def multiagent_page(module_name: str, family: Any, superseded: str | None) -> st
         penv.close()
     return (
         f"{HEADER}\n# {short} (PettingZoo)\n\n{first.strip()}\n\n{_table(rows)}\n"
-        f"Spaces above are at the default keywords.\n\n{myst(body)}"
+        f"Spaces above are at the default keywords (the module's own summary follows).\n\n"
+        f"{myst(body)}"
     )
 
 
