@@ -3,7 +3,7 @@
 Each env is made with ``render_mode="rgb_array"`` and played for a few steps by its greedy
 agent (the frame shows picks and links), then ``env.render()`` is saved as a PNG. Usage::
 
-    python scripts/render_frames.py [--out docs/figures] [--steps 6] [--seed 0]
+    .venv/bin/python scripts/render_frames.py [--out docs/figures] [--steps 6] [--seed 0]
 """
 
 from __future__ import annotations
