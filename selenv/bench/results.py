@@ -12,7 +12,10 @@ module of :mod:`selenv.multiagent`) and derives the comparison of :mod:`selenv.b
   ``ReceiverClustering-v1``) if it ran, and ``R_best`` the best mean return among the agents
   that ran. A reference agent (``rollout``, ``brute_force``, ``centralized_greedy``,
   ``centralized_swap``) is not treated specially: if it has the best mean return it is the
-  best agent. ``None`` when no random agent ran.
+  best agent. ``None`` when no random agent ran;
+* the **direction of the final objective** (:func:`objective_direction`): the return is
+  always to be maximised, but ``info["objective"]`` is a gain for some families (``"higher"``
+  is better) and a cost for others (``"lower"``).
 """
 
 from __future__ import annotations
@@ -35,18 +38,51 @@ from selenv.bench.stats import (
     normalized_score,
 )
 from selenv.envs.resolved import jsonable
+from selenv.families import FAMILIES
 
 __all__ = [
+    "OBJECTIVE_DIRECTIONS",
     "RANDOM_REFERENCES",
     "AgentRefused",
     "AgentResult",
     "BenchError",
     "EnvBenchResult",
     "EnvKwargsError",
+    "objective_direction",
 ]
 
 #: agent names that serve as the random reference of the normalised score, in order
 RANDOM_REFERENCES = ("random", "fixed_random")
+
+#: family name -> whether a ``"higher"`` or ``"lower"`` final ``info["objective"]`` is better,
+#: as each env documents it (for every ``objective=`` setting of the env, every version and
+#: the family's PettingZoo modules):
+#:
+#: * ``fim``: ``f(F)``, the information gained (``log det``, nats; or the decrease of the
+#:   position MSE bound for ``"trace"`` / ``"max_eig"``); the return is ``f(F)`` itself;
+#: * ``landmarks``: the cost eq. (11) of the EKF posterior (CRLB): ``log det P``, ``det P``,
+#:   ``tr`` or ``lambda_max`` of its position block; the reward is minus the cost;
+#: * ``cooperative``: the team's uncertainty (sum of ``log det P_i`` or of the horizontal
+#:   position variances, an MSE-like cost); the reward is its decrease;
+#: * ``clustering``: the clustering cost ``J``; the reward is ``-J``.
+OBJECTIVE_DIRECTIONS: dict[str, str] = {
+    "fim": "higher",
+    "landmarks": "lower",
+    "cooperative": "lower",
+    "clustering": "lower",
+}
+
+
+def objective_direction(env_id: str) -> str | None:
+    """``"higher"`` or ``"lower"``: which final objective of ``env_id`` is better.
+
+    ``env_id`` is a Gymnasium id (any version) or a PettingZoo module of a selenv family
+    (:data:`OBJECTIVE_DIRECTIONS`); ``None`` for an env of no selenv family (unknown).
+    """
+    for fam in FAMILIES:
+        if env_id in fam.multiagent_modules or any(v.env_id == env_id for v in fam.versions):
+            return OBJECTIVE_DIRECTIONS.get(fam.name)
+    return None
 
 
 class BenchError(ValueError):
@@ -216,6 +252,14 @@ class EnvBenchResult:
             raise BenchError(f"baseline {name!r} was skipped on {self.env_id}: {why}")
 
     @property
+    def objective_direction(self) -> str | None:
+        """Which final objective is better here: ``"higher"``, ``"lower"`` or ``None`` (unknown).
+
+        :func:`objective_direction` of :attr:`env_id`.
+        """
+        return objective_direction(self.env_id)
+
+    @property
     def random_reference(self) -> str | None:
         """The random agent of the normalised score (first of ``RANDOM_REFERENCES`` that ran)."""
         ran = self._ran()
@@ -283,6 +327,7 @@ class EnvBenchResult:
             "baseline_rule": "given" if self.baseline is not None else "best mean return",
             "random_reference": self.random_reference,
             "best_agent": self.best_agent,
+            "objective_direction": self.objective_direction,
             "statistics": {
                 "confidence": CONFIDENCE,
                 "ci95": "percentile bootstrap of the mean paired difference of episode returns",
