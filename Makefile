@@ -9,7 +9,7 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
 STAMP  := $(VENV)/.installed
 
-# PyTorch build (see the README, "Set-up"): TORCH is the requirement, TORCH_INDEX the wheel
+# PyTorch build (see docs/getting_started.md): TORCH is the requirement, TORCH_INDEX the wheel
 # index tried first (the PyTorch CPU index: the CPU build, ~200 MB). Where that index cannot be
 # reached, or with TORCH_INDEX= (empty), pip's configured index serves TORCH; on PyPI a plain
 # Linux torch==2.13.0 may be the CUDA build. For CUDA: TORCH_INDEX=<a PyTorch CUDA index>.
@@ -60,11 +60,11 @@ perf: $(STAMP)
 	$(PY) benchmarks/bench_greedy.py && $(PY) benchmarks/bench_env_step.py && $(PY) benchmarks/bench_clustering.py && $(PY) benchmarks/bench_landmarks.py && $(PY) benchmarks/bench_fusion.py && $(PY) benchmarks/bench_surrogates.py
 
 # native vector envs vs SyncVectorEnv and CartPole-v1, scaling in B and in each family's size
-# (docs/BENCHMARKS.md, "Vector envs"); bench_threads: the solvers with the default thread counts
+# (docs/performance/vector_envs.md); bench_threads: the solvers with the default thread counts
 perf-vector: $(STAMP)
 	$(PY) benchmarks/bench_vector.py --scaling --json docs/bench/vector_envs.json && $(PY) benchmarks/bench_threads.py
 
-# the overhead ratios (docs/BENCHMARKS.md, "Overheads around the core algorithms");
+# the overhead ratios (docs/performance/overheads.md);
 # bench_kalman.py compares with FilterPy if it is installed (pip install filterpy==1.4.5)
 overheads: $(STAMP)
 	export OPENBLAS_NUM_THREADS=1; $(PY) benchmarks/bench_greedy_setup.py && $(PY) benchmarks/bench_clustering.py --compare --rounds 300 && $(PY) benchmarks/bench_clustering.py --env-step --rounds 100 && $(PY) benchmarks/bench_env_step.py --target overheads --rounds 15 && $(PY) benchmarks/bench_fusion.py --scaling --rounds 31 && $(PY) benchmarks/bench_kalman.py --rounds 41

@@ -19,7 +19,7 @@ optimisation); the learned methods use the m = 2 checkpoints (trained at 2 deg),
 ``--methods``.
 
 Writes ``chen_kia_fig8.png`` and ``chen_kia_rmse.png`` into ``--out`` and prints Markdown
-tables; ``main(argv)`` returns the numbers. Results: ``docs/REPRODUCTION.md``.
+tables; ``main(argv)`` returns the numbers. Results: ``docs/reproductions/chen_kia.md``.
 """
 
 from __future__ import annotations

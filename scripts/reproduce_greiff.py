@@ -31,7 +31,7 @@ Runs are spread over ``--workers`` local processes (``--executor process``, the 
 process (``--executor local``) or Ray tasks (``--executor ray [--address ADDR]``), with a progress
 bar; run ``i`` is seeded from ``--seed`` and ``i`` only, so the numbers do not depend on the
 executor. ``main(argv)`` returns the
-numbers as a dict and prints Markdown tables. Results: ``docs/REPRODUCTION.md``.
+numbers as a dict and prints Markdown tables. Results: ``docs/reproductions/greiff.md``.
 """
 
 from __future__ import annotations

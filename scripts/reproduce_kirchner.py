@@ -17,7 +17,7 @@ Jacobians at the prior mean (``problem.G``); measurements of the selected candid
 at the truth and ``theta`` is estimated by MAP (Gauss-Newton, prior ``N(mu0, P0)``). The metric
 is the position error ``||theta_hat[:2] - theta_true[:2]||`` (m) at the window start. Fig. 2's
 selection pattern is examined by a sweep of the camera altitude (``altitude_m``) in Example 1.
-Results and the comparison with the paper: ``docs/REPRODUCTION.md``.
+Results and the comparison with the paper: ``docs/reproductions/kirchner.md``.
 
 Usage::
 

@@ -32,7 +32,7 @@ Runs go to ``--workers`` local processes by default, to Ray tasks with ``--execu
 (``--address`` joins a cluster); run ``r`` uses seed ``--seed + r`` whatever the executor.
 
 Writes ``soubaras_fig3.png`` .. ``soubaras_fig6.png`` into ``--out`` and prints Markdown
-tables. ``main(argv)`` returns the numbers as a dict. Results: ``docs/REPRODUCTION.md``.
+tables. ``main(argv)`` returns the numbers as a dict. Results: ``docs/reproductions/soubaras.md``.
 """
 
 from __future__ import annotations

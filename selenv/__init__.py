@@ -1,7 +1,7 @@
 """selenv: hard decision problems of state estimation as reinforcement-learning environments.
 
 ``import selenv`` registers the Gymnasium ids (``selenv/FIMSelection-v1``, ...; see
-:mod:`selenv.families`) and the baseline agents. See the README for the quick start.
+:mod:`selenv.families`) and the baseline agents. See docs/getting_started.md for the quick start.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Every family is wired from its record alone: ids, versions, agents, views, checkpoint, modules.
 
-This is the check behind the "add a family" recipe (docs/ADDING_A_FAMILY.md): a new folder
+This is the check behind the "add a family" recipe (docs/guide/adding_a_family.md): a new folder
 and one line in ``selenv.families.FAMILIES`` must give all of the below.
 """
 

@@ -3,7 +3,7 @@
 :data:`FAMILIES` lists the records (:class:`~selenv.families.spec.FamilySpec`), one line per
 family; everything that names a family elsewhere (the ids and their versions, ``selenv list``,
 the agent registry, the candidate views, the ``ppo`` agent's checkpoints) is built from them.
-Adding a family: a new folder with its record (see ``docs/ADDING_A_FAMILY.md``) and one line
+Adding a family: a new folder with its record (see ``docs/guide/adding_a_family.md``) and one line
 here.
 """
 

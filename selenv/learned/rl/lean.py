@@ -12,7 +12,7 @@ the masked categorical's probabilities, as SB3 takes it, so even float32 ties br
 so the action equals ``predict(..., deterministic=True)``; ``tests/test_lean_inference.py``
 checks that on every step of episodes of every env with a shipped checkpoint.
 
-Measured speed-ups are in ``docs/BENCHMARKS.md`` (``benchmarks/bench_policy_inference.py``).
+Measured speed-ups are in ``docs/benchmarks/learned_selectors.md`` (``benchmarks/bench_policy_inference.py``).
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ class TopMScorer:
     float32, the DeepSets context taken over those ``m`` -- gives nearly the full policy's
     choice at a fraction of its cost. Unlike :class:`LeanScorer` this is *not* the trained
     policy's exact action (the context differs); its quality is measured by ``selenv bench``
-    (``ppo:top_m=32``, docs/BENCHMARKS.md).
+    (``ppo:top_m=32``, docs/benchmarks/learned_selectors.md).
 
     Args:
         policy: a candidate-scoring policy (see :class:`LeanScorer`).
