@@ -4,16 +4,16 @@ An :class:`Objective` is a *cost of a covariance* ``c(M)`` (lower is better) eva
 block ``M = E P E^T`` ``(..., p, p)`` of a posterior covariance (or CRLB) ``P``; ``E`` selects
 the parameters the objective scores. The built-ins:
 
-=========== ====================================== ============ ============== =============
-name        ``c(M)``                                submodular   unit-invariant  solvers use
-=========== ====================================== ============ ============== =============
-``logdet``  ``log det M`` (D-optimal; Kirchner      yes          yes            itself
+=========== ======================================= ========== ============== ===========
+name        ``c(M)``                                submodular unit-invariant solvers use
+=========== ======================================= ========== ============== ===========
+``logdet``  ``log det M`` (D-optimal; Kirchner      yes        yes            itself
             et al. 2020 eq. 5 / 9, Soubaras eq. 11)
-``det``     ``det M`` (Soubaras & Chahbazian eq.    no           yes            ``logdet``
+``det``     ``det M`` (Soubaras & Chahbazian eq.    no         yes            ``logdet``
             11; same minimiser as ``logdet``)
-``trace``   ``tr M`` (A-optimal, Kirchner eq. 6)    no           no             itself
-``max_eig`` ``lambda_max(M)`` (E-optimal, eq. 7)   no           no             itself
-=========== ====================================== ============ ============== =============
+``trace``   ``tr M`` (A-optimal, Kirchner eq. 6)    no         no             itself
+``max_eig`` ``lambda_max(M)`` (E-optimal, eq. 7)    no         no             itself
+=========== ======================================= ========== ============== ===========
 
 *Submodular* gains (``f(S) = c(P0) - c(P_S)``) carry greedy's ``1 - 1/e`` guarantee and make
 lazy greedy valid. *Unit-invariant* costs have a minimiser that does not depend on the units of
