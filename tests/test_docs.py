@@ -328,3 +328,24 @@ def test_work_item_patterns_can_fail() -> None:
     assert _INTERNAL_PHRASE.search("we removed it for this issue")
     assert _OUTSIDE.search("derived in ../shared/notes/fim.md")
     assert not _WORK_ITEM.search("eq. (9), Fig. 3, 1,336 candidates, Table II")
+
+
+def test_link_checker_finds_broken_internal_links(tmp_path: Path) -> None:
+    """``scripts/check_doc_links.py`` flags a missing page and a missing anchor, not externals."""
+    path = ROOT / "scripts" / "check_doc_links.py"
+    spec = importlib.util.spec_from_file_location("check_doc_links", path)
+    assert spec is not None and spec.loader is not None
+    checker = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(checker)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "index.html").write_text(
+        '<a href="sub/page.html#ok">a</a><a href="https://example.org/x">b</a>'
+        '<a href="#top">c</a><h1 id="top">t</h1><img src="missing.png">'
+        '<a href="sub/page.html#nope">d</a><a href="gone.html">e</a>'
+    )
+    (tmp_path / "sub" / "page.html").write_text('<section id="ok"><a href="../index.html">x</a>')
+    problems = checker.broken_links(tmp_path)
+    assert len(problems) == 3, problems
+    assert any("missing.png" in p for p in problems)
+    assert any("#nope" in p for p in problems)
+    assert any("gone.html" in p for p in problems)
