@@ -30,7 +30,8 @@ Usage::
                                                     [--m 1|2] [--filter-runs 30]
 
 Methods 1 and 2 are read from ``checkpoints/lpecmv_method1.pt`` / ``lpecmv_method2.pt``
-(trained with the same data and budget as the shipped method 3, see ``docs/reproductions/chen_kia_surrogates.md``).
+(trained with the same data and budget as the shipped method 3, see
+``docs/reproductions/chen_kia_surrogates.md``).
 Writes ``chen_kia_fig2.png`` and ``chen_kia_fig6.png`` into ``--out``, prints Markdown tables;
 ``main(argv)`` returns the numbers. The full-run times of Table IV (s per simulated run) come
 from ``scripts/reproduce_chen_kia.py``.
@@ -349,7 +350,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     missing = [str(p) for p in paths_in.values() if not p.is_file()]
     if missing:
         raise SystemExit(
-            f"missing checkpoints {missing}: see docs/reproductions/chen_kia_surrogates.md for the commands"
+            f"missing checkpoints {missing}: "
+            "see docs/reproductions/chen_kia_surrogates.md for the commands"
         )
     ldmv = Surrogate.load(paths_in["ldmv"])
     lpecmv = {m: Surrogate.load(p) for m, p in paths_in.items() if m != "ldmv"}

@@ -100,7 +100,8 @@ def pytest_configure(config: pytest.Config) -> None:
 
 #: test files whose verdicts depend on floating-point rounding (decisions near ties, refusals of
 #: near-singular inputs, values compared to tolerances, references vs faster code): CI runs
-#: them a second time under another OpenBLAS kernel (``make test-numerics``), see docs/guide/testing.md
+#: them a second time under another OpenBLAS kernel (``make test-numerics``), see
+#: docs/guide/testing.md
 NUMERICS_FILES = frozenset(
     {
         "test_cl_vector.py",

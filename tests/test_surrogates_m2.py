@@ -346,9 +346,10 @@ def test_shipped_objective_checkpoint(data2: SurrogateDataset) -> None:
 
 @pytest.mark.slow
 def test_objective_variant_is_less_overconfident_than_method_3() -> None:
-    """Mean position NEES over 8 seeds x 600 steps (the 30-seed study in docs/reproductions/chen_kia_surrogates.md:
-    2.06 / 1.99 vs 3.10 / 2.89): the objective-trained network inside the 95 % band of 8 runs,
-    and its NEES summed over both agents below the MSE-trained method 3's."""
+    """Mean position NEES over 8 seeds x 600 steps (the 30-seed study in
+    docs/reproductions/chen_kia_surrogates.md: 2.06 / 1.99 vs 3.10 / 2.89): the
+    objective-trained network inside the 95 % band of 8 runs, and its NEES summed over both
+    agents below the MSE-trained method 3's."""
     from scipy.stats import chi2
 
     cfg = CLConfig(horizon=600)

@@ -1,7 +1,8 @@
 """scripts/reproduce_kirchner.py: one --quick run; figures, FIM vs random, bounds, cooperation.
 
 Examples 1-3 in the paper's reading (one stationary target: presets ``example1..3``) and the
-moving-target variants (``example*_moving``) are run side by side (see docs/reproductions/kirchner.md).
+moving-target variants (``example*_moving``) are run side by side (see
+docs/reproductions/kirchner.md).
 """
 
 from __future__ import annotations

@@ -118,8 +118,8 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     horizontal position MSE (``"trace"``: sum of the agents' horizontal position variances),
     which is what localization is for. Here the decision matters: on 30 held-out seeds greedy
     gets a clearly larger return than random, and the non-myopic ``rollout`` agent beats greedy
-    on every seed (docs/benchmarks/references.md; on longer episodes its edge fades: tied at 100 steps,
-    behind at 200). ``preset="dense"`` is the v0
+    on every seed (docs/benchmarks/references.md; on longer episodes its edge fades: tied at
+    100 steps, behind at 200). ``preset="dense"`` is the v0
     configuration before this preset (four agents, budget two, ``log det`` over all states),
     where random scheduling gets 99.7 % of greedy's return; ``preset="paper"`` Chen & Kia's two
     pedestrians (:class:`~selenv.families.cooperative.scenario.CLConfig` defaults, relative ranges

@@ -12,7 +12,8 @@ the masked categorical's probabilities, as SB3 takes it, so even float32 ties br
 so the action equals ``predict(..., deterministic=True)``; ``tests/test_lean_inference.py``
 checks that on every step of episodes of every env with a shipped checkpoint.
 
-Measured speed-ups are in ``docs/benchmarks/learned_selectors.md`` (``benchmarks/bench_policy_inference.py``).
+Measured speed-ups are in ``docs/benchmarks/learned_selectors.md``
+(``benchmarks/bench_policy_inference.py``).
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ step is **one acting agent's** decision, the agents taking their turns in the or
 ``fim_selection_v0``) are not asked: they pass with action ``0``, and the ``on_turn`` key is
 dropped from the observations (every observation shown is an acting agent's). When every
 acting agent of the round has decided, the joint action goes to ``penv.step``. (For the
-SuperSuit route, where every agent is a vector-env slot, see docs/guide/multi_agent.md.) The same network
-therefore acts for every agent (parameter sharing; the agent's own observation is all it
+SuperSuit route, where every agent is a vector-env slot, see docs/guide/multi_agent.md.) The same
+network therefore acts for every agent (parameter sharing; the agent's own observation is all it
 sees), and MaskablePPO trains it unchanged::
 
     from selenv.multiagent import fim_selection_v0
