@@ -349,3 +349,24 @@ def test_link_checker_finds_broken_internal_links(tmp_path: Path) -> None:
     assert any("missing.png" in p for p in problems)
     assert any("#nope" in p for p in problems)
     assert any("gone.html" in p for p in problems)
+
+
+_ALLOWED_HTML = {"<br>"}
+
+
+def test_placeholders_in_prose_are_code() -> None:
+    """A ``<placeholder>`` outside backticks is swallowed as raw HTML by MyST: it must be code."""
+    found = []
+    for page in PAGES:
+        in_fence = False
+        for n, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1):
+            if line.strip().startswith(("```", "~~~")):
+                in_fence = not in_fence
+                continue
+            prose = re.sub(r"`[^`]*`", "", line)
+            if in_fence or prose.lstrip().startswith("<!--"):
+                continue
+            for tag in re.findall(r"<[A-Za-z][\w:-]*>", prose):
+                if tag not in _ALLOWED_HTML:
+                    found.append(f"{_rel(page)}:{n}: {tag}")
+    assert not found, found
