@@ -24,6 +24,7 @@ commands. ``bash`` (and any other non-``python``) blocks are never executed here
 from __future__ import annotations
 
 import os
+import re
 import signal
 from pathlib import Path
 
@@ -110,3 +111,14 @@ def test_timeout_guard(sandbox: Path) -> None:
     with pytest.raises(BlockTimeout):
         run_block(Block(0, 1, "import time\nwhile True:\n    time.sleep(0.01)\n"), timeout=0.2)
     assert os.getcwd() == str(sandbox)
+
+
+def test_readme_is_short_and_links_into_the_site() -> None:
+    """The README fits on a few screens (<= 12 KB) and its relative links name existing files."""
+    text = README.read_text(encoding="utf-8")
+    assert len(text.encode("utf-8")) <= 12 * 1024
+    links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    local = [link for link in links if "://" not in link]
+    assert any(link.startswith("docs/") for link in local)
+    missing = [link for link in local if not (README.parent / link).exists()]
+    assert not missing, missing
