@@ -118,14 +118,37 @@ def run_block(
 
 @pytest.fixture
 def sandbox(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
-    """A temporary cwd, the Agg backend, no pyplot figures left behind, sys.path unchanged."""
+    """A temporary cwd, the Agg backend, no pyplot figures left behind, sys.path unchanged.
+
+    The process-wide registries a block may extend (selenv's agents and objectives,
+    Gymnasium's ids) are restored afterwards, so an example that registers its own agent
+    cannot change what later tests in the same worker see.
+    """
+    import gymnasium as gym
     import matplotlib
 
+    from selenv.agents import base as agent_base
+    from selenv.core import objective_registry
+
+    agents = {name: dict(by_env) for name, by_env in agent_base.AGENTS.items()}
+    order = {env_id: list(names) for env_id, names in agent_base._ORDER.items()}
+    objectives = dict(objective_registry._REGISTRY)
+    env_ids = dict(gym.registry)
     monkeypatch.setenv("MPLBACKEND", "Agg")
     matplotlib.use("Agg", force=True)
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(sys, "path", list(sys.path))
-    yield tmp_path
-    import matplotlib.pyplot as plt
+    try:
+        yield tmp_path
+    finally:
+        import matplotlib.pyplot as plt
 
-    plt.close("all")
+        plt.close("all")
+        agent_base.AGENTS.clear()
+        agent_base.AGENTS.update(agents)
+        agent_base._ORDER.clear()
+        agent_base._ORDER.update(order)
+        objective_registry._REGISTRY.clear()
+        objective_registry._REGISTRY.update(objectives)
+        for env_id in set(gym.registry) - set(env_ids):
+            del gym.registry[env_id]
