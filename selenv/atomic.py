@@ -11,7 +11,8 @@ weights, datasets, figures) goes through this module:
   files are untouched, byte for byte. A process killed at any moment leaves either the old or
   the new file, plus at most a hidden ``.<name>.tmp-*`` file that the next write of the same
   target removes.
-* :func:`write_bytes`, :func:`write_text`, :func:`write_json`: the one-call forms.
+* :func:`write_bytes`, :func:`write_text`, :func:`write_json`, :func:`save_figure`: the
+  one-call forms.
 * :class:`OutputLock`: an exclusive lock file next to an output (``.<name>.lock``, holding
   the owner's PID); a second run aiming at the same output is refused with
   :class:`OutputBusyError`; a lock whose process is gone is taken over.
@@ -38,6 +39,7 @@ __all__ = [
     "atomic_paths",
     "describe_os_error",
     "probe_writable",
+    "save_figure",
     "write_bytes",
     "write_json",
     "write_text",
@@ -148,6 +150,19 @@ def write_json(target: str | os.PathLike[str], obj: Any, *, indent: int | None =
     leaves the target untouched.
     """
     return write_text(target, json.dumps(obj, indent=indent) + "\n")
+
+
+def save_figure(fig: Any, target: str | os.PathLike[str], **kwargs: Any) -> Path:
+    """``fig.savefig`` (a matplotlib figure) onto ``target`` atomically.
+
+    The format comes from the target's suffix unless ``format=`` is given; other keywords go to
+    ``savefig``.
+    """
+    path = Path(target)
+    kwargs.setdefault("format", path.suffix.lstrip(".") or None)
+    with atomic_path(path) as temp:
+        fig.savefig(temp, **kwargs)
+    return path
 
 
 def probe_writable(target: str | os.PathLike[str]) -> None:

@@ -238,3 +238,67 @@ def test_probe_refuses_a_folder_and_creates_parents(tmp_path: Path) -> None:
     probe_writable(tmp_path / "a" / "b" / "out.json")
     assert (tmp_path / "a" / "b").is_dir()
     assert _leftovers(tmp_path / "a" / "b", set()) == []
+
+
+def test_save_figure_is_atomic(tmp_path: Path) -> None:
+    """A figure that fails to render leaves the old PNG; a good one replaces it."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from selenv.atomic import save_figure
+
+    target = tmp_path / "fig.png"
+    target.write_bytes(OLD)
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1])
+    with pytest.raises(ValueError):
+        save_figure(fig, target, dpi=-5)  # matplotlib refuses a negative dpi
+    assert target.read_bytes() == OLD
+    save_figure(fig, target, dpi=50)
+    plt.close(fig)
+    assert target.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert _leftovers(tmp_path, {"fig.png"}) == []
+
+
+def test_guarded_main_exit_codes(capsys: pytest.CaptureFixture[str]) -> None:
+    """Each way a command can end maps to its exit code and one line."""
+    from selenv.exits import Terminated, UsageError, guarded_main
+
+    def raises(exc: BaseException) -> None:
+        raise exc
+
+    cases = [
+        (KeyboardInterrupt(), 130, "interrupted (SIGINT)"),
+        (Terminated(), 143, "terminated (SIGTERM)"),
+        (UsageError("--episodes must be <= 100000"), 2, "error: --episodes"),
+        (OSError(errno.ENOSPC, "No space left on device", "x.json"), 1, "(ENOSPC)"),
+        (OutputBusyError("out.json is being written"), 2, "error: out.json"),
+    ]
+    for exc, code, text in cases:
+        assert guarded_main(raises, "prog", exc) == code
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("prog: ") and text in err
+    assert guarded_main(lambda: None, "prog") == 0
+    assert guarded_main(lambda: 3, "prog") == 3
+
+
+def test_sigterm_becomes_terminated_in_a_child(tmp_path: Path) -> None:
+    """A real SIGTERM to a guarded command: exit 143 and one line."""
+    child = _run_child(
+        """
+        import sys, time
+        from selenv.exits import guarded_main
+        def main():
+            print("running", flush=True)
+            time.sleep(60)
+        sys.exit(guarded_main(main, "prog"))
+        """,
+        tmp_path,
+    )
+    assert child.stdout is not None and child.stderr is not None
+    assert child.stdout.readline().strip() == b"running"
+    child.send_signal(signal.SIGTERM)
+    assert child.wait(timeout=30) == 143
+    assert child.stderr.read().decode() == "prog: terminated (SIGTERM)\n"

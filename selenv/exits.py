@@ -1,0 +1,82 @@
+"""How a selenv command ends: one line and a conventional exit code, never a traceback.
+
+:func:`guarded_main` runs a command's ``main`` and maps what can end it to the shell's
+conventions:
+
+==================================  =====  ==================================================
+what happened                        exit   printed (stderr, one line)
+==================================  =====  ==================================================
+finished                             0      (the command's own output)
+usage error found up front           2      ``prog: error: ...`` (argparse's form)
+another run writes the same output   2      ``prog: error: <output> is being written by ...``
+I/O failure (ENOSPC, EFBIG, ...)     1      ``prog: cannot write <file>: <cause> (<ERRNO>)``
+SIGINT (Ctrl-C)                      130    ``prog: interrupted (SIGINT)``
+SIGTERM                              143    ``prog: terminated (SIGTERM)``
+==================================  =====  ==================================================
+
+Commands that keep partial work (an interrupted bench, a training run) do so before these
+exceptions reach :func:`guarded_main`; the line then says what was kept.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from types import FrameType
+from typing import Any
+
+from selenv.atomic import OutputBusyError, describe_os_error
+
+__all__ = ["Terminated", "UsageError", "guarded_main", "sigterm_raises"]
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread like ``KeyboardInterrupt`` for SIGINT."""
+
+
+class UsageError(ValueError):
+    """A usage error found before any work: exit 2 with ``prog: error: <message>``."""
+
+
+@contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """While active, SIGTERM raises :class:`Terminated` in the main thread (restored after)."""
+
+    def _raise(signum: int, frame: FrameType | None) -> None:
+        raise Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise)
+    except ValueError:  # not the main thread: leave SIGTERM alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def guarded_main(main: Callable[..., Any], prog: str, *args: Any, **kwargs: Any) -> int:
+    """Run ``main(*args, **kwargs)``; return the exit code of the table above.
+
+    ``main`` may return an int exit code (``None`` is 0) or raise ``SystemExit`` (argparse's
+    usage errors, passed through).
+    """
+    try:
+        with sigterm_raises():
+            result = main(*args, **kwargs)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted (SIGINT)", file=sys.stderr)
+        return 130
+    except Terminated:
+        print(f"{prog}: terminated (SIGTERM)", file=sys.stderr)
+        return 143
+    except (UsageError, OutputBusyError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"{prog}: {describe_os_error(exc)}", file=sys.stderr)
+        return 1
+    return int(result) if isinstance(result, int) else 0
