@@ -25,6 +25,7 @@ tables; ``main(argv)`` returns the numbers. Results: ``docs/reproductions/chen_k
 from __future__ import annotations
 
 import os
+import sys
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: threads only contend
 
@@ -38,6 +39,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy.stats import chi2
 
+from selenv.atomic import describe_os_error, probe_writable, save_figure
+from selenv.exits import UsageError, guarded_main
 from selenv.families.cooperative.scenario import CLConfig, CLSimulation, make_cl_problem
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 
@@ -148,7 +151,7 @@ def plot_nees(res: dict[str, dict[str, Any]], runs: int, dt: float, path: Path) 
         ax.grid(alpha=0.3, which="both")
     axes[0].set_ylabel("mean NEES (2 dof)")
     axes[0].legend(fontsize=8)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_rmse(res: dict[str, dict[str, Any]], dt: float, path: Path) -> None:
@@ -163,7 +166,7 @@ def plot_rmse(res: dict[str, dict[str, Any]], dt: float, path: Path) -> None:
         ax.grid(alpha=0.3, which="both")
     axes[0].set_ylabel("RMSE (m)")
     axes[0].legend(fontsize=8)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def format_tables(res: dict[str, dict[str, Any]], runs: int) -> str:
@@ -184,6 +187,14 @@ def format_tables(res: dict[str, dict[str, Any]], runs: int) -> str:
         )
     lines.append(f"\n95 % NEES band for {runs} runs, 2 dof: [{lo:.2f}, {hi:.2f}]")
     return "\n".join(lines)
+
+
+def _check_out(folder: Path) -> None:
+    """A real write probe of the output folder before any work (usage error: exit 2)."""
+    try:
+        probe_writable(folder / ".write-probe")
+    except OSError as exc:
+        raise UsageError(f"--out: {describe_os_error(exc, folder)}") from None
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
@@ -208,12 +219,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     )
     unknown = sorted(set(methods) - set(METHODS))
     if unknown:
-        raise SystemExit(f"reproduce_chen_kia: error: unknown --methods {unknown}")
+        raise UsageError(f"unknown --methods {unknown}")
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
-        raise SystemExit(f"reproduce_chen_kia: error: {exc}") from None
-    args.out.mkdir(parents=True, exist_ok=True)
+        raise UsageError(f"{exc}") from None
+    _check_out(args.out)
     t0 = time.perf_counter()
     with pool:
         res = run_all(args.runs, args.steps, pool, methods, args.bearing_sigma_deg)
@@ -239,4 +250,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(guarded_main(main, "reproduce_chen_kia.py"))

@@ -55,6 +55,8 @@ from matplotlib.figure import Figure
 from scipy.stats import t as student_t
 
 from selenv import fusion
+from selenv.atomic import describe_os_error, probe_writable, save_figure
+from selenv.exits import UsageError, guarded_main
 from selenv.learned.surrogate_data import GenerationConfig, SurrogateDataset, generate_dataset
 from selenv.learned.surrogates import C_SCALE, Surrogate
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
@@ -145,7 +147,7 @@ def plot_fig2(values: dict[str, np.ndarray], path: Path) -> None:
     ax2.axhline(0.0, color="k", lw=0.8)
     ax2.set(ylabel="value - optimal value (nats)", title="difference to the optimum (<= 0)")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_fig6(
@@ -165,7 +167,7 @@ def plot_fig6(
     ax2.set(xlabel="C_diag_hat - C_diag* (entries)", ylabel="count", yscale="log",
             title="(b) LPECMV (method 3) error histogram")  # fmt: skip
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def _median_us(fn: Callable[[int], Any], calls: int, rows: int) -> float:
@@ -323,6 +325,14 @@ def format_filter(study: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _check_out(folder: Path) -> None:
+    """A real write probe of the output folder before any work (usage error: exit 2)."""
+    try:
+        probe_writable(folder / ".write-probe")
+    except OSError as exc:
+        raise UsageError(f"--out: {describe_os_error(exc, folder)}") from None
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Generate the test set, evaluate, plot, print; return the numbers."""
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
@@ -344,12 +354,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     if args.quick:
         args.samples, args.calls = 300, 200
         args.filter_runs, args.filter_steps = min(args.filter_runs, 3), 100
-    args.out.mkdir(parents=True, exist_ok=True)
+    _check_out(args.out)
     t0 = time.perf_counter()
     paths_in = CHECKPOINTS if args.m == 1 else CHECKPOINTS_M2
     missing = [str(p) for p in paths_in.values() if not p.is_file()]
     if missing:
-        raise SystemExit(
+        raise UsageError(
             f"missing checkpoints {missing}: "
             "see docs/reproductions/chen_kia_surrogates.md for the commands"
         )
@@ -359,7 +369,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
-        raise SystemExit(f"reproduce_chen_kia_surrogates: error: {exc}") from None
+        raise UsageError(f"{exc}") from None
     study = None
     with pool:
         gen = GenerationConfig(bearing_sigma_deg=bearing)
@@ -442,4 +452,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(guarded_main(main, "reproduce_chen_kia_surrogates.py"))

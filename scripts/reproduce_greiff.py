@@ -37,6 +37,7 @@ numbers as a dict and prints Markdown tables. Results: ``docs/reproductions/grei
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -48,6 +49,8 @@ from matplotlib.figure import Figure
 
 import selenv  # noqa: F401  (registers the env and the agents)
 from selenv.agents import make as make_agent
+from selenv.atomic import describe_os_error, probe_writable, save_figure
+from selenv.exits import UsageError, guarded_main
 from selenv.families.clustering.ga import align_labels
 from selenv.families.clustering.labels import random_feasible_clustering
 from selenv.families.clustering.scenario import ClusteringConfig, make_clustering_problem
@@ -290,7 +293,7 @@ def plot_fig3(res: dict[str, Any], path: Path) -> None:
         a.grid(alpha=0.3)
     comps[-1].set_xlabel("time step k")
     ax.grid(alpha=0.3, which="both")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_table2(res: dict[tuple[int, ...], dict[str, Any]], path: Path) -> None:
@@ -308,7 +311,7 @@ def plot_table2(res: dict[tuple[int, ...], dict[str, Any]], path: Path) -> None:
     ax.set_title(f"Table II: convergence by GA operator set ({runs} realisations each)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_fig4(res: dict[str, Any], path: Path) -> None:
@@ -331,7 +334,7 @@ def plot_fig4(res: dict[str, Any], path: Path) -> None:
     ax1.set_title(f"Fig. 4: N_max = 42, GA on at k = {GA_START}; final J = {res['J'][-1]:.4f}")
     for a in (ax1, ax2):
         a.grid(alpha=0.3)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 # -- main ----------------------------------------------------------------------------------------
@@ -420,14 +423,22 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+def _check_out(folder: Path) -> None:
+    """A real write probe of the output folder before any work (usage error: exit 2)."""
+    try:
+        probe_writable(folder / ".write-probe")
+    except OSError as exc:
+        raise UsageError(f"--out: {describe_os_error(exc, folder)}") from None
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run the three experiments, write the figures, print the tables; return the numbers."""
     args = parse_args(argv)
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
-        raise SystemExit(f"reproduce_greiff: error: {exc}") from None
-    args.out.mkdir(parents=True, exist_ok=True)
+        raise UsageError(f"{exc}") from None
+    _check_out(args.out)
     t0 = time.perf_counter()
     sigma = make_clustering_problem(ClusteringConfig(), np.random.default_rng(args.seed)).sigma
     variants = GA_VARIANTS if args.ga_variant == "both" else (args.ga_variant,)
@@ -470,4 +481,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(guarded_main(main, "reproduce_greiff.py"))

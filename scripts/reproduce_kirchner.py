@@ -31,6 +31,7 @@ tables (Markdown). ``main(argv)`` returns every number as a dict.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -43,8 +44,10 @@ from matplotlib.ticker import FuncFormatter, NullFormatter
 from tqdm import tqdm
 
 from selenv.agents.fim_solvers import cooperative_greedy, greedy_whitened
+from selenv.atomic import describe_os_error, probe_writable, save_figure
 from selenv.core.estimation import gauss_newton_map
 from selenv.core.information import information_matrix, logdet_objective
+from selenv.exits import UsageError, guarded_main
 from selenv.families.fim import models as km
 from selenv.families.fim.scenario import (
     CAMERA,
@@ -396,7 +399,7 @@ def plot_fig3(paper: dict[str, Any], moving: dict[str, Any], trials: int, path: 
         title = f"Fig. 3 ({r['preset']}, one camera), {trials} trials\n{READING_TITLES[reading]}"
         _style_error_axes(ax, "number of measurements selected K (of 1000)", title)
     axes[1].yaxis.set_tick_params(labelleft=True)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_fig5(
@@ -445,7 +448,7 @@ def plot_fig5(
     ax_b.set_title("Fig. 5b: sensor mix of the greedy selection")
     ax_b.grid(True, alpha=0.3)
     ax_b.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_fig7(paper: dict[str, Any], moving: dict[str, Any], trials: int, path: Path) -> None:
@@ -471,7 +474,7 @@ def plot_fig7(paper: dict[str, Any], moving: dict[str, Any], trials: int, path: 
             "measurements selected per agent K",
             f"Fig. 7 ({res['preset']}, two agents), {trials} trials\n{READING_TITLES[reading]}",
         )
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def _plot_geometry_panel(
@@ -565,7 +568,7 @@ def plot_geometry(seed: int, path: Path) -> dict[str, Any]:
         "Geometry, paper's reading (stationary target): agent paths (candidate positions), "
         "K = 10 selections, target"
     )
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     return info
 
 
@@ -607,7 +610,7 @@ def plot_altitude(sweep: dict[str, Any], path: Path) -> None:
     h1, l1 = ax_s.get_legend_handles_labels()
     h2, l2 = ax_t.get_legend_handles_labels()
     ax_s.legend(h1 + h2, l1 + l2, fontsize=8, loc="center right")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 # -- report -------------------------------------------------------------------------------------
@@ -764,12 +767,20 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+def _check_out(folder: Path) -> None:
+    """A real write probe of the output folder before any work (usage error: exit 2)."""
+    try:
+        probe_writable(folder / ".write-probe")
+    except OSError as exc:
+        raise UsageError(f"--out: {describe_os_error(exc, folder)}") from None
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run every experiment, write the five figures, print the tables; return the numbers."""
     args = parse_args(argv)
     ks = QUICK_KS if args.quick else FULL_KS
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    _check_out(out)
     t0 = time.perf_counter()
     streams = dict(
         zip(RUN_ORDER, np.random.SeedSequence(args.seed).spawn(len(RUN_ORDER)), strict=True)
@@ -813,4 +824,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(guarded_main(main, "reproduce_kirchner.py"))

@@ -38,6 +38,7 @@ tables. ``main(argv)`` returns the numbers as a dict. Results: ``docs/reproducti
 from __future__ import annotations
 
 import os
+import sys
 
 # Tiny BLAS calls (9 x 9, 60 x 60) with several OpenBLAS threads per process on a 2-core box
 # are 10-40x slower under contention: one thread per process, set before numpy is imported
@@ -61,8 +62,10 @@ import selenv  # noqa: F401  (registers the env and the agents)
 from selenv.agents import make as make_agent
 from selenv.agents.fim_solvers import brute_force_whitened, greedy_whitened
 from selenv.agents.vns import vns_whitened
+from selenv.atomic import describe_os_error, probe_writable, save_figure
 from selenv.core.information import logdet_objective
 from selenv.core.linalg import logdet_spd
+from selenv.exits import UsageError, guarded_main
 from selenv.families.landmarks.scenario import LandmarkEKF, LandmarkProblem, crlb_reference
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 
@@ -350,7 +353,7 @@ def plot_fig3(geom: dict[str, Any], sels: np.ndarray, dt: float, path: Path) -> 
     )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="best")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def _time_axis(ax: Any, title: str, ylabel: str) -> None:
@@ -383,7 +386,7 @@ def plot_fig4(agg: dict[str, Any], path: Path) -> None:
         )
     ax_g.axhline(0.0, color="k", lw=0.8)
     _time_axis(ax_g, "paired gap to Brute Force (same realisation)", "Δ log det P (nats)")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_fig5(agg: dict[str, Any], path: Path) -> None:
@@ -405,7 +408,7 @@ def plot_fig5(agg: dict[str, Any], path: Path) -> None:
     )
     ax_r.axhline(1.0, color="k", lw=0.8)
     _time_axis(ax_r, "ratio to the all-landmark CRLB", "CRLB(K = 2) / CRLB(all)")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def plot_fig6(agg: dict[str, Any], path: Path) -> None:
@@ -446,7 +449,7 @@ def plot_fig6(agg: dict[str, Any], path: Path) -> None:
     _time_axis(ax, f"Fig. 6: position RMSE over {R} Monte Carlo runs", "position RMSE (m)")
     _time_axis(ax_z, f"zoom, t >= {t[after][0]:.1f} s (linear)", "position RMSE (m)")
     ax_z.legend(fontsize=7)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 # -- report --------------------------------------------------------------------------------------
@@ -629,14 +632,22 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+def _check_out(folder: Path) -> None:
+    """A real write probe of the output folder before any work (usage error: exit 2)."""
+    try:
+        probe_writable(folder / ".write-probe")
+    except OSError as exc:
+        raise UsageError(f"--out: {describe_os_error(exc, folder)}") from None
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run the Monte Carlo study, write the figures, print the tables; return the numbers."""
     args = parse_args(argv)
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
-        raise SystemExit(f"reproduce_soubaras: error: {exc}") from None
-    args.out.mkdir(parents=True, exist_ok=True)
+        raise UsageError(f"{exc}") from None
+    _check_out(args.out)
     t0 = time.perf_counter()
     env_kwargs = {"n_landmarks": args.n_landmarks, "k": args.k, "horizon": args.horizon}
     tasks = [
@@ -667,4 +678,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(guarded_main(main, "reproduce_soubaras.py"))
