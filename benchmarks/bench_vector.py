@@ -23,20 +23,17 @@ sampled outside the timed calls. Printed as Markdown tables:
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import statistics
-import tempfile
 import time
 import warnings
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 import selenv  # noqa: F401  (registers the ids)
+from selenv.atomic import write_json as atomic_write_json
 from selenv.families import FAMILIES
 from selenv.threads import limit_threads
 
@@ -192,20 +189,8 @@ def scaling(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
 
 
 def write_json(path: str, data: dict[str, Any]) -> None:
-    """Write ``data`` to ``path`` atomically (same-folder temporary file, fsync, rename)."""
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=2)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``data`` to ``path`` atomically (:func:`selenv.atomic.write_json`)."""
+    atomic_write_json(path, data)
 
 
 def main() -> None:

@@ -31,6 +31,8 @@ from typing import Any
 import gymnasium as gym
 from gymnasium import spaces
 
+from selenv.atomic import write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "environments"
 FIGURES = ROOT / "docs" / "figures"
@@ -244,10 +246,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         stale.append(path)
         if not args.check:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(".md.tmp")
-            tmp.write_text(text, encoding="utf-8")
-            tmp.replace(path)
+            write_text(path, text)
     verb = "out of date" if args.check else "written"
     for path in stale:
         print(f"{verb}: {path.relative_to(ROOT)}")

@@ -21,8 +21,6 @@ import argparse
 import hashlib
 import importlib
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +28,7 @@ import gymnasium as gym
 import numpy as np
 
 import selenv
+from selenv.atomic import write_text
 
 #: (family id without version, gymnasium.make keywords) of every recorded case
 CASES: tuple[tuple[str, dict[str, Any]], ...] = (
@@ -116,17 +115,8 @@ def record_multiagent_episode(module: str, kwargs: dict[str, Any], seed: int) ->
 
 
 def write_atomic(path: Path, payload: dict[str, Any]) -> None:
-    """Write JSON to ``path`` through a temporary file in the same folder and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(payload, f, indent=None, separators=(",", ":"))
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write compact JSON to ``path`` atomically (:func:`selenv.atomic.write_text`)."""
+    write_text(path, json.dumps(payload, indent=None, separators=(",", ":")) + "\n")
 
 
 def main(argv: list[str] | None = None) -> None:

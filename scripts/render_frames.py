@@ -16,6 +16,7 @@ import matplotlib.image as mpimg
 
 import selenv
 from selenv.agents import make
+from selenv.atomic import atomic_path
 
 FRAMES = {
     "selenv/FIMSelection-v1": ("render_fim_selection.png", "greedy"),
@@ -50,7 +51,8 @@ def main(argv: list[str] | None = None) -> None:
             if terminated or truncated:
                 break
         frame = env.render()
-        mpimg.imsave(out / name, frame)
+        with atomic_path(out / name) as temp:
+            mpimg.imsave(temp, frame, format="png")
         print(f"{env_id}: {frame.shape} -> {out / name}")
         env.close()
     print(f"selenv {selenv.__version__}")
