@@ -232,11 +232,16 @@ def test_mismatches_raise(
     with pytest.raises(ValueError, match=r"c\.json"):
         Surrogate.load(pt)
     meta["kind"] = sur.kind
-    js.write_text(json.dumps(meta))
     meta["normalisation"]["mean"][0] -= 1.0
     js.write_text(json.dumps(meta))
     good = pt.read_bytes()
     for bad in (b"", good[: len(good) // 2], b"not a tensor file"):  # empty, truncated, junk
+        pt.write_bytes(bad)  # the JSON records the good file's SHA-256: not a pair
+        with pytest.raises(ValueError, match=r"c\.pt and metadata .*c\.json are not a pair"):
+            Surrogate.load(pt)
+    del meta["weights_sha256"]  # a JSON from before the hash: the file itself is checked
+    js.write_text(json.dumps(meta))
+    for bad in (b"", good[: len(good) // 2], b"not a tensor file"):
         pt.write_bytes(bad)
         with pytest.raises(ValueError, match=r"c\.pt are not a readable tensor file"):
             Surrogate.load(pt)

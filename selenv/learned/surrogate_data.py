@@ -37,8 +37,14 @@ diagonal entries as ``log P_kk``, off-diagonal ones as correlations ``P_kl / sqr
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
+import signal
+import sys
+import threading
+import time
+import zipfile
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -47,6 +53,7 @@ from typing import Any
 import numpy as np
 
 import selenv
+from selenv.atomic import atomic_path
 from selenv.core.fusion.batch import dmv_omega_batch, pecmv_batch
 from selenv.core.linalg import FloatArray
 from selenv.families.cooperative.scenario import CLConfig, CLSimulation, make_cl_problem
@@ -55,6 +62,9 @@ from selenv.parallel import Executor, LocalExecutor, ProcessExecutor
 __all__ = [
     "ARRAYS",
     "FORMAT",
+    "MAX_BYTES_PER_ROW",
+    "MAX_ROWS",
+    "DatasetTooLargeError",
     "GenerationConfig",
     "SurrogateDataset",
     "features",
@@ -63,11 +73,17 @@ __all__ = [
     "load_dataset",
     "n_features",
     "save_dataset",
+    "worker_dies_with_parent",
 ]
 
 FORMAT = "selenv-surrogate-data-v1"
 #: arrays of a dataset file besides ``header``
 ARRAYS = ("P_i", "P_j", "H_i", "H_j", "R", "omega", "C", "C_diag", "log_det_pecmv")
+#: default ceiling on a dataset's rows (``load_dataset(max_rows=...)``, ``--max-samples``)
+MAX_ROWS = 200_000
+#: bytes one row may take in one array (4 KiB: a float64 (n, n) block up to n = 22)
+MAX_BYTES_PER_ROW = 4096
+_MAX_SMALL_BYTES = 1 << 20  # ``R`` and ``header``: at most 1 MiB each
 _TINY = 1e-300  # floor of a variance inside the log (features stay finite for any finite input)
 
 
@@ -281,7 +297,8 @@ def generate_dataset(
         n_samples: rows.
         seed: master seed (task seeds are spawned from it).
         workers: processes when no ``executor`` is given (0: ``os.cpu_count()``; 1: in this
-            process, no pool).
+            process, no pool). The pool's workers ignore SIGINT (the parent stops the run)
+            and die with this process (:func:`worker_dies_with_parent`).
         gen: sampling knobs (default :class:`GenerationConfig`).
         progress: show a tqdm bar over the samples.
         executor: where the tasks run (:mod:`selenv.parallel`: local, a process pool, Ray);
@@ -301,7 +318,11 @@ def generate_dataset(
     tasks = list(zip(seeds, sizes, [gen] * n_tasks, strict=True))
     if executor is None:
         workers = min(workers or os.cpu_count() or 1, n_tasks)
-        executor = LocalExecutor() if workers == 1 else ProcessExecutor(workers)
+        executor = (
+            LocalExecutor()
+            if workers == 1
+            else ProcessExecutor(workers, worker_dies_with_parent, (os.getpid(),))
+        )
         with executor:
             parts = executor.map(
                 _run_task,
@@ -369,34 +390,167 @@ def _gen_dict(gen: GenerationConfig) -> dict[str, Any]:
 
 
 def save_dataset(ds: SurrogateDataset, path: str | Path) -> Path:
-    """Write ``ds`` as a compressed ``.npz`` (see the module docstring); return the path."""
+    """Write ``ds`` as a compressed ``.npz`` (see the module docstring); return the path.
+
+    ``.npz`` is appended to a path without it (numpy's rule). The file is written atomically
+    (:func:`selenv.atomic.atomic_path`): an interrupted or failed write leaves a previous file
+    byte-identical and no partial file.
+
+    Raises:
+        OSError: the write failed (full disk, file-size limit, ...); its ``filename`` is the
+            target (not the temporary file).
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix != ".npz":
+        path = Path(f"{path}.npz")
     arrays = {k: getattr(ds, k) for k in ARRAYS}
-    np.savez_compressed(path, header=np.array(json.dumps(ds.header)), **arrays)
+    header = np.array(json.dumps(ds.header))
+    try:
+        with atomic_path(path) as temp:
+            np.savez_compressed(temp, header=header, **arrays)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
     return path
 
 
-def load_dataset(path: str | Path) -> SurrogateDataset:
-    """Read a file written by :func:`save_dataset`.
+class DatasetTooLargeError(ValueError):
+    """A dataset file declares arrays beyond the ceilings of :func:`load_dataset`."""
+
+
+def _npy_header(zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype from a member's ``.npy`` header (only the header is inflated)."""
+    from numpy.lib import format as npy_format
+
+    with zf.open(info) as fh:
+        version = npy_format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = npy_format.read_array_header_1_0(fh)
+        elif version in ((2, 0), (3, 0)):
+            shape, _, dtype = npy_format.read_array_header_2_0(fh)
+        else:  # pragma: no cover - numpy's read_magic refuses others already
+            raise ValueError(f"unsupported .npy version {version}")
+    return tuple(int(d) for d in shape), np.dtype(dtype)
+
+
+def _check_sizes(path: Path, max_rows: int) -> None:
+    """Refuse, from the zip directory and the ``.npy`` headers alone, arrays over the ceilings.
 
     Raises:
-        ValueError: missing file, missing arrays or a header that is not this format (names
-            the file).
+        DatasetTooLargeError: names the array, what it declares and the limit.
+        ValueError: not a zip of ``.npy`` members, or an array missing.
+    """
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise ValueError(f"cannot read surrogate dataset {path}: {exc}") from None
+    with zf:
+        members = {info.filename: info for info in zf.infolist()}
+        missing = [k for k in (*ARRAYS, "header") if f"{k}.npy" not in members]
+        if missing:
+            raise ValueError(f"surrogate dataset {path} lacks arrays {missing}")
+        shapes: dict[str, tuple[int, ...]] = {}
+        for name in (*ARRAYS, "header"):
+            info = members[f"{name}.npy"]
+            try:
+                shape, dtype = _npy_header(zf, info)
+            except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+                msg = " ".join(str(exc).split())
+                raise ValueError(
+                    f"surrogate dataset {path}: array {name!r} has no valid .npy header: {msg}"
+                ) from None
+            if dtype.hasobject:
+                raise ValueError(f"surrogate dataset {path}: array {name!r} holds Python objects")
+            nbytes = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+            small = name in ("R", "header")
+            if small:
+                limit, what = _MAX_SMALL_BYTES, "1 MiB"
+            else:
+                rows = shape[0] if shape else 0
+                if rows > max_rows:
+                    raise DatasetTooLargeError(
+                        f"surrogate dataset {path}: array {name!r} declares {rows:,} rows "
+                        f"(shape {shape}, {nbytes / 2**20:,.0f} MiB), over the limit of "
+                        f"{max_rows:,} rows"
+                    )
+                limit = max(rows, 1) * MAX_BYTES_PER_ROW
+                what = f"{MAX_BYTES_PER_ROW} bytes per row"
+            declared = max(nbytes, info.file_size - 4096)  # the zip's own size claim, too
+            if declared > limit:
+                raise DatasetTooLargeError(
+                    f"surrogate dataset {path}: array {name!r} declares shape {shape} "
+                    f"({declared / 2**20:,.1f} MiB inflated), over the limit of {what}"
+                )
+            shapes[name] = shape
+        counts = {k: shapes[k][0] if shapes[k] else None for k in ARRAYS if k != "R"}
+        if len(set(counts.values())) != 1:
+            raise ValueError(f"surrogate dataset {path}: arrays disagree on the row count {counts}")
+
+
+def load_dataset(path: str | Path, *, max_rows: int = MAX_ROWS) -> SurrogateDataset:
+    """Read a file written by :func:`save_dataset`.
+
+    Before any array is inflated, the zip directory and each member's ``.npy`` header
+    (shape, dtype) are read: more than ``max_rows`` rows, more than
+    :data:`MAX_BYTES_PER_ROW` bytes per row in an array, an ``R`` or ``header`` over 1 MiB, or
+    an array of Python objects is refused, so a small file that would inflate to gigabytes is
+    refused within milliseconds. Members other than the dataset's arrays are not read.
+
+    Raises:
+        DatasetTooLargeError: an array over a ceiling (names the array and the limit).
+        ValueError: missing or unreadable file, missing arrays or a header that is not this
+            format (names the file).
     """
     path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"cannot read surrogate dataset {path}: no such file")
+    _check_sizes(path, max_rows)
     try:
         with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"cannot read surrogate dataset {path}: {exc}") from None
-    missing = [k for k in (*ARRAYS, "header") if k not in data]
-    if missing:
-        raise ValueError(f"surrogate dataset {path} lacks arrays {missing}")
+            data = {k: z[k] for k in (*ARRAYS, "header")}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        msg = " ".join(str(exc).split())
+        raise ValueError(f"cannot read surrogate dataset {path}: {msg}") from None
     try:
         header = json.loads(str(data.pop("header")))
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"surrogate dataset {path} has an invalid JSON header: {exc}") from None
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ValueError(f"surrogate dataset {path}: header format is not {FORMAT!r}")
     return SurrogateDataset(header=header, **{k: data[k] for k in ARRAYS})
+
+
+# -- pool workers that die with their parent ---------------------------------------------------
+
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _watch_parent(parent_pid: int, interval: float) -> None:
+    """Exit this process as soon as its parent is gone (portable fallback of PDEATHSIG)."""
+    while True:
+        if os.getppid() != parent_pid:
+            os._exit(1)
+        time.sleep(interval)
+
+
+def worker_dies_with_parent(parent_pid: int, interval: float = 0.5) -> None:
+    """Initializer of pool workers: ignore SIGINT, and die when ``parent_pid`` dies.
+
+    On Linux the kernel sends the worker SIGKILL when its parent exits
+    (``prctl(PR_SET_PDEATHSIG)``); everywhere a daemon thread checks ``os.getppid()`` every
+    ``interval`` seconds and exits the worker when the parent changed. A parent that is
+    already gone when this runs ends the worker at once. SIGINT is ignored so that Ctrl-C in
+    a terminal (sent to the whole process group) is handled by the parent alone, which stops
+    the pool, instead of printing a traceback per worker.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no libc prctl: the thread below
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
+    threading.Thread(
+        target=_watch_parent, args=(parent_pid, interval), name="selenv-parent-watch", daemon=True
+    ).start()

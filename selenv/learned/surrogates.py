@@ -20,7 +20,10 @@ script swaps LDMV's SGD for Adam, see ``selenv.train.train_surrogate.DEFAULT_OPT
 The input standardisation is a pair of buffers inside the module, so the state dict carries it.
 :class:`Surrogate` wraps a module with its metadata: ``save`` writes ``<path>.pt`` (state dict)
 and ``<path>.json`` (kind, method, architecture, normalisation, n, m, R, training data summary,
-metrics, versions); ``load`` checks the two against each other: every field has its type
+metrics, versions and the SHA-256 of the ``.pt``), both written atomically as a pair
+(:func:`selenv.atomic.atomic_paths`: an interrupted or failed save leaves the previous pair
+byte-identical); ``load`` refuses a ``.pt`` whose SHA-256 is not the one its JSON records
+(a pair from two different saves), and checks the two against each other: every field has its type
 (``method``, ``n``, ``m`` ints, ``activation`` one of ``sigmoid``/``tanh``/``relu``), the
 redundant fields agree with each other (``architecture.output`` is the one of ``kind`` and
 ``method``, a barrier ``training.loss`` means method 1, ``n_features`` is that of ``n, m``), and
@@ -36,6 +39,8 @@ forward pass (:meth:`Surrogate.forward_features`), no per-sample loop.
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 from dataclasses import dataclass, field
 from itertools import pairwise
@@ -47,6 +52,7 @@ import torch as th
 from torch import nn
 
 import selenv
+from selenv.atomic import atomic_paths
 from selenv.core.linalg import FloatArray, as_float_array, check_finite
 from selenv.learned.resources import checkpoint_path
 from selenv.learned.surrogate_data import features, n_features
@@ -55,12 +61,16 @@ __all__ = [
     "C_SCALE",
     "FORMAT",
     "KINDS",
+    "MAX_HIDDEN_LAYERS",
+    "MAX_HIDDEN_WIDTH",
+    "MAX_PARAMETERS",
     "METHODS",
     "TABLE_II",
     "Surrogate",
     "SurrogateNet",
     "barrier_loss",
     "describe_shipped",
+    "n_parameters",
     "shipped",
     "shipped_catalogue",
 ]
@@ -70,6 +80,13 @@ KINDS = ("ldmv", "lpecmv")
 METHODS = (1, 2, 3)
 #: contraction margin: tanh saturates to exactly 1 in float32, so outputs are scaled by this
 C_SCALE = 1.0 - 1e-6
+#: ceilings on a checkpoint's metadata, checked by :meth:`Surrogate.load` before anything is
+#: allocated (the training script checks ``--hidden`` against its own ``--max-width``)
+MAX_HIDDEN_WIDTH = 65_536
+MAX_HIDDEN_LAYERS = 64
+MAX_PARAMETERS = 50_000_000  # 200 MB of float32 weights
+MAX_STATE_DIM = 64  # n and m
+_MAX_JSON_BYTES = 16 << 20
 _CLAMP = 1e4  # standardised features are clamped to +-this (finite outputs for any input)
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"sigmoid": nn.Sigmoid, "tanh": nn.Tanh, "relu": nn.ReLU}
 _NUMPY_ACTIVATIONS: dict[type[nn.Module], Any] = {
@@ -383,9 +400,19 @@ class Surrogate:
     # -- files --------------------------------------------------------------------------------
 
     def save(self, path: str | Path) -> Path:
-        """Write ``<path>.pt`` (state dict) and ``<path>.json`` (metadata); return the .pt path."""
+        """Write ``<path>.pt`` (state dict) and ``<path>.json`` (metadata); return the .pt path.
+
+        The weights are serialised in memory, then both files are written to temporaries next
+        to the targets and renamed over them together (:func:`selenv.atomic.atomic_paths`):
+        a failed or interrupted save (full disk, file-size limit, SIGINT, SIGKILL) leaves the
+        previous pair byte-identical and no partial file. The JSON records the ``.pt``'s
+        SHA-256 (``weights_sha256``), so a reader finding halves of two saves refuses them.
+
+        Raises:
+            OSError: a write failed; its ``filename`` is the target, not the temporary.
+        """
         pt = Path(path).with_suffix(".pt")
-        pt.parent.mkdir(parents=True, exist_ok=True)
+        js = pt.with_suffix(".json")
         meta = dict(self.meta)
         meta.pop("path", None)
         meta["normalisation"] = {
@@ -394,8 +421,20 @@ class Surrogate:
             "std": self.net.std.tolist(),
         }
         meta["versions"] = {"selenv": selenv.__version__, "torch": th.__version__}
-        th.save(self.net.state_dict(), pt)
-        pt.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+        buffer = io.BytesIO()
+        th.save(self.net.state_dict(), buffer)  # in memory: disk errors come from plain writes
+        weights = buffer.getvalue()
+        meta["weights_sha256"] = hashlib.sha256(weights).hexdigest()
+        text = json.dumps(meta, indent=2) + "\n"
+        current = pt
+        try:
+            with atomic_paths([pt, js]) as (tmp_pt, tmp_js):
+                tmp_pt.write_bytes(weights)
+                current = js
+                tmp_js.write_text(text, encoding="utf-8")
+                current = pt
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(current)) from exc
         self.meta = {**meta, "path": str(pt)}
         return pt
 
@@ -410,15 +449,24 @@ class Surrogate:
 
         Raises:
             ValueError: the JSON or weights are missing or unreadable, the metadata is
-                incomplete, has a field of the wrong type or value, or does not match the
-                weights (the message names the file and the field).
+                incomplete, has a field of the wrong type or value, declares sizes over
+                :data:`MAX_STATE_DIM`, :data:`MAX_HIDDEN_WIDTH`, :data:`MAX_HIDDEN_LAYERS` or
+                :data:`MAX_PARAMETERS` (checked before anything is allocated), the ``.pt`` is
+                not the one whose SHA-256 the JSON records (``weights_sha256``; JSONs written
+                before that field existed are checked field by field only), or the two do not
+                match (the message names the files and the field).
         """
         pt = Path(path).with_suffix(".pt")
         js = pt.with_suffix(".json")
         try:
+            if js.stat().st_size > _MAX_JSON_BYTES:
+                raise ValueError(f"surrogate metadata {js} is over {_MAX_JSON_BYTES >> 20} MiB")
             meta = json.loads(js.read_text())
         except FileNotFoundError:
             raise ValueError(f"surrogate metadata {js} is missing") from None
+        except RecursionError:
+            msg = f"surrogate metadata {js} is not valid JSON: nested too deep"
+            raise ValueError(msg) from None
         except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"surrogate metadata {js} is not valid JSON: {exc}") from None
         try:
@@ -442,8 +490,23 @@ class Surrogate:
             raise ValueError(f"surrogate metadata {js} is invalid: {exc!s}") from None
         if not pt.is_file():
             raise ValueError(f"surrogate weights {pt} are missing (metadata {js})")
+        n_params = int(sum(p.numel() for p in sur.net.parameters()))
+        max_bytes = 8 * n_params + (4 << 20)  # float32 weights and buffers, plus the zip's frame
+        if pt.stat().st_size > max_bytes:
+            raise ValueError(
+                f"surrogate weights {pt} are {pt.stat().st_size:,} bytes, more than the "
+                f"{max_bytes:,} that metadata {js} allows for {n_params:,} parameters"
+            )
+        blob = pt.read_bytes()
+        recorded = meta.get("weights_sha256")
+        if recorded is not None and recorded != hashlib.sha256(blob).hexdigest():
+            raise ValueError(
+                f"surrogate weights {pt} and metadata {js} are not a pair: the .pt's SHA-256 is "
+                f"not the one the JSON records (they come from different saves; re-run the "
+                f"training or restore both files)"
+            )
         try:
-            state = th.load(pt, map_location="cpu", weights_only=True)
+            state = th.load(io.BytesIO(blob), map_location="cpu", weights_only=True)
         except Exception as exc:  # empty, truncated or hostile files alike: refuse
             msg = (str(exc).splitlines() or [type(exc).__name__])[0]
             raise ValueError(
@@ -496,7 +559,25 @@ def _meta_spec(meta: dict[str, Any]) -> dict[str, Any]:
     hidden = arch["hidden"]
     if not isinstance(hidden, list) or not hidden:
         raise ValueError(f"architecture.hidden must be a non-empty list of ints, got {hidden!r}")
+    if len(hidden) > MAX_HIDDEN_LAYERS:
+        raise ValueError(
+            f"architecture.hidden has {len(hidden)} layers, over the limit of {MAX_HIDDEN_LAYERS}"
+        )
     hidden = tuple(int_field(h, "architecture.hidden[]") for h in hidden)
+    if max(hidden) > MAX_HIDDEN_WIDTH:
+        raise ValueError(
+            f"architecture.hidden has a width of {max(hidden):,}, over the limit of "
+            f"{MAX_HIDDEN_WIDTH:,}"
+        )
+    for value, name in ((n, "n"), (m, "m")):
+        if value > MAX_STATE_DIM:
+            raise ValueError(f"{name} is {value}, over the limit of {MAX_STATE_DIM}")
+    count = n_parameters(n_features(n, m), hidden, _out_dim(kind, method, n))
+    if count > MAX_PARAMETERS:
+        raise ValueError(
+            f"architecture.hidden {list(hidden)} gives {count:,} parameters, over the limit "
+            f"of {MAX_PARAMETERS:,}"
+        )
     activation = arch["activation"]
     if not isinstance(activation, str) or activation not in _ACTIVATIONS:
         raise ValueError(
@@ -581,6 +662,12 @@ def _weights_disagree(state: dict[str, Any], spec: dict[str, Any], meta: dict[st
     if declared is not None and declared != count:
         return f"architecture.n_parameters is {declared!r}, but the weights have {count}"
     return ""
+
+
+def n_parameters(d_in: int, hidden: tuple[int, ...], d_out: int) -> int:
+    """Weights and biases of the MLP ``d_in -> hidden... -> d_out`` (no allocation)."""
+    sizes = [d_in, *hidden, d_out]
+    return sum(a * b + b for a, b in pairwise(sizes))
 
 
 def _output_doc(kind: str, method: int) -> str:
