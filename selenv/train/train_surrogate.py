@@ -217,13 +217,15 @@ def resume_path(cfg: Config) -> Path:
 
 
 def outputs(cfg: Config) -> list[Path]:
-    """The files the run writes: ``.pt``, ``.json``, ``--save-data``, ``<out>.resume.pt``."""
+    """The files the run writes: ``.pt`` and ``.json`` (and ``--save-data``'s ``.npz``).
+
+    The resume state :func:`resume_path` is checked with them before the run.
+    """
     pt = output_path(cfg)
     files = [pt, pt.with_suffix(".json")]
     if cfg.save_data and not cfg.data:
         data = Path(cfg.save_data)
         files.append(data if data.suffix == ".npz" else Path(f"{data}.npz"))  # numpy's rule
-    files.append(resume_path(cfg))
     return files
 
 
@@ -720,7 +722,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     cfg = parse_args(argv)
     check_outputs(
         PROG,
-        outputs(cfg),
+        [*outputs(cfg), resume_path(cfg)],
         force=cfg.force or bool(cfg.resume),
         folders=[cfg.tensorboard_dir] if cfg.tensorboard_dir else [],
     )
