@@ -25,7 +25,6 @@ a ``ValueError`` naming the file and what was expected.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, cast
 
@@ -35,7 +34,7 @@ from gymnasium import spaces
 
 from selenv.agents.base import Agent
 from selenv.families import FAMILIES
-from selenv.learned.resources import checkpoint_dir
+from selenv.learned.resources import checkpoint_dir, read_metadata
 from selenv.learned.rl.candidate_policy import (
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
@@ -47,7 +46,7 @@ from selenv.learned.rl.edit_policy import (
     load_edit_policy,
 )
 from selenv.learned.rl.lean import LeanScorer, TopMScorer
-from selenv.learned.rl.safe_load import load_policy
+from selenv.learned.rl.safe_load import checked_layout, load_policy
 from selenv.learned.rl.views import CandidateView, view_for
 
 __all__ = [
@@ -69,30 +68,23 @@ DEFAULT_CHECKPOINTS = {
 def load_metadata(checkpoint: str | Path) -> dict[str, Any]:
     """Read and check the JSON metadata next to ``checkpoint`` (``foo.zip`` -> ``foo.json``).
 
+    The file is untrusted: its size and nesting depth are bounded before it is parsed
+    (:func:`selenv.learned.resources.read_metadata`) and every ``obs_layout`` size before
+    anything is built (:func:`selenv.learned.rl.safe_load.checked_layout`).
+
     Raises:
-        ValueError: the JSON is missing, unreadable, or lacks ``obs_layout`` with an integer
-            ``whitened_dim`` (and ``whitened_dim = m d`` when ``m``, ``d`` are given).
+        ValueError: the JSON is missing, unreadable, too large, nested too deep, not an
+            object, or its ``obs_layout`` lacks an integer ``whitened_dim``, has sizes beyond
+            ``CHECKPOINT_LIMITS`` or ``whitened_dim != m d``; the message names the file.
     """
     path = Path(checkpoint).with_suffix(".json")
     if not path.is_file():
         raise ValueError(f"checkpoint metadata {path} not found (expected next to {checkpoint})")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"checkpoint metadata {path} is not valid JSON: {exc}") from exc
-    layout = meta.get("obs_layout") if isinstance(meta, dict) else None
-    if not isinstance(layout, dict) or not isinstance(layout.get("whitened_dim"), int):
-        raise ValueError(
-            f"checkpoint metadata {path} lacks obs_layout with an integer whitened_dim "
-            f"(got {layout!r})"
-        )
-    m, d = layout.get("m"), layout.get("d")
-    if m is not None and d is not None and layout["whitened_dim"] != m * d:
-        raise ValueError(
-            f"checkpoint metadata {path}: obs_layout whitened_dim={layout['whitened_dim']} "
-            f"!= m*d = {m}*{d}"
-        )
-    return meta
+    meta = read_metadata(path)
+    if not isinstance(meta, dict):
+        raise ValueError(f"checkpoint metadata {path} must be a JSON object")
+    checked_layout(meta, f"metadata {path}")
+    return cast(dict[str, Any], meta)
 
 
 class SB3PolicyAgent(Agent):

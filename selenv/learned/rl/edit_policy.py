@@ -74,6 +74,7 @@ from selenv.families.clustering.view import (
     leave_rows,
     receivers_for_count,
 )
+from selenv.learned.resources import bounded_int, check_parameter_count, mlp_parameters
 from selenv.learned.rl.candidate_policy import (
     _ACTIVATIONS,
     MASKED_LOGIT,
@@ -82,7 +83,14 @@ from selenv.learned.rl.candidate_policy import (
     CandidateScoringPPOPolicy,
     obs_layout,
 )
-from selenv.learned.rl.safe_load import model_from_checkpoint, read_weights
+from selenv.learned.rl.safe_load import (
+    _build_errors,
+    _common_architecture,
+    check_checkpoint_hash,
+    checked_layout,
+    model_from_checkpoint,
+    read_weights,
+)
 
 __all__ = [
     "EDIT_EXTRACTOR",
@@ -91,6 +99,7 @@ __all__ = [
     "build_edit_policy",
     "edit_model_from_checkpoint",
     "edit_policy_spec",
+    "edit_scorer_parameters",
     "is_edit_architecture",
     "load_edit_policy",
     "scorer_policy_kwargs",
@@ -309,9 +318,11 @@ def edit_policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dic
             f"checkpoint {name}: metadata 'training' must be an object, got {training!r}"
         )
     algo = training.get("algorithm", "MaskablePPO")
-    if algo not in _POLICY_CLASSES:
+    if not isinstance(algo, str) or algo not in _POLICY_CLASSES:
         known = sorted(_POLICY_CLASSES)
-        raise ValueError(f"checkpoint {name}: training.algorithm={algo!r}, expected one of {known}")
+        raise ValueError(
+            f"checkpoint {name}: training.algorithm={algo!r:.80}, expected one of {known}"
+        )
     cls = _POLICY_CLASSES[algo]
     policy_name = f"{cls.__module__}.{cls.__name__}"
     arch = metadata.get("architecture")
@@ -321,27 +332,34 @@ def edit_policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dic
         )
     if arch.get("policy", policy_name) != policy_name:
         raise ValueError(
-            f"checkpoint {name}: architecture policy={arch.get('policy')!r}; expected "
+            f"checkpoint {name}: architecture policy={arch.get('policy')!r:.120}; expected "
             f"{policy_name!r} for {algo}"
         )
-    try:
-        rank = arch["rank"]
-        if isinstance(rank, bool) or not isinstance(rank, int):
-            raise TypeError(f"rank must be an int, got {rank!r}")
-        extractor = {
-            "hidden": [int(h) for h in arch["hidden"]],
-            "activation": str(arch["activation"]),
-            "gain_skip_init": float(arch.get("gain_skip_init", 0.0)),
-            "rank": rank,
-        }
-        net_arch = {"pi": [], "vf": [int(v) for v in arch["net_arch"]["vf"]]}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"checkpoint {name}: incomplete architecture metadata: {exc!r}") from exc
+    source = f"checkpoint {name}" if name else "checkpoint"
+    extractor, net_arch = _common_architecture(arch, source)
+    if "rank" not in arch:
+        raise ValueError(f"{source}: incomplete architecture metadata: no 'rank'")
+    rank = bounded_int(arch["rank"], "architecture.rank", "max_width", source)
+    check_parameter_count(edit_scorer_parameters(extractor["hidden"], net_arch["vf"], rank), source)
     return algo, {
         "net_arch": net_arch,
         "features_extractor_class": FactorisedEditScorer,
-        "features_extractor_kwargs": extractor,
+        "features_extractor_kwargs": {**extractor, "rank": rank},
     }
+
+
+def edit_scorer_parameters(hidden: list[int], vf: list[int], rank: int) -> int:
+    """Parameters of a factorised edit policy (an upper estimate, before building it).
+
+    The per-receiver DeepSets chain from ``len(SOURCE_COLUMNS) + 1`` inputs, the score and
+    key heads (``3 rank + 4`` outputs), the pair weights and biases, the value MLP ``vf`` on
+    the pooled ``2 H`` and its output; the scorer doubled for the critic's own copy.
+    """
+    chain = mlp_parameters([len(SOURCE_COLUMNS) + 1, *hidden])
+    chain += sum(a * b for a, b in pairwise(hidden))
+    scorer = chain + (hidden[-1] + 1) * (3 * rank + 4) + 2 * N_PAIR_FEATURES + 4 + 1
+    value = mlp_parameters([2 * hidden[-1], *vf]) + (vf[-1] if vf else 2 * hidden[-1]) + 1
+    return 2 * scorer + value
 
 
 def build_edit_policy(
@@ -353,18 +371,18 @@ def build_edit_policy(
         ValueError: see :func:`edit_policy_spec`; a missing or malformed ``obs_layout``.
     """
     algo, policy_kwargs = edit_policy_spec(metadata, name)
-    try:
-        layout = metadata["obs_layout"]
-        n, width = int(layout["n_candidates_trained"]), int(layout["whitened_dim"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"checkpoint {name}: incomplete obs_layout metadata: {exc!r}") from exc
-    space = candidate_space(n, width)
-    try:
-        policy: CandidateScoringPolicy | CandidateScoringPPOPolicy = _POLICY_CLASSES[algo](
-            space, spaces.Discrete(n), lambda _: 0.0, **policy_kwargs
-        )
-    except ValueError as exc:
-        raise ValueError(f"checkpoint {name}: {exc}") from exc
+    layout = checked_layout(metadata, name)
+    n, width = layout["n"], layout["whitened_dim"]
+    if not n:
+        raise ValueError(f"checkpoint {name}: obs_layout lacks n_candidates_trained")
+    with _build_errors(name):
+        space = candidate_space(n, width)
+        try:
+            policy: CandidateScoringPolicy | CandidateScoringPPOPolicy = _POLICY_CLASSES[algo](
+                space, spaces.Discrete(n), lambda _: 0.0, **policy_kwargs
+            )
+        except ValueError as exc:
+            raise ValueError(f"checkpoint {name}: {exc}") from exc
     return policy
 
 
@@ -382,6 +400,7 @@ def load_edit_policy(
     """
     name = str(checkpoint)
     policy = build_edit_policy(metadata, name)
+    check_checkpoint_hash(checkpoint, metadata)
     state = read_weights(checkpoint)
     try:
         policy.load_state_dict(state, strict=True)

@@ -13,15 +13,28 @@ them on a file. Instead:
    are never read;
 3. ``load_state_dict(strict=True)``: every tensor must match the rebuilt architecture.
 
+Untrusted sizes are bounded before anything is built (:mod:`selenv.learned.resources`,
+``CHECKPOINT_LIMITS``): the layer widths and their number, the parameter count the architecture
+implies, the pool size and per-candidate width of ``obs_layout``; a metadata JSON that records
+``checkpoint_sha256`` must match the zip (:func:`check_checkpoint_hash`: a checkpoint and a
+JSON from different saves are refused).
+
 Any failure (not a zip, no weights, unreadable or oversized weights, unknown algorithm or
-architecture, shape mismatch) is a ``ValueError`` naming the file and what was expected.
+architecture, sizes beyond a ceiling, a mismatched pair, shape mismatch) is a ``ValueError``
+naming the file and what was expected; a missing zip is a ``FileNotFoundError``. Nothing here
+lets a ``RuntimeError``, ``MemoryError`` or ``RecursionError`` of a crafted file escape.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import io
+import math
+import re
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -30,33 +43,161 @@ from gymnasium import spaces
 from sb3_contrib import MaskablePPO
 from stable_baselines3 import PPO
 
-from selenv.learned.resources import current_class_name
+from selenv.learned.resources import (
+    CHECKPOINT_LIMITS,
+    bounded_int,
+    bounded_widths,
+    check_parameter_count,
+    current_class_name,
+    limit_hint,
+    mlp_parameters,
+)
 from selenv.learned.rl.candidate_policy import (
     CandidateScorer,
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
     make_ppo,
 )
-from selenv.learned.rl.views import candidate_space
+from selenv.learned.rl.views import N_FEATURES, candidate_space
 
 __all__ = [
+    "MAX_CHECKPOINT_BYTES",
     "MAX_WEIGHTS_BYTES",
     "POLICY_CLASSES",
     "build_policy",
+    "check_checkpoint_hash",
+    "checked_layout",
     "load_policy",
     "model_from_checkpoint",
     "policy_spec",
     "read_weights",
+    "scorer_parameters",
 ]
 
 #: largest ``policy.pth`` accepted (the shipped ones are 80-400 KB)
 MAX_WEIGHTS_BYTES = 64 * 2**20
+#: largest checkpoint zip hashed for ``checkpoint_sha256`` (weights, optimizer state, data)
+MAX_CHECKPOINT_BYTES = 4 * MAX_WEIGHTS_BYTES
 #: ``training.algorithm`` in the metadata -> the policy class it trains
 POLICY_CLASSES: dict[str, type[Any]] = {
     "MaskablePPO": CandidateScoringPolicy,
     "PPO": CandidateScoringPPOPolicy,
 }
 _EXTRACTOR = f"{CandidateScorer.__module__}.{CandidateScorer.__name__}"
+#: per-candidate inputs of ``CandidateScorer`` besides ``whitened``: log1p gain, relative
+#: gain, the static features, selected, budget
+_SCORER_EXTRA_INPUTS = 2 + N_FEATURES + 2
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+_HASH_CHUNK = 2**20
+
+
+def checked_layout(metadata: dict[str, Any], name: str = "") -> dict[str, int]:
+    """``obs_layout`` of checkpoint metadata, every size held against ``CHECKPOINT_LIMITS``.
+
+    Returns:
+        ``{"n": n_candidates_trained, "whitened_dim": W}`` (``n`` is 0 when the metadata
+        does not record it: the ``ppo`` agent then takes the pool from the env).
+
+    Raises:
+        ValueError: a missing ``obs_layout`` or ``whitened_dim``; ``n_candidates_trained``,
+            ``whitened_dim``, ``m``, ``d`` or ``n_features`` not a positive integer or above
+            its ceiling; ``n_candidates_trained * whitened_dim`` above
+            ``max_observation_entries``; ``whitened_dim != m * d``; ``n_features`` not the
+            view's 4. Each message names the field, the value and the ceiling.
+    """
+    source = f"checkpoint {name}" if name else "checkpoint"
+    layout = metadata.get("obs_layout") if isinstance(metadata, dict) else None
+    if not isinstance(layout, dict):
+        raise ValueError(f"{source}: metadata lacks an obs_layout object")
+    if "whitened_dim" not in layout:
+        raise ValueError(f"{source}: obs_layout lacks whitened_dim")
+    width = bounded_int(
+        layout["whitened_dim"], "obs_layout.whitened_dim", "max_candidate_width", source
+    )
+    n = 0
+    if "n_candidates_trained" in layout:
+        n = bounded_int(
+            layout["n_candidates_trained"], "obs_layout.n_candidates_trained", "max_candidates",
+            source,
+        )  # fmt: skip
+        if n * width > CHECKPOINT_LIMITS["max_observation_entries"]:
+            raise ValueError(
+                f"{source}: obs_layout n_candidates_trained * whitened_dim = {n:,} * {width:,} "
+                f"= {n * width:,} exceeds {limit_hint('max_observation_entries')}"
+            )
+    m_d = [
+        bounded_int(layout[k], f"obs_layout.{k}", "max_candidate_width", source)
+        for k in ("m", "d")
+        if layout.get(k) is not None
+    ]
+    if len(m_d) == 2 and m_d[0] * m_d[1] != width:
+        raise ValueError(f"{source}: obs_layout whitened_dim={width} != m*d = {m_d[0]}*{m_d[1]}")
+    if layout.get("n_features") is not None:
+        feats = bounded_int(
+            layout["n_features"], "obs_layout.n_features", "max_candidate_width", source
+        )
+        if feats != N_FEATURES:
+            raise ValueError(
+                f"{source}: obs_layout n_features={feats}, the candidate view has {N_FEATURES}"
+            )
+    return {"n": n, "whitened_dim": width}
+
+
+def scorer_parameters(width: int, hidden: list[int], vf: list[int], head: int = 1) -> int:
+    """Parameters of a candidate-scoring policy (an upper estimate, before building it).
+
+    ``width`` per-candidate inputs (``whitened_dim`` plus the extras), the DeepSets chain
+    ``hidden`` (each later layer with its context matrix), a score head of ``head`` outputs,
+    the value MLP ``vf`` on the pooled ``2 H`` and its output; doubled for the critic's own
+    features extractor.
+    """
+    chain = mlp_parameters([width, *hidden]) + sum(a * b for a, b in pairwise(hidden))
+    scorer = chain + (hidden[-1] + 1) * head + 1
+    value = mlp_parameters([2 * hidden[-1], *vf]) + (vf[-1] if vf else 2 * hidden[-1]) + 1
+    return 2 * scorer + value
+
+
+def check_checkpoint_hash(checkpoint: str | Path, metadata: dict[str, Any]) -> None:
+    """Refuse a zip that is not the one its metadata's ``checkpoint_sha256`` records.
+
+    Metadata without the field (checkpoints saved before it was written) passes.
+
+    Raises:
+        FileNotFoundError: the zip is missing.
+        ValueError: a malformed hash, a zip larger than ``MAX_CHECKPOINT_BYTES``, or a
+            mismatch (naming both files: the pair comes from different saves).
+    """
+    recorded = metadata.get("checkpoint_sha256") if isinstance(metadata, dict) else None
+    if recorded is None:
+        return
+    path = Path(checkpoint)
+    json_path = path.with_suffix(".json")
+    if not isinstance(recorded, str) or not _SHA256.fullmatch(recorded.lower()):
+        raise ValueError(
+            f"checkpoint metadata {json_path}: checkpoint_sha256 must be 64 hex digits, "
+            f"got {recorded!r:.80}"
+        )
+    try:
+        size = path.stat().st_size
+        if size > MAX_CHECKPOINT_BYTES:
+            raise ValueError(
+                f"checkpoint {path} is {size:,} bytes, more than MAX_CHECKPOINT_BYTES = "
+                f"{MAX_CHECKPOINT_BYTES:,} of {__name__}"
+            )
+        digest = hashlib.sha256()
+        with path.open("rb") as fh:
+            while chunk := fh.read(_HASH_CHUNK):
+                digest.update(chunk)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"checkpoint {path} not found") from None
+    except OSError as exc:
+        raise ValueError(f"checkpoint {path} is not readable: {exc}") from None
+    if digest.hexdigest() != recorded.lower():
+        raise ValueError(
+            f"checkpoint {path} does not match its metadata {json_path}: the sha256 recorded "
+            "there (checkpoint_sha256) is another file's, so the two come from different "
+            "saves; use a matching pair"
+        )
 
 
 def read_weights(checkpoint: str | Path) -> dict[str, th.Tensor]:
@@ -106,12 +247,14 @@ def policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dict[str
     training = metadata.get("training", {})
     if not isinstance(training, dict):
         raise ValueError(
-            f"checkpoint {name}: metadata 'training' must be an object, got {training!r}"
+            f"checkpoint {name}: metadata 'training' must be an object, got {training!r:.80}"
         )
     algo = training.get("algorithm", "MaskablePPO")
-    if algo not in POLICY_CLASSES:
+    if not isinstance(algo, str) or algo not in POLICY_CLASSES:
         known = sorted(POLICY_CLASSES)
-        raise ValueError(f"checkpoint {name}: training.algorithm={algo!r}, expected one of {known}")
+        raise ValueError(
+            f"checkpoint {name}: training.algorithm={algo!r:.80}, expected one of {known}"
+        )
     cls = POLICY_CLASSES[algo]
     arch = metadata.get("architecture")
     if not isinstance(arch, dict):
@@ -122,19 +265,61 @@ def policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dict[str
         or current_class_name(arch.get("features_extractor")) != _EXTRACTOR
     ):
         raise ValueError(
-            f"checkpoint {name}: architecture policy={arch.get('policy')!r}, features_extractor="
-            f"{arch.get('features_extractor')!r}; expected {policy_name!r} and {_EXTRACTOR!r}"
+            f"checkpoint {name}: architecture policy={arch.get('policy')!r:.120}, "
+            f"features_extractor={arch.get('features_extractor')!r:.120}; expected "
+            f"{policy_name!r} and {_EXTRACTOR!r}"
         )
-    try:
-        extractor = {
-            "hidden": [int(h) for h in arch["hidden"]],
-            "activation": str(arch["activation"]),
-            "gain_skip_init": float(arch.get("gain_skip_init", 0.0)),
-        }
-        net_arch = {"pi": [], "vf": [int(v) for v in arch["net_arch"]["vf"]]}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"checkpoint {name}: incomplete architecture metadata: {exc!r}") from exc
+    source = f"checkpoint {name}" if name else "checkpoint"
+    extractor, net_arch = _common_architecture(arch, source)
+    check_parameter_count(
+        scorer_parameters(
+            _layout_width(metadata) + _SCORER_EXTRA_INPUTS, extractor["hidden"], net_arch["vf"]
+        ),
+        source,
+    )
     return algo, {"net_arch": net_arch, "features_extractor_kwargs": extractor}
+
+
+def _layout_width(metadata: dict[str, Any]) -> int:
+    """``obs_layout.whitened_dim`` if it is a bounded int, else 1 (checked elsewhere)."""
+    layout = metadata.get("obs_layout")
+    width = layout.get("whitened_dim") if isinstance(layout, dict) else None
+    if isinstance(width, int) and not isinstance(width, bool):
+        return width if 1 <= width <= CHECKPOINT_LIMITS["max_candidate_width"] else 1
+    return 1
+
+
+def _common_architecture(
+    arch: dict[str, Any], source: str
+) -> tuple[dict[str, Any], dict[str, list[int]]]:
+    """``(features_extractor_kwargs, net_arch)`` shared by both scorers, bounded.
+
+    ``hidden`` (the scorer's widths), ``activation``, ``gain_skip_init`` and
+    ``net_arch.vf`` (the value MLP), each width and the number of layers within
+    ``CHECKPOINT_LIMITS``.
+
+    Raises:
+        ValueError: a missing or malformed field, naming it.
+    """
+    if "hidden" not in arch:
+        raise ValueError(f"{source}: incomplete architecture metadata: no 'hidden'")
+    hidden = bounded_widths(arch["hidden"], "architecture.hidden", source)
+    activation = arch.get("activation")
+    if not isinstance(activation, str):
+        raise ValueError(
+            f"{source}: architecture.activation must be a string, got {activation!r:.80}"
+        )
+    skip = arch.get("gain_skip_init", 0.0)
+    if isinstance(skip, bool) or not isinstance(skip, int | float) or not math.isfinite(skip):
+        raise ValueError(
+            f"{source}: architecture.gain_skip_init must be a finite number, got {skip!r:.80}"
+        )
+    net = arch.get("net_arch")
+    if not isinstance(net, dict) or "vf" not in net:
+        raise ValueError(f"{source}: incomplete architecture metadata: no 'net_arch.vf'")
+    vf = bounded_widths(net["vf"], "architecture.net_arch.vf", source, allow_empty=True)
+    extractor = {"hidden": hidden, "activation": activation, "gain_skip_init": float(skip)}
+    return extractor, {"pi": [], "vf": vf}
 
 
 def build_policy(
@@ -149,13 +334,29 @@ def build_policy(
         ValueError: see :func:`policy_spec`; a missing ``obs_layout``.
     """
     algo, policy_kwargs = policy_spec(metadata, name)
+    layout = checked_layout(metadata, name)
+    n, width = layout["n"], layout["whitened_dim"]
+    if not n:
+        raise ValueError(f"checkpoint {name}: obs_layout lacks n_candidates_trained")
+    with _build_errors(name):
+        space = candidate_space(n, width)
+        return POLICY_CLASSES[algo](space, spaces.Discrete(n), lambda _: 0.0, **policy_kwargs)
+
+
+@contextlib.contextmanager
+def _build_errors(name: str) -> Iterator[None]:
+    """Turn a failure to allocate the (bounded) architecture into a ``ValueError``.
+
+    The ceilings make this unreachable on ordinary machines; a ``RuntimeError`` of torch
+    or a ``MemoryError`` of numpy still never escapes a loader as such.
+    """
     try:
-        layout = metadata["obs_layout"]
-        n, width = int(layout["n_candidates_trained"]), int(layout["whitened_dim"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"checkpoint {name}: incomplete obs_layout metadata: {exc!r}") from exc
-    space = candidate_space(n, width)
-    return POLICY_CLASSES[algo](space, spaces.Discrete(n), lambda _: 0.0, **policy_kwargs)
+        yield
+    except (RuntimeError, MemoryError) as exc:
+        raise ValueError(
+            f"checkpoint {name}: cannot build the architecture its metadata describes: "
+            f"{type(exc).__name__}: {str(exc)[:200]}"
+        ) from None
 
 
 def model_from_checkpoint(
@@ -179,8 +380,10 @@ def model_from_checkpoint(
     """
     name = str(checkpoint)
     algo, policy_kwargs = (spec or policy_spec)(metadata, name)
+    check_checkpoint_hash(checkpoint, metadata)
     key = "maskable_ppo" if algo == "MaskablePPO" else "ppo"
-    model = make_ppo(env, key, policy_kwargs=policy_kwargs, **ppo_kwargs)
+    with _build_errors(name):
+        model = make_ppo(env, key, policy_kwargs=policy_kwargs, **ppo_kwargs)
     try:
         model.policy.load_state_dict(read_weights(checkpoint), strict=True)
     except RuntimeError as exc:
@@ -199,6 +402,7 @@ def load_policy(
     """
     name = str(checkpoint)
     policy = build_policy(metadata, name=name)
+    check_checkpoint_hash(checkpoint, metadata)
     state = read_weights(checkpoint)
     try:
         policy.load_state_dict(state, strict=True)
