@@ -14,27 +14,59 @@ paired mean difference of the return, bootstrap 95 % CI, wins/ties/losses (see
 :mod:`selenv.bench.stats`). Tables are printed as each env finishes; the JSON and the plots are
 written only once every env has run without a usage error.
 
-Exit codes: 0 on success, 2 on a usage error (bad arguments, unknown env, module or agent, an
-agent that does not apply to the env, invalid ``--env-kwargs``, a ``--baseline`` that is not
-among the agents run or was skipped); the message goes to stderr and nothing is written.
+Exit codes (the message is one line on stderr, never a traceback):
+
+* 0: success.
+* 2: a usage error, found before any episode runs (bad arguments or agent specs, unknown env,
+  module or agent, an agent that does not apply to the env, invalid ``--env-kwargs``, a
+  ``--baseline`` that is not among the agents run or was skipped, ``--episodes`` above
+  ``--max-episodes`` (default 100,000) or more results than half the machine's memory, an
+  unwritable or busy output, a bad executor choice or an unreachable ``--address``); nothing is
+  written.
+* 1: a run-time failure: the ``--json`` or a ``--plot`` file could not be written (full disk,
+  file-size limit, permissions, read-only file system; the previous file is left byte for
+  byte, and the results go to ``<json>.partial`` if that can be written, else the line says
+  they could not be kept), or a process-pool / Ray worker died (the finished episodes go to
+  ``<json>.partial``, ``complete: false``; the ``--json`` itself is left as it was).
+* 130 / 143: SIGINT (Ctrl-C) / SIGTERM: the current episode is abandoned, the finished ones
+  are kept: the table and the ``--json`` are written with ``"complete": false``, the episodes
+  each agent finished and statistics on the seeds every agent finished (also with
+  ``--executor process``, whose workers hand back the episodes of their current blocks). A
+  run stopped before any episode finished leaves the ``--json`` untouched.
+
+One writer per output: the ``--json`` file and the ``--plot`` folder are locked for the whole
+run (``.<name>.lock`` next to them, :class:`selenv.atomic.OutputLock`); a second bench aiming
+at either exits 2. Every file is written atomically (:mod:`selenv.atomic`), so an interrupted
+or failed write (even SIGKILL) never leaves a truncated file.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
+import signal
 import sys
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
 from selenv import __version__
 from selenv.agents import AGENTS, agents_for, parse_spec
+from selenv.atomic import OutputBusyError, OutputLock, describe_os_error
+from selenv.atomic import write_json as atomic_write_json
 from selenv.families import ENV_IDS
-from selenv.parallel import ExecutorError, add_executor_arguments, executor_from_args
+from selenv.parallel import (
+    ExecutorError,
+    WorkerDiedError,
+    add_executor_arguments,
+    executor_from_args,
+)
 
 if TYPE_CHECKING:
     from selenv.bench.runner import EnvBenchResult
@@ -106,6 +138,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.add_argument(
         "--episodes", type=_positive_int, default=10, help="episodes per agent (default 10)"
+    )
+    bench.add_argument(
+        "--max-episodes",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="ceiling on --episodes, checked before anything runs (default 100,000); raise "
+        "it for a deliberately huge run",
     )
     bench.add_argument(
         "--seed", type=_non_negative_int, default=0, help="seed of episode 0 (default 0)"
@@ -243,10 +283,12 @@ def _check_baseline(baseline: str, env_ids: list[str], names: list[str] | None) 
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run the benchmark described by the parsed ``args``; print tables, write JSON/plots.
 
-    The JSON and the plots are written after every env has run, so a usage error (exit code
-    2) leaves no file behind.
+    Everything that can be checked is checked before the first episode (exit code 2, nothing
+    written); the outputs are locked for the whole run and written atomically once every env
+    has run or the run was stopped (module docstring for the exit codes).
     """
     from selenv.bench import BenchError, check_env_id
+    from selenv.bench.runner import MAX_EPISODES, episodes_problem
 
     env_ids = list(dict.fromkeys(args.env_ids)) or list(ENV_IDS)
     for env_id in env_ids:
@@ -259,9 +301,24 @@ def cmd_bench(args: argparse.Namespace) -> int:
         names = [n.strip() for n in args.agents.split(",") if n.strip()]
         if not names:
             return _error("--agents is empty")
+        for n in names:
+            try:
+                parse_spec(n)
+            except ValueError as exc:
+                return _error(f"--agents: {exc}")
         bad = [n for n in names if parse_spec(n)[0] not in AGENTS]
         if bad:
             return _error(f"unknown agent(s) {bad}; known agents: {', '.join(sorted(AGENTS))}")
+    if args.baseline is not None:
+        try:
+            parse_spec(args.baseline)
+        except ValueError as exc:
+            return _error(f"--baseline: {exc}")
+    runs = sum(len(names) if names else len(agents_for(e)) for e in env_ids)
+    args.max_episodes = args.max_episodes or MAX_EPISODES
+    why = episodes_problem(args.episodes, args.max_episodes, runs=runs)
+    if why is not None:
+        return _error(why)
     several = len(env_ids) > 1
     if several and names is None:
         for env_id in [e for e in env_ids if not agents_for(e)]:
@@ -275,22 +332,73 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if why is not None:
         return _error(why)
     try:
-        executor = executor_from_args(args)
-        with executor:
-            return _run_envs(args, env_ids, names, several, executor)
-    except ExecutorError as exc:
+        with contextlib.ExitStack() as locks:
+            for output in [args.json, args.plot]:
+                if output:
+                    locks.enter_context(OutputLock(output))
+            executor = executor_from_args(args)
+            with executor, _sigterm_raises():  # after the executor: Ray sets its own handler
+                return _run_envs(args, env_ids, names, several, executor)
+    except (ExecutorError, OutputBusyError) as exc:
         return _error(str(exc))
+    except OSError as exc:  # the lock file could not be created
+        return _error(describe_os_error(exc))
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread like ``KeyboardInterrupt`` for SIGINT."""
+
+
+@contextlib.contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """While active, SIGTERM raises :class:`_Terminated` in the main thread."""
+
+    def _raise(signum: int, frame: FrameType | None) -> None:
+        raise _Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[list[int]]:
+    """While the results are written, SIGINT / SIGTERM are recorded (in the list), not raised."""
+    got: list[int] = []
+
+    def _record(signum: int, frame: FrameType | None) -> None:
+        got.append(signum)
+
+    try:
+        previous = {s: signal.signal(s, _record) for s in (signal.SIGINT, signal.SIGTERM)}
+    except ValueError:  # not the main thread
+        yield got
+        return
+    try:
+        yield got
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def _probe(folder: Path) -> str | None:
-    """Why no file can be created in the existing ``folder`` (``None`` if one can).
+    """Why no file can be written in the existing ``folder`` (``None`` if one can).
 
-    A real probe (a temporary file, removed at once), not ``os.access``: root passes every
-    permission check yet cannot create files in, e.g., ``/proc``.
+    A real probe (a temporary file of 4 KiB, written, flushed to disk and removed), not
+    ``os.access``: root passes every permission check yet cannot create files in, e.g.,
+    ``/proc``, nor write onto a full disk.
     """
     try:
-        with tempfile.TemporaryFile(dir=folder):
-            pass
+        with tempfile.TemporaryFile(dir=folder) as fh:
+            fh.write(b"\0" * 4096)
+            fh.flush()
+            os.fsync(fh.fileno())
     except OSError as exc:
         return exc.strerror or str(exc)
     return None
@@ -362,51 +470,120 @@ def _run_envs(
     executor: Executor,
 ) -> int:
     """Run the checked bench of :func:`cmd_bench` on ``executor``; print and write results."""
-    from selenv.bench import (
-        BenchError,
-        EnvKwargsError,
-        format_table,
-        plot_result,
-        run_bench,
-        write_json,
-    )
+    from selenv.bench import BenchError, EnvKwargsError, format_table, run_bench
 
-    results: list[EnvBenchResult] = []
-    for env_id in env_ids:
-        if several and names is not None:
-            skip = [n for n in names if env_id not in AGENTS[parse_spec(n)[0]]]
-            if skip:
-                _note(f"skipping {', '.join(skip)} on {env_id}: does not apply to it")
-        try:
-            result = run_bench(
-                env_id,
-                names,
-                episodes=args.episodes,
-                seed=args.seed,
-                env_kwargs=args.env_kwargs,
-                progress=not args.no_progress,
-                skip_inapplicable=several,
-                baseline=args.baseline,
-                executor=executor,
-                threads=(args.blas_threads or None, args.torch_threads or None),
-            )
-        except EnvKwargsError as exc:
-            return _error(f"--env-kwargs: {exc}")
-        except BenchError as exc:
-            return _error(str(exc))
-        if results:
+    results: list[EnvBenchResult] = []  # every env started, the last one maybe incomplete
+    stop: tuple[str, int] | None = None  # (what stopped the run, exit code)
+    try:
+        for env_id in env_ids:
+            if several and names is not None:
+                skip = [n for n in names if env_id not in AGENTS[parse_spec(n)[0]]]
+                if skip:
+                    _note(f"skipping {', '.join(skip)} on {env_id}: does not apply to it")
+            try:
+                result = run_bench(
+                    env_id,
+                    names,
+                    episodes=args.episodes,
+                    seed=args.seed,
+                    env_kwargs=args.env_kwargs,
+                    progress=not args.no_progress,
+                    skip_inapplicable=several,
+                    baseline=args.baseline,
+                    executor=executor,
+                    threads=(args.blas_threads or None, args.torch_threads or None),
+                    max_episodes=args.max_episodes,
+                    collect=results,
+                )
+            except EnvKwargsError as exc:
+                return _error(f"--env-kwargs: {exc}")
+            except BenchError as exc:
+                return _error(str(exc))
+            if len(results) > 1:
+                print()
+            print(format_table(result), flush=True)
+    except KeyboardInterrupt:
+        stop = ("interrupted (SIGINT)", 130)
+    except _Terminated:
+        stop = ("terminated (SIGTERM)", 143)
+    except WorkerDiedError as exc:
+        stop = (str(exc), 1)
+    with _signals_deferred() as late:
+        return _finish(args, results, stop, executor, late)
+
+
+def _finish(
+    args: argparse.Namespace,
+    results: list[EnvBenchResult],
+    stop: tuple[str, int] | None,
+    executor: Executor,
+    late: list[int],
+) -> int:
+    """Print what a stopped run kept, write the JSON and the plots; return the exit code."""
+    from selenv.bench import format_table, plot_filename, plot_result, results_to_json
+
+    code = 0 if stop is None else stop[1]
+    if stop is not None and results and not results[-1].complete:
+        if len(results) > 1:
             print()
-        results.append(result)
-        print(format_table(result), flush=True)
-    for result in results if args.plot else []:
-        path = plot_result(result, args.plot)
-        print(f"plot: {path}", file=sys.stderr)
-    if args.json and results:
-        path = write_json(
-            results, args.json, argv=getattr(args, "argv", None), executor=executor.describe()
+        print(format_table(results[-1]), flush=True)
+    done = sum(n for r in results for n in r.episodes_done().values())
+    kept = ""
+    if args.json and results and (stop is None or done):
+        doc = results_to_json(
+            results, argv=getattr(args, "argv", None), executor=executor.describe()
         )
-        print(f"json: {path}", file=sys.stderr)
-    return 0
+        target = Path(args.json)
+        if stop is not None and stop[1] == 1:  # a failure: leave the --json as it was
+            target = target.with_name(target.name + ".partial")
+        try:
+            atomic_write_json(target, doc)
+            if stop is None:
+                print(f"json: {target}", file=sys.stderr)
+            kept = f"kept {done} finished episodes in {target} (marked incomplete)"
+        except OSError as exc:
+            code = 1 if code in (0, 1) else code
+            if target != Path(args.json):
+                kept = f"{describe_os_error(exc, target)}; the results could not be kept"
+            else:
+                kept = _keep_partial(target, doc, exc)
+            if stop is None:
+                print(f"selenv: {kept}", file=sys.stderr)
+    elif stop is not None:
+        if not done:
+            kept = "no episode had finished" + (
+                f"; {args.json} left as it was" if args.json else ""
+            )
+        else:
+            kept = f"{done} finished episodes shown above (no --json given)"
+    for result in results if args.plot else []:
+        try:
+            path = plot_result(result, args.plot)
+        except OSError as exc:
+            code = 1 if code in (0, 1) else code
+            path = Path(args.plot) / plot_filename(result.env_id)
+            print(f"selenv: {describe_os_error(exc, path)}", file=sys.stderr)
+            continue
+        print(f"plot: {path}", file=sys.stderr)
+    if stop is not None:
+        print(f"selenv: {stop[0]}; {kept}", file=sys.stderr)
+    elif late:
+        name = "SIGINT" if late[0] == signal.SIGINT else "SIGTERM"
+        print(f"selenv: {name} received while writing the results (written)", file=sys.stderr)
+        code = code or (130 if late[0] == signal.SIGINT else 143)
+    return code
+
+
+def _keep_partial(path: Path, doc: dict[str, object], exc: OSError) -> str:
+    """After a failed write of ``path``: try ``<path>.partial``; one line saying what happened."""
+    why = describe_os_error(exc, path)
+    partial = path.with_name(path.name + ".partial")
+    try:
+        atomic_write_json(partial, doc)
+    except OSError as again:
+        cause = (again.strerror or str(again)).lower()
+        return f"{why}; the results could not be kept ({partial}: {cause} as well)"
+    return f"{why}; the results were kept in {partial}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:

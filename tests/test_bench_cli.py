@@ -247,15 +247,19 @@ def test_json_follows_the_contract_and_round_trips(tmp_path: Path) -> None:
     assert rc == 0
     with out.open() as fh:
         top = json.load(fh)
-    assert set(top) == {"provenance", "results"}  # one shape, whatever the number of envs
+    # one shape, whatever the number of envs
+    assert set(top) == {"provenance", "complete", "results"}
+    assert top["complete"] is True
     assert PROVENANCE_KEYS <= set(top["provenance"])
     assert top["provenance"]["argv"][:3] == ["selenv", "bench", TOY]
     assert len(top["results"]) == 1
     doc = top["results"][0]
     assert CONTRACT_KEYS | {"selenv_version", "timestamp", "baseline"} <= set(doc)
     assert doc["env_id"] == TOY and doc["env_kwargs"] == {"n": 6}
-    assert doc["seed"] == 5 and doc["episodes"] == 3
+    assert doc["seed"] == 5 and doc["episodes"] == 3 and doc["complete"] is True
+    assert "episodes_done" not in doc and "paired_seeds" not in doc
     best = doc["agents"]["toy_best"]
+    assert "seeds" not in best
     assert AGENT_KEYS <= set(best)
     assert len(best["returns"]) == len(best["final_objectives"]) == 3
     opt = [np.sort(_scenario(5 + e, n=6))[-2:].sum() for e in range(3)]

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from selenv import atomic
 from selenv.bench.provenance import provenance
 from selenv.bench.results import EnvBenchResult
 from selenv.bench.stats import TIE_REL_TOL, PairedComparison
@@ -143,11 +144,22 @@ def format_table(result: EnvBenchResult) -> str:
     Numbers never use an exponent: each column has fixed decimals chosen by its magnitude
     (4 significant digits of its largest value for returns and objectives, 3 of the smallest
     difference for Δ) and thousands separators.
+
+    An incomplete result (a stopped run) is shown on its paired seeds
+    (:meth:`EnvBenchResult.statistics_view`), under a line giving the episodes each agent
+    finished.
     """
     title = f"{result.env_id}  (episodes={result.episodes}, seed={result.seed}"
     if result.env_kwargs:
         title += f", env_kwargs={json.dumps(result.env_kwargs, default=repr)}"
     title += ")"
+    if not result.complete:
+        done = ", ".join(f"{n} {k}" for n, k in result.episodes_done().items())
+        title += (
+            f"\nINCOMPLETE (stopped early): episodes finished: {done}; statistics on the "
+            f"{len(result.paired_seeds())} seeds every agent finished"
+        )
+        result = result.statistics_view()
     base = result.baseline_name
     ran = {n: r for n, r in result.agents.items() if r.skipped is None}
     counted = any(r.cost_evaluations is not None for r in ran.values())
@@ -216,9 +228,11 @@ def results_to_json(
     argv: Sequence[str] | None = None,
     executor: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The JSON document: ``{"provenance": {...}, "results": [one object per env]}``.
+    """The JSON document: ``{"provenance": {...}, "complete": bool, "results": [one per env]}``.
 
-    The shape does not depend on the number of envs. ``provenance`` is
+    The shape does not depend on the number of envs. ``complete`` is ``False`` when a run was
+    stopped early (then so is the ``complete`` of the env that was running, see
+    :meth:`EnvBenchResult.to_json`; envs that never started are absent). ``provenance`` is
     :func:`selenv.bench.provenance.provenance` (``argv`` defaults to ``sys.argv``), plus
     ``"executor"`` (:meth:`selenv.parallel.Executor.describe`) when given; each element of
     ``results`` is :meth:`EnvBenchResult.to_json`.
@@ -226,7 +240,11 @@ def results_to_json(
     prov = provenance(argv)
     if executor is not None:
         prov["executor"] = executor
-    return {"provenance": prov, "results": [r.to_json() for r in results]}
+    return {
+        "provenance": prov,
+        "complete": all(r.complete for r in results),
+        "results": [r.to_json() for r in results],
+    }
 
 
 def write_json(
@@ -236,13 +254,14 @@ def write_json(
     argv: Sequence[str] | None = None,
     executor: dict[str, Any] | None = None,
 ) -> Path:
-    """Write :func:`results_to_json` to ``path`` (parent folders are created)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", encoding="utf-8") as fh:
-        json.dump(results_to_json(results, argv=argv, executor=executor), fh, indent=2)
-        fh.write("\n")
-    return path
+    """Write :func:`results_to_json` to ``path`` atomically (parent folders are created).
+
+    The document is serialised first, then written to a temporary file next to ``path``,
+    flushed and renamed over it (:func:`selenv.atomic.write_json`): on any failure (a full
+    disk, a file-size limit, an interruption) ``path`` keeps its previous bytes and no
+    partial file is left. Raises the ``OSError`` of the failed write.
+    """
+    return atomic.write_json(path, results_to_json(results, argv=argv, executor=executor))
 
 
 def plot_filename(env_id: str) -> str:
@@ -351,11 +370,20 @@ def plot_figure(result: EnvBenchResult) -> Figure:
 def plot_result(result: EnvBenchResult, directory: str | Path) -> Path:
     """Write :func:`plot_figure` of ``result`` as a PNG into ``directory`` (created if needed).
 
+    Written atomically (a temporary PNG next to the target, renamed over it): a failed write
+    leaves the previous PNG as it was. An incomplete result is plotted on its paired seeds
+    (:meth:`EnvBenchResult.statistics_view`).
+
     Returns:
         The path of the written PNG, ``directory / plot_filename(result.env_id)``.
+
+    Raises:
+        OSError: the folder or the PNG could not be written.
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / plot_filename(result.env_id)
-    plot_figure(result).savefig(path, dpi=100)
+    fig = plot_figure(result.statistics_view())
+    with atomic.atomic_path(path) as temp:
+        fig.savefig(temp, dpi=100, format="png")
     return path

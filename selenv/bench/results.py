@@ -20,7 +20,7 @@ module of :mod:`selenv.multiagent`) and derives the comparison of :mod:`selenv.b
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any
 
@@ -125,6 +125,8 @@ class AgentResult:
             episodes, for envs that count them (``info["cost_evaluations"]`` after the last
             step, e.g. Algorithm 1 calls of ``ReceiverClustering-v1``); ``None`` otherwise.
         skipped: why the agent was not run (``None`` when it ran).
+        seeds: the seed of each episode of ``returns`` (filled by the bench runner; in the
+            JSON only for an incomplete run, where some seeds are missing).
     """
 
     name: str
@@ -134,6 +136,7 @@ class AgentResult:
     decisions: int = 0
     cost_evaluations: int | None = None
     skipped: str | None = None
+    seeds: list[int] = field(default_factory=list)
 
     @property
     def mean_return(self) -> float:
@@ -203,6 +206,9 @@ class EnvBenchResult:
         env_config: the resolved configuration of the env the episodes ran on (every
             constructor keyword with its value, :func:`~selenv.envs.resolved.resolved_env_config`);
             ``None`` if no env was built.
+        complete: ``False`` when the run was stopped (interrupted, a worker died) before every
+            agent played every episode: the agents hold the episodes that finished, and every
+            statistic is computed on the paired seeds (:meth:`statistics_view`).
     """
 
     env_id: str
@@ -216,6 +222,51 @@ class EnvBenchResult:
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
     )
     env_config: dict[str, Any] | None = None
+    complete: bool = True
+
+    def episodes_done(self) -> dict[str, int]:
+        """Agent -> episodes it finished (0 for a skipped agent)."""
+        return {n: len(r.returns) for n, r in self.agents.items()}
+
+    def paired_seeds(self) -> list[int]:
+        """The seeds every agent that ran finished, sorted (agents with none are left out).
+
+        Of an incomplete run, these are the episodes the statistics use.
+        """
+        ran = [r for r in self._ran().values() if r.returns]
+        if not ran:
+            return []
+        common = set(ran[0].seeds)
+        for r in ran[1:]:
+            common &= set(r.seeds)
+        return sorted(common)
+
+    def statistics_view(self) -> EnvBenchResult:
+        """This result if complete; else a copy restricted to :meth:`paired_seeds`.
+
+        In the copy each agent keeps only the episodes of the paired seeds (in seed order), so
+        means, paired differences, wins and scores compare the agents on the same episodes;
+        an agent that finished no episode is reported as skipped. Decision times and counts
+        stay those of every finished episode.
+        """
+        if self.complete:
+            return self
+        keep = set(self.paired_seeds())
+        agents: dict[str, AgentResult] = {}
+        for name, r in self.agents.items():
+            if r.skipped is not None:
+                agents[name] = r
+            elif not r.returns:
+                agents[name] = AgentResult(name, skipped="stopped before its first episode ended")
+            else:
+                idx = sorted((s, k) for k, s in enumerate(r.seeds) if s in keep)
+                agents[name] = replace(
+                    r,
+                    returns=[r.returns[k] for _, k in idx],
+                    final_objectives=[r.final_objectives[k] for _, k in idx],
+                    seeds=[s for s, _ in idx],
+                )
+        return replace(self, agents=agents)
 
     def _ran(self) -> dict[str, AgentResult]:
         return {n: r for n, r in self.agents.items() if r.skipped is None}
@@ -307,15 +358,31 @@ class EnvBenchResult:
         return out
 
     def to_json(self) -> dict[str, Any]:
-        """JSON-ready dict of this env following the contract of ``DESIGN.md`` section 2."""
+        """JSON-ready dict of this env following the contract of ``DESIGN.md`` section 2.
+
+        ``"complete"`` says whether every agent played every episode. When it is ``False``
+        the document also has ``"episodes_done"`` (agent -> episodes finished) and
+        ``"paired_seeds"`` (the seeds the statistics use, :meth:`statistics_view`); each
+        agent's ``returns`` / ``final_objectives`` list every finished episode, with its
+        ``seeds``, while its means, paired comparison, gap and score use the paired seeds.
+        """
+        view = self.statistics_view()
         agents = {}
-        for name, res in self.agents.items():
+        for name, res in view.agents.items():
             agents[name] = res.to_json()
             if res.skipped is None:
-                agents[name]["gap_to_best_percent"] = self.gap_percent(name)
-                paired = self.paired(name)
+                agents[name]["gap_to_best_percent"] = view.gap_percent(name)
+                paired = view.paired(name)
                 agents[name]["paired"] = None if paired is None else paired.to_json()
-                agents[name]["normalized_score"] = self.normalized_score(name)
+                agents[name]["normalized_score"] = view.normalized_score(name)
+            full = self.agents[name]
+            if not self.complete and full.skipped is None:
+                agents[name]["returns"] = [float(r) for r in full.returns]
+                agents[name]["final_objectives"] = [float(f) for f in full.final_objectives]
+                agents[name]["seeds"] = [int(x) for x in full.seeds]
+        extra: dict[str, Any] = {}
+        if not self.complete:
+            extra = {"episodes_done": self.episodes_done(), "paired_seeds": self.paired_seeds()}
         return {
             "env_id": self.env_id,
             "kind": self.kind,
@@ -323,10 +390,12 @@ class EnvBenchResult:
             "env_config": self.env_config,
             "seed": self.seed,
             "episodes": self.episodes,
-            "baseline": self.baseline_name,
+            "complete": self.complete,
+            **extra,
+            "baseline": view.baseline_name,
             "baseline_rule": "given" if self.baseline is not None else "best mean return",
-            "random_reference": self.random_reference,
-            "best_agent": self.best_agent,
+            "random_reference": view.random_reference,
+            "best_agent": view.best_agent,
             "objective_direction": self.objective_direction,
             "statistics": {
                 "confidence": CONFIDENCE,

@@ -16,11 +16,28 @@ An agent that raises :class:`ValueError` while being built, reset or asked to ac
 instance brute force's size guard) is recorded as skipped with the message and the run goes
 on; any other exception propagates. Usage errors (unknown env, module or agent, an agent that
 does not apply to the env, ``episodes < 1``, env kwargs the env rejects, a baseline that is
-not among the agents or was skipped) raise :class:`BenchError`.
+not among the agents or was skipped) raise :class:`BenchError`, and so does an ``episodes``
+above ``max_episodes`` (:data:`MAX_EPISODES` by default), checked before anything runs.
+
+Stopping early: an interruption (``KeyboardInterrupt``, a SIGTERM exception) or a dead worker
+(:class:`~selenv.parallel.WorkerDiedError`) propagates out of :func:`run_bench`, but the
+:class:`EnvBenchResult` given to ``collect`` keeps every episode that finished (the current
+one is abandoned), with ``complete=False``; with a process pool the workers return the
+episodes of their current blocks too (:func:`selenv.parallel.stoppable`).
+
+Test hooks (environment variables read after each finished episode, for the fault-injection
+tests; counted per process): ``SELENV_TEST_SIGNAL_AFTER_EPISODES=N`` sends
+``SELENV_TEST_SIGNAL`` (``INT``, the default, or ``TERM``) to the bench's main process after
+the N-th episode; ``SELENV_TEST_PAUSE_AFTER_EPISODES=N`` prints
+``selenv: test hook: paused after N episodes (PID <pid>)`` on stderr after the N-th episode
+and waits until the process is signalled.
 """
 
 from __future__ import annotations
 
+import os
+import signal
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -46,10 +63,20 @@ from selenv.bench.results import (
 )
 from selenv.envs.resolved import resolved_env_config
 from selenv.families import ALL_ENV_IDS
-from selenv.parallel import Executor, LocalExecutor
+from selenv.parallel import (
+    Executor,
+    LocalExecutor,
+    TaskStopped,
+    WorkerDiedError,
+    stop_requested,
+    stoppable,
+)
+from selenv.parallel.executors import in_pool_worker
 from selenv.threads import limit_threads
 
 __all__ = [
+    "EPISODE_RESULT_BYTES",
+    "MAX_EPISODES",
     "AgentRefused",
     "AgentResult",
     "BenchError",
@@ -59,10 +86,81 @@ __all__ = [
     "EpisodeBlock",
     "check_env_id",
     "check_env_kwargs",
+    "episodes_problem",
     "play_block",
     "run_bench",
     "run_episode",
 ]
+
+
+#: default ceiling on the episodes per agent (``selenv bench --max-episodes`` raises it)
+MAX_EPISODES = 100_000
+#: estimated memory of one finished episode's results (return, objective and seed as Python
+#: floats and ints in lists, the seed list, the bootstrap's share), for the memory estimate
+EPISODE_RESULT_BYTES = 200
+
+
+def _memory_bytes() -> int | None:
+    """Physical memory of this machine (``None`` if unknown)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2**30:,.1f} GiB" if n >= 2**30 else f"{n / 2**20:,.1f} MiB"
+
+
+def episodes_problem(
+    episodes: int,
+    max_episodes: int = MAX_EPISODES,
+    *,
+    runs: int = 1,
+    option: str = "--episodes",
+    raise_option: str = "--max-episodes",
+) -> str | None:
+    """Why ``episodes`` per agent is too much work (``None`` if it is fine), in O(1).
+
+    Refused: more than ``max_episodes``, or results that would need more than half of this
+    machine's memory (``runs`` = agents x envs, ``EPISODE_RESULT_BYTES`` per episode).
+    """
+    estimate = float(episodes) * max(1, runs) * EPISODE_RESULT_BYTES
+    if episodes > max_episodes:
+        return (
+            f"{option} {episodes:,} exceeds the ceiling of {max_episodes:,} episodes per agent "
+            f"({max(1, runs) * episodes:,} episodes to play, about {_gib(estimate)} of results); "
+            f"raise it with {raise_option} N if you mean it"
+        )
+    memory = _memory_bytes()
+    if memory is not None and estimate > memory / 2:
+        return (
+            f"{option} {episodes:,}: the results of {max(1, runs) * episodes:,} episodes need "
+            f"about {_gib(estimate)}, more than half of this machine's {_gib(memory)}"
+        )
+    return None
+
+
+_test_episodes = 0  # episodes finished in this process (test hooks)
+
+
+def _after_episode() -> None:
+    """The test hooks of the module docstring (no-ops unless their variables are set)."""
+    global _test_episodes
+    _test_episodes += 1
+    after = os.environ.get("SELENV_TEST_SIGNAL_AFTER_EPISODES")
+    if after and _test_episodes == int(after):
+        name = os.environ.get("SELENV_TEST_SIGNAL", "INT").upper().removeprefix("SIG")
+        os.kill(os.getppid() if in_pool_worker() else os.getpid(), signal.Signals[f"SIG{name}"])
+    pause = os.environ.get("SELENV_TEST_PAUSE_AFTER_EPISODES")
+    if pause and _test_episodes == int(pause):
+        print(
+            f"selenv: test hook: paused after {pause} episodes (PID {os.getpid()})",
+            file=sys.stderr,
+            flush=True,
+        )
+        while True:
+            time.sleep(0.05)
 
 
 def run_episode(
@@ -133,6 +231,11 @@ def _check_agents(
     names = list(dict.fromkeys(agent_names))  # drop duplicates, keep order
     if not names:
         raise BenchError("no agent given")
+    for n in names:
+        try:
+            parse_spec(n)
+        except ValueError as exc:
+            raise BenchError(str(exc)) from None
     unknown = [n for n in names if parse_spec(n)[0] not in AGENTS]
     if unknown:
         raise BenchError(f"unknown agent(s) {unknown}; known agents: {sorted(AGENTS)}")
@@ -192,21 +295,60 @@ class BlockResult:
     result: AgentResult
     refused: str | None = None  # AgentRefused message (the agent is reported as skipped)
     build_error: str | None = None  # ValueError building a named agent (a usage error)
+    stopped: bool = False  # a pool worker was asked to stop: ``result`` has the episodes done
+
+
+def _play_one(
+    play: Callable[[Any, Any, int, AgentResult], tuple[float, float]],
+    env: Any,
+    agent: Any,
+    seed: int,
+    result: AgentResult,
+) -> None:
+    """Play one episode into ``result``; an abandoned episode leaves ``result`` as it was."""
+    saved = (result.decision_seconds, result.decisions, result.cost_evaluations)
+    try:
+        ret, obj = play(env, agent, seed, result)
+    except BaseException:
+        result.decision_seconds, result.decisions, result.cost_evaluations = saved
+        raise
+    result.returns.append(ret)
+    result.final_objectives.append(obj)
+    result.seeds.append(seed)
+
+
+def _trim(result: AgentResult) -> AgentResult:
+    """Make the per-episode lists equally long (an interruption may fall between appends)."""
+    n = min(len(result.returns), len(result.final_objectives), len(result.seeds))
+    del result.returns[n:], result.final_objectives[n:], result.seeds[n:]
+    return result
 
 
 def play_block(
-    block: EpisodeBlock, env: Any = None, on_episode: Callable[[int], object] | None = None
+    block: EpisodeBlock,
+    env: Any = None,
+    on_episode: Callable[[int], object] | None = None,
+    into: AgentResult | None = None,
 ) -> BlockResult:
     """Play ``block``: build the env (unless given) and the agent, then each seeded episode.
+
+    In a pool worker asked to stop (:func:`selenv.parallel.stoppable`), the current episode is
+    abandoned and the block returns the episodes it finished with ``stopped=True``.
 
     Args:
         block: the task.
         env: an already built env to use (closed afterwards); ``None`` builds one.
         on_episode: called with 1 after each episode (progress in this process).
+        into: the result to add the episodes to as they finish (kept by the caller if the
+            block is interrupted); ``None``: a new one.
     """
+    result = AgentResult(block.agent) if into is None else into
     build, play = _env_factory(block.env_id, block.kind, block.env_kwargs)
+    if stop_requested():
+        if env is not None:
+            env.close()
+        return BlockResult(result, stopped=True)
     env = build() if env is None else env
-    result = AgentResult(block.agent)
     try:
         try:
             agent = make(block.agent, block.env_id)
@@ -214,15 +356,19 @@ def play_block(
             if block.named:  # named explicitly: bad options or file
                 return BlockResult(result, build_error=str(exc))
             return BlockResult(result, refused=str(exc) or "raised ValueError")
-        with limit_threads(*block.threads):  # after make: the ppo agent imports torch
+        # after make: the ppo agent imports torch
+        with limit_threads(*block.threads), stoppable():
             for seed in block.seeds:
-                ret, obj = play(env, agent, seed, result)
-                result.returns.append(ret)
-                result.final_objectives.append(obj)
+                if stop_requested():
+                    return BlockResult(_trim(result), stopped=True)
+                _play_one(play, env, agent, seed, result)
                 if on_episode is not None:
                     on_episode(1)
+                _after_episode()
     except AgentRefused as exc:
         return BlockResult(result, refused=str(exc) or "raised ValueError")
+    except TaskStopped:
+        return BlockResult(_trim(result), stopped=True)
     finally:
         env.close()
     return BlockResult(result)
@@ -273,11 +419,20 @@ def _merge(name: str, parts: list[BlockResult]) -> AgentResult:
         r = part.result
         out.returns += r.returns
         out.final_objectives += r.final_objectives
+        out.seeds += r.seeds
         out.decision_seconds += r.decision_seconds
         out.decisions += r.decisions
         if r.cost_evaluations is not None:
             out.cost_evaluations = (out.cost_evaluations or 0) + r.cost_evaluations
     return out
+
+
+def _merge_partial(name: str, parts: list[BlockResult]) -> AgentResult:
+    """:func:`_merge` of the blocks that finished before a run stopped (never raises)."""
+    for part in parts:
+        if part.build_error is not None:
+            return AgentResult(name, skipped=f"cannot build agent {name!r}: {part.build_error}")
+    return _merge(name, [BlockResult(_trim(p.result), p.refused) for p in parts])
 
 
 def run_bench(
@@ -292,6 +447,8 @@ def run_bench(
     baseline: str | None = None,
     executor: Executor | None = None,
     threads: tuple[int | None, int | None] = (1, 1),
+    max_episodes: int = MAX_EPISODES,
+    collect: list[EnvBenchResult] | None = None,
 ) -> EnvBenchResult:
     """Run each agent on ``episodes`` seeded episodes of ``env_id``.
 
@@ -315,6 +472,10 @@ def run_bench(
         threads: ``(blas, torch)`` thread counts while episodes play, in every worker
             (:func:`selenv.threads.limit_threads`; ``None`` leaves a library's own setting).
             Decisions do not depend on them; decision times do.
+        max_episodes: ceiling on ``episodes`` (:func:`episodes_problem`), checked first.
+        collect: a list the result is appended to before any episode runs; if the run is
+            interrupted or a worker dies, the result there holds the finished episodes and
+            ``complete=False`` (module docstring) while the exception propagates.
 
     Returns:
         The per-agent results, in the order of ``agent_names``.
@@ -323,11 +484,15 @@ def run_bench(
         BenchError: unknown env, module or agent, inapplicable agent (unless
             ``skip_inapplicable``), ``episodes < 1``, negative seed, env kwargs the env
             rejects, or a ``baseline`` that is not among the agents (checked before running)
-            or was skipped (checked after).
+            or was skipped (checked after); ``episodes`` above ``max_episodes``.
+        WorkerDiedError: a pool or Ray worker died (or a pool worker was stopped).
     """
     kind = check_env_id(env_id)
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise BenchError(f"episodes must be an integer >= 1, got {episodes!r}")
+    why = episodes_problem(episodes, max_episodes, option="episodes", raise_option="max_episodes=")
+    if why is not None:
+        raise BenchError(why)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise BenchError(f"seed must be an integer >= 0, got {seed!r}")
     kwargs = dict(env_kwargs or {})
@@ -344,39 +509,100 @@ def run_bench(
         out.env_config = resolved_env_config(first_env)
     seeds = [seed + e for e in range(episodes)]
     named = agent_names is not None
-    if executor is None or isinstance(executor, LocalExecutor):
-        bar = tqdm(total=len(names) * episodes, desc=env_id, unit="ep", disable=not progress)
-        try:
-            for name in names:
-                bar.set_postfix_str(name)
-                block = EpisodeBlock(env_id, kind, kwargs, name, tuple(seeds), named, threads)
-                part = play_block(block, first_env, bar.update)
-                first_env = None
-                out.agents[name] = _merge(name, [part])
-                bar.update(episodes - len(part.result.returns) if part.refused else 0)
-        finally:
-            bar.close()
-    else:
-        if first_env is not None:
-            first_env.close()
-        parts = _blocks_per_agent(episodes, executor.num_workers)
-        blocks = [
-            EpisodeBlock(env_id, kind, kwargs, name, chunk, named, threads)
-            for name in names
-            for chunk in _split(seeds, parts)
-        ]
-        done = executor.map(
-            play_block,
-            blocks,
-            desc=env_id,
-            unit="ep",
-            weights=[len(b.seeds) for b in blocks],
-            progress=progress,
-        )
-        for i, name in enumerate(names):
-            out.agents[name] = _merge(name, done[i * parts : (i + 1) * parts])
+    if collect is not None:
+        collect.append(out)
+    try:
+        if executor is None or isinstance(executor, LocalExecutor):
+            _run_local(out, names, seeds, named, threads, first_env, progress)
+        else:
+            if first_env is not None:
+                first_env.close()
+            _run_pooled(out, names, seeds, named, threads, executor, progress)
+    except BaseException:
+        out.complete = False
+        for name, why in inapplicable.items():
+            out.agents[name] = AgentResult(name, skipped=why)
+        out.agents = {n: out.agents[n] for n in (agent_names or names) if n in out.agents}
+        raise
     for name, why in inapplicable.items():
         out.agents[name] = AgentResult(name, skipped=why)
     out.agents = {n: out.agents[n] for n in (agent_names or names) if n in out.agents}
     out.check_baseline()
     return out
+
+
+def _run_local(
+    out: EnvBenchResult,
+    names: list[str],
+    seeds: list[int],
+    named: bool,
+    threads: tuple[int | None, int | None],
+    first_env: Any,
+    progress: bool,
+) -> None:
+    """Play every agent's episodes in this process, filling ``out`` as episodes finish."""
+    episodes = len(seeds)
+    bar = tqdm(total=len(names) * episodes, desc=out.env_id, unit="ep", disable=not progress)
+    try:
+        for name in names:
+            bar.set_postfix_str(name)
+            block = EpisodeBlock(
+                out.env_id, out.kind, out.env_kwargs, name, tuple(seeds), named, threads
+            )
+            into = AgentResult(name)
+            out.agents[name] = into  # the finished episodes stay if the run is interrupted
+            try:
+                part = play_block(block, first_env, bar.update, into=into)
+            except BaseException:
+                _trim(into)
+                raise
+            finally:
+                first_env = None
+            out.agents[name] = _merge(name, [part])
+            bar.update(episodes - len(part.result.returns) if part.refused else 0)
+    finally:
+        bar.close()
+        if first_env is not None:
+            first_env.close()
+
+
+def _run_pooled(
+    out: EnvBenchResult,
+    names: list[str],
+    seeds: list[int],
+    named: bool,
+    threads: tuple[int | None, int | None],
+    executor: Executor,
+    progress: bool,
+) -> None:
+    """Play the agents' episodes as blocks on ``executor``, filling ``out`` with what finished."""
+    parts = _blocks_per_agent(len(seeds), executor.num_workers)
+    blocks = [
+        EpisodeBlock(out.env_id, out.kind, out.env_kwargs, name, chunk, named, threads)
+        for name in names
+        for chunk in _split(seeds, parts)
+    ]
+    finished: dict[int, BlockResult] = {}
+    try:
+        executor.map(
+            play_block,
+            blocks,
+            desc=out.env_id,
+            unit="ep",
+            weights=[len(b.seeds) for b in blocks],
+            progress=progress,
+            on_result=finished.__setitem__,
+        )
+    except BaseException:
+        for i, name in enumerate(names):
+            got = [finished[j] for j in range(i * parts, (i + 1) * parts) if j in finished]
+            out.agents[name] = _merge_partial(name, got)
+        raise
+    stopped = any(b.stopped for b in finished.values())
+    for i, name in enumerate(names):
+        got = [finished[j] for j in range(i * parts, (i + 1) * parts)]
+        out.agents[name] = _merge_partial(name, got) if stopped else _merge(name, got)
+    if stopped:
+        raise WorkerDiedError(
+            "a process-pool worker was stopped (it received SIGINT) before finishing its episodes"
+        )

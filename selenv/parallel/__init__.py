@@ -10,14 +10,18 @@ See :mod:`selenv.parallel.executors` for the determinism contract and
 """
 
 from selenv.parallel.cli import add_executor_arguments, executor_from_args
-from selenv.parallel.errors import ExecutorError
+from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.parallel.executors import (
     EXECUTORS,
     Executor,
     LocalExecutor,
     ProcessExecutor,
     RayExecutor,
+    TaskStopped,
     make_executor,
+    max_pool_workers,
+    stop_requested,
+    stoppable,
 )
 from selenv.parallel.ray_session import INSTALL_HINT, check_address, ray_session, require_ray
 
@@ -29,10 +33,15 @@ __all__ = [
     "LocalExecutor",
     "ProcessExecutor",
     "RayExecutor",
+    "TaskStopped",
+    "WorkerDiedError",
     "add_executor_arguments",
     "check_address",
     "executor_from_args",
     "make_executor",
+    "max_pool_workers",
     "ray_session",
     "require_ray",
+    "stop_requested",
+    "stoppable",
 ]

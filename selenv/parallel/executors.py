@@ -20,22 +20,45 @@ tasks picklable (they travel to other processes).
 An exception raised by ``fn`` in a worker is re-raised in the caller as itself (Ray's wrapper
 is removed), after the outstanding tasks are cancelled. Executors are context managers; the
 pool or the Ray instance they started is shut down on exit.
+
+Failures and interruptions (``on_result=`` of :meth:`Executor.map` receives each task's result
+as it finishes, so a caller keeps what finished whatever happens next):
+
+* a worker that dies (killed, out of memory) ends :meth:`~Executor.map` with
+  :class:`~selenv.parallel.errors.WorkerDiedError`, one line naming what died (for the pool:
+  the worker's PID and signal), instead of ``BrokenProcessPool`` / ``WorkerCrashedError``;
+* ``KeyboardInterrupt`` (or another ``BaseException`` such as a SIGTERM exception) in the
+  caller during a pool's :meth:`~Executor.map`: the tasks not started are cancelled, the
+  workers are asked to stop (SIGINT: a task inside :func:`stoppable` gets
+  :class:`TaskStopped` and may return what it has; later tasks see :func:`stop_requested`),
+  the results that arrive within ``STOP_GRACE_SECONDS`` go to ``on_result``, the workers still
+  running are killed, and the exception is re-raised. Ray tasks are cancelled;
+* pool workers never print a ``KeyboardInterrupt`` traceback (a Ctrl-C that reaches the whole
+  process group is a stop request to them), and they die with their parent (Linux
+  ``PR_SET_PDEATHSIG``; elsewhere a watchdog thread), so none is left orphaned;
+* ``--num-workers`` of the process pool is bounded by :func:`max_pool_workers`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
+import signal
+import sys
+import threading
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
-from types import TracebackType
+from types import FrameType, TracebackType
 from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from selenv.parallel.errors import ExecutorError
+from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.parallel.ray_session import ray_session
 
 __all__ = [
@@ -44,7 +67,12 @@ __all__ = [
     "LocalExecutor",
     "ProcessExecutor",
     "RayExecutor",
+    "TaskStopped",
+    "in_pool_worker",
     "make_executor",
+    "max_pool_workers",
+    "stop_requested",
+    "stoppable",
 ]
 
 T = TypeVar("T")
@@ -52,6 +80,111 @@ R = TypeVar("R")
 
 #: environment variables that cap the BLAS / OpenMP threads of a worker process
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+#: seconds a pool's workers get to return what they have after a stop request
+STOP_GRACE_SECONDS = 5.0
+#: processes per CPU a pool may have (a larger ``--num-workers`` is a usage error)
+POOL_WORKERS_PER_CPU = 8
+
+
+def max_pool_workers() -> int:
+    """The largest ``--num-workers`` of ``--executor process``: 8 per CPU (at least 16).
+
+    More processes than that only add memory and start-up time on one machine; a cluster is
+    what ``--executor ray`` is for.
+    """
+    return max(16, POOL_WORKERS_PER_CPU * (os.cpu_count() or 1))
+
+
+# --- inside a pool worker ---------------------------------------------------------------------
+
+_in_worker = False  # this process is a pool worker (set by _worker_init)
+_stop = False  # the parent asked this worker to stop
+_stop_raised = False  # TaskStopped was raised once already
+_in_task = 0  # depth of stoppable() blocks
+
+
+class TaskStopped(BaseException):
+    """Raised inside a :func:`stoppable` block of a pool worker when its parent asks it to stop.
+
+    A ``BaseException`` (like ``KeyboardInterrupt``), raised at most once per worker; the task
+    catches it and returns what it finished. Never raised outside a pool worker.
+    """
+
+
+def in_pool_worker() -> bool:
+    """Whether this process is a worker of a :class:`ProcessExecutor` pool."""
+    return _in_worker
+
+
+def stop_requested() -> bool:
+    """Whether this process is a pool worker whose parent asked it to stop.
+
+    Check it between units of work; always ``False`` in the main process.
+    """
+    return _stop
+
+
+@contextlib.contextmanager
+def stoppable() -> Iterator[None]:
+    """Mark a task's work as interruptible by its pool's stop request.
+
+    In a pool worker a stop request raises :class:`TaskStopped` inside the block (outside one
+    it only sets :func:`stop_requested`). A no-op in the main process (there
+    ``KeyboardInterrupt`` propagates as usual).
+    """
+    global _in_task
+    _in_task += 1
+    try:
+        yield
+    finally:
+        _in_task -= 1
+
+
+def _on_stop_signal(signum: int, frame: FrameType | None) -> None:
+    global _stop, _stop_raised
+    _stop = True
+    if _in_task and not _stop_raised:
+        _stop_raised = True
+        raise TaskStopped()
+
+
+def _watch_parent(parent: int) -> None:
+    while True:
+        if os.getppid() != parent:
+            os._exit(1)
+        time.sleep(0.5)
+
+
+def _die_with_parent(parent: int) -> None:
+    """Make this process die when ``parent`` does (SIGKILL from the kernel on Linux)."""
+    armed = False
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            armed = libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent:  # the parent died before the prctl
+        os._exit(1)
+    if not armed:
+        threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+
+
+def _worker_init(
+    parent: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]
+) -> None:
+    """Set up a pool worker: die with ``parent``, SIGINT = stop request, then the user's init."""
+    global _in_worker
+    _in_worker = True
+    _die_with_parent(parent)
+    signal.signal(signal.SIGINT, _on_stop_signal)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+# --- in the caller ----------------------------------------------------------------------------
 
 
 def _check_workers(num_workers: int | None) -> int | None:
@@ -93,6 +226,7 @@ class Executor(ABC):
         unit: str = "task",
         weights: Sequence[int] | None = None,
         progress: bool = True,
+        on_result: Callable[[int, R], object] | None = None,
     ) -> list[R]:
         """``[fn(t) for t in tasks]``, computed by this executor's workers.
 
@@ -103,17 +237,30 @@ class Executor(ABC):
             unit: unit of the progress bar (``"ep"``, ``"sample"``, ...).
             weights: how far each finished task advances the bar (default 1 each).
             progress: show the bar (on stderr).
+            on_result: called with ``(index, result)`` as each task finishes (in completion
+                order), so the caller keeps the finished results if the map is interrupted or
+                a worker dies.
 
         Returns:
             The results, in the order of ``tasks``.
+
+        Raises:
+            WorkerDiedError: a worker died (module docstring).
         """
         tasks = list(tasks)
         w = _weights(tasks, weights)
         with tqdm(total=sum(w), desc=desc, unit=unit, disable=not progress) as bar:
-            return self._map(fn, tasks, w, bar)
+            return self._map(fn, tasks, w, bar, on_result)
 
     @abstractmethod
-    def _map(self, fn: Callable[[T], R], tasks: list[T], weights: list[int], bar: tqdm) -> list[R]:
+    def _map(
+        self,
+        fn: Callable[[T], R],
+        tasks: list[T],
+        weights: list[int],
+        bar: tqdm,
+        on_result: Callable[[int, R], object] | None,
+    ) -> list[R]:
         """Run the tasks, advance ``bar`` by each finished task's weight, return in order."""
 
     def close(self) -> None:  # noqa: B027  (optional hook: only pools and Ray hold workers)
@@ -144,10 +291,19 @@ class LocalExecutor(Executor):
     def num_workers(self) -> int:  # noqa: D102
         return 1
 
-    def _map(self, fn: Callable[[T], R], tasks: list[T], weights: list[int], bar: tqdm) -> list[R]:
+    def _map(
+        self,
+        fn: Callable[[T], R],
+        tasks: list[T],
+        weights: list[int],
+        bar: tqdm,
+        on_result: Callable[[int, R], object] | None,
+    ) -> list[R]:
         out = []
-        for task, w in zip(tasks, weights, strict=True):
+        for i, (task, w) in enumerate(zip(tasks, weights, strict=True)):
             out.append(fn(task))
+            if on_result is not None:
+                on_result(i, out[-1])
             bar.update(w)
         return out
 
@@ -170,10 +326,17 @@ def _single_threaded_children() -> Iterator[None]:
 class ProcessExecutor(Executor):
     """A pool of ``num_workers`` spawned processes on this machine (default: every CPU).
 
+    The workers die with this process, treat SIGINT as a stop request (no traceback) and are
+    killed when a :meth:`map` is interrupted or one of them dies (module docstring); a later
+    :meth:`map` starts a fresh pool.
+
     Args:
-        num_workers: processes (default ``os.cpu_count()``).
+        num_workers: processes (default ``os.cpu_count()``; at most :func:`max_pool_workers`).
         initializer: called once in each worker before its first task.
         initargs: arguments of ``initializer``.
+
+    Raises:
+        ExecutorError: ``num_workers`` above :func:`max_pool_workers`.
     """
 
     name = "process"
@@ -185,8 +348,16 @@ class ProcessExecutor(Executor):
         initargs: tuple[Any, ...] = (),
     ) -> None:
         super().__init__(num_workers)
+        ceiling = max_pool_workers()
+        if num_workers is not None and num_workers > ceiling:
+            raise ExecutorError(
+                f"--num-workers {num_workers} exceeds the ceiling of {ceiling} processes for "
+                f"--executor process ({POOL_WORKERS_PER_CPU} per CPU of this machine); use "
+                "fewer, or --executor ray with a cluster"
+            )
         self._initializer, self._initargs = initializer, initargs
         self._pool: ProcessPoolExecutor | None = None
+        self._procs: dict[int, Any] = {}  # pid -> multiprocessing.Process of the pool
 
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
@@ -194,29 +365,126 @@ class ProcessExecutor(Executor):
                 self._pool = ProcessPoolExecutor(
                     self.num_workers,
                     mp_context=get_context("spawn"),
-                    initializer=self._initializer,
-                    initargs=self._initargs,
+                    initializer=_worker_init,
+                    initargs=(os.getpid(), self._initializer, self._initargs),
                 )
+            self._procs = {}
         return self._pool
 
-    def _map(self, fn: Callable[[T], R], tasks: list[T], weights: list[int], bar: tqdm) -> list[R]:
+    def _track(self, pool: ProcessPoolExecutor) -> None:
+        """Remember the pool's worker processes (to name a dead one, to kill the rest)."""
+        self._procs.update(getattr(pool, "_processes", None) or {})
+
+    def _who_died(self, exc: BaseException) -> str:
+        """One line naming the dead worker(s) of a broken pool."""
+        deadline = time.monotonic() + 1.0
+        while True:
+            dead = {
+                pid: proc.exitcode
+                for pid, proc in self._procs.items()
+                if proc.exitcode is not None and proc.exitcode != 0
+            }
+            if dead or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        parts = []
+        for pid, code in sorted(dead.items()):
+            if code < 0:
+                try:
+                    how = f"killed by {signal.Signals(-code).name}"
+                except ValueError:
+                    how = f"killed by signal {-code}"
+            else:
+                how = f"exited with code {code}"
+            parts.append(f"PID {pid} {how}")
+        if parts:
+            return f"a process-pool worker died while running tasks ({'; '.join(parts)})"
+        return f"a process-pool worker died while running tasks ({exc or type(exc).__name__})"
+
+    def _map(
+        self,
+        fn: Callable[[T], R],
+        tasks: list[T],
+        weights: list[int],
+        bar: tqdm,
+        on_result: Callable[[int, R], object] | None,
+    ) -> list[R]:
         pool = self._get_pool()
-        with _single_threaded_children():  # the pool spawns its workers lazily, on submit
-            futures: dict[Future[R], int] = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
         out: list[Any] = [None] * len(tasks)
-        pending = set(futures)
+        futures: dict[Future[R], int] = {}
+        pending: set[Future[R]] = set()
+
+        def finish(fut: Future[R]) -> None:
+            i = futures[fut]
+            out[i] = fut.result()  # re-raises the worker's exception
+            if on_result is not None:
+                on_result(i, out[i])
+            bar.update(weights[i])
+
         try:
+            with _single_threaded_children():  # the pool spawns its workers lazily, on submit
+                for i, t in enumerate(tasks):
+                    fut = pool.submit(fn, t)
+                    futures[fut] = i
+                    pending.add(fut)
+            self._track(pool)
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    i = futures[fut]
-                    out[i] = fut.result()  # re-raises the worker's exception
-                    bar.update(weights[i])
-        except BaseException:
+                for fut in sorted(done, key=futures.__getitem__):
+                    finish(fut)
+        except BrokenProcessPool as exc:
+            why = self._who_died(exc)
+            self._discard()
+            raise WorkerDiedError(why) from None
+        except Exception:
             for fut in pending:
                 fut.cancel()
             raise
+        except BaseException:  # KeyboardInterrupt, SIGTERM: keep what the workers finish
+            self._stop(futures, pending, finish)
+            raise
         return out
+
+    def _stop(
+        self,
+        futures: dict[Future[R], int],
+        pending: set[Future[R]],
+        finish: Callable[[Future[R]], None],
+    ) -> None:
+        """Cancel what has not started, ask the workers to stop, collect, then kill them."""
+        for fut in pending:
+            fut.cancel()
+        self._signal_workers(signal.SIGINT)
+        running = {f for f in pending if not f.cancelled()}
+        deadline = time.monotonic() + STOP_GRACE_SECONDS
+        with contextlib.suppress(Exception):
+            while running and time.monotonic() < deadline:
+                done, running = wait(
+                    running,
+                    timeout=max(0.0, deadline - time.monotonic()),
+                    return_when=FIRST_COMPLETED,
+                )
+                for fut in sorted(done, key=futures.__getitem__):
+                    with contextlib.suppress(Exception):
+                        finish(fut)
+        self._discard()
+
+    def _signal_workers(self, signum: int) -> None:
+        for proc in list(self._procs.values()):
+            if proc.exitcode is None and proc.pid is not None:
+                with contextlib.suppress(OSError):
+                    os.kill(proc.pid, signum)
+
+    def _discard(self) -> None:
+        """Kill the pool's workers and forget the pool (the next map starts a fresh one)."""
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        self._track(pool)
+        self._signal_workers(signal.SIGKILL)
+        with contextlib.suppress(Exception):
+            pool.shutdown(wait=True, cancel_futures=True)
+        self._procs = {}
 
     def close(self) -> None:  # noqa: D102
         if self._pool is not None:
@@ -271,7 +539,14 @@ class RayExecutor(Executor):
             return max(1, int(self._ray.cluster_resources().get("CPU", 1)))
         return os.cpu_count() or 1
 
-    def _map(self, fn: Callable[[T], R], tasks: list[T], weights: list[int], bar: tqdm) -> list[R]:
+    def _map(
+        self,
+        fn: Callable[[T], R],
+        tasks: list[T],
+        weights: list[int],
+        bar: tqdm,
+        on_result: Callable[[int, R], object] | None,
+    ) -> list[R]:
         self.start()
         ray = self._ray
         remote = ray.remote(num_cpus=1, max_retries=0)(_ray_call)
@@ -295,6 +570,15 @@ class RayExecutor(Executor):
                     if isinstance(cause, BaseException):
                         raise cause from None
                     raise
+                except ray.exceptions.RayError as err:  # a worker, node or object is gone
+                    first = (str(err).strip().splitlines() or [""])[0][:200]
+                    raise WorkerDiedError(
+                        f"a Ray worker died while running task {i} ({type(err).__name__}"
+                        + (f": {first}" if first else "")
+                        + ")"
+                    ) from None
+                if on_result is not None:
+                    on_result(i, out[i])
                 bar.update(weights[i])
                 nxt = next(todo, None)
                 if nxt is not None:
