@@ -17,8 +17,8 @@ inherited meaning. :func:`parse_config` turns it into the command line:
 * usage errors are one line on stderr and exit code 2.
 
 :func:`check_outputs` is what every script calls before any work: an existing output file
-without ``--force``, or an output folder that cannot be written, is exit code 2 with one line
-naming the file.
+without ``--force``, or an output folder where a real test write fails (full disk, read-only,
+no permission), is exit code 2 with one line naming the file or folder and the cause.
 """
 
 from __future__ import annotations
@@ -26,11 +26,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
-import os
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, TypeVar
+
+from selenv.atomic import describe_os_error, probe_writable
 
 __all__ = [
     "FILE_ONLY_KEYS",
@@ -293,14 +294,21 @@ def parse_config(
 
 
 def _unwritable(folder: Path) -> str | None:
-    """Why files cannot be created in ``folder`` (created if missing), or ``None``."""
+    """Why files cannot be created in ``folder`` (created if missing), or ``None``.
+
+    A real write probe (:func:`selenv.atomic.probe_writable`: create, write 4 KB, ``fsync``,
+    remove) in ``folder`` or, if it does not exist yet, in its nearest existing ancestor (no
+    folder is created): ``os.access`` says yes to root on a full or read-only disk.
+    """
     existing = folder
     while not existing.exists() and existing != existing.parent:
         existing = existing.parent
     if not existing.is_dir():
         return f"{existing} is not a folder"
-    if not os.access(existing, os.W_OK | os.X_OK):
-        return f"{existing} is not writable"
+    try:
+        probe_writable(existing / "write-probe")
+    except OSError as exc:
+        return describe_os_error(exc, existing).removeprefix(f"cannot write {existing}: ")
     return None
 
 
@@ -316,7 +324,8 @@ def check_outputs(
 
     Exit code 2 with one line on stderr when one of ``files`` exists and ``force`` is false
     (naming the files, ``--force`` and ``option``), is a folder, or when the folder of a
-    file, or one of ``folders``, cannot be created or written.
+    file, or one of ``folders``, cannot be created or written: a real write probe, so a full
+    disk (``ENOSPC``) or a read-only file system is found here, not after the run.
     """
     paths = [Path(p) for p in files]
     for path in paths:

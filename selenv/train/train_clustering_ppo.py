@@ -48,7 +48,14 @@ import gymnasium as gym
 from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.edit_policy import SCORERS, scorer_policy_kwargs
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
-from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
+from selenv.learned.rl.training import (
+    PPOConfig,
+    check_run_outputs,
+    output_lock,
+    output_paths,
+    run_cli,
+    train,
+)
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/ReceiverClustering-v1"
@@ -126,66 +133,72 @@ def outputs(cfg: Config) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
-    check_run_outputs(cfg, f"python -m {SCRIPT}")
-    if cfg.scorer not in SCORERS:
-        raise ValueError(f"--scorer must be one of {list(SCORERS)}, got {cfg.scorer!r}")
-    if cfg.edit_rank < 1:
-        raise ValueError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
-    extractor, extractor_kwargs = scorer_policy_kwargs(cfg.scorer, cfg.edit_rank)
-    kwargs = cfg.kwargs()
-    eval_kwargs = {**kwargs, "horizon": cfg.eval_horizon}
-    eval_kwargs.pop("action_mode", None)
+    prog = f"python -m {SCRIPT}"
+    check_run_outputs(cfg, prog)
+    with output_lock(cfg.out, prog):  # one run per --out
+        if cfg.scorer not in SCORERS:
+            raise ValueError(f"--scorer must be one of {list(SCORERS)}, got {cfg.scorer!r}")
+        if cfg.edit_rank < 1:
+            raise ValueError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
+        extractor, extractor_kwargs = scorer_policy_kwargs(cfg.scorer, cfg.edit_rank)
+        kwargs = cfg.kwargs()
+        eval_kwargs = {**kwargs, "horizon": cfg.eval_horizon}
+        eval_kwargs.pop("action_mode", None)
 
-    def pretrain(model: Any) -> dict[str, Any]:
-        if cfg.rank_states <= 0:
-            return {"method": None}
-        data = collect_clustering_ranking(
-            {**kwargs, "horizon": cfg.rank_horizon},
-            cfg.rank_states,
-            cfg.seed,
-            label_every=cfg.rank_label_every,
-            explore=cfg.rank_explore,
-            workers=cfg.rank_workers,
-            progress=cfg.progress,
-        )
-        metrics = fit_ranking(
-            model.policy,
-            data,
-            epochs=cfg.rank_epochs,
-            temperature=cfg.rank_temperature,
-            seed=cfg.seed,
-            progress=cfg.progress,
-        )
-        return {
-            "method": "listnet ranking of exact edit costs (selenv.learned.rl.ranking)",
-            **metrics,
-        }
+        def pretrain(model: Any) -> dict[str, Any]:
+            if cfg.rank_states <= 0:
+                return {"method": None}
+            data = collect_clustering_ranking(
+                {**kwargs, "horizon": cfg.rank_horizon},
+                cfg.rank_states,
+                cfg.seed,
+                label_every=cfg.rank_label_every,
+                explore=cfg.rank_explore,
+                workers=cfg.rank_workers,
+                progress=cfg.progress,
+            )
+            metrics = fit_ranking(
+                model.policy,
+                data,
+                epochs=cfg.rank_epochs,
+                temperature=cfg.rank_temperature,
+                seed=cfg.seed,
+                progress=cfg.progress,
+            )
+            return {
+                "method": "listnet ranking of exact edit costs (selenv.learned.rl.ranking)",
+                **metrics,
+            }
 
-    ks = [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]
-    return train(
-        cfg,
-        env_id=ENV_ID,
-        make_env=lambda: make_env(kwargs),
-        native={
-            "env_id": ENV_ID,
-            "env_kwargs": {**kwargs, "action_mode": "edit"},
-            "view": "clustering_edits",
-        },
-        make_eval_env=lambda: gym.make(ENV_ID, **eval_kwargs),
-        view="clustering_edits",
-        tb_name="clustering_ppo",
-        extra_meta={"eval_env_kwargs": eval_kwargs},
-        pretrain=pretrain,
-        policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
-        features_extractor=extractor,
-        extractor_kwargs=extractor_kwargs,
-    )
+        ks = [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]
+        return train(
+            cfg,
+            env_id=ENV_ID,
+            make_env=lambda: make_env(kwargs),
+            native={
+                "env_id": ENV_ID,
+                "env_kwargs": {**kwargs, "action_mode": "edit"},
+                "view": "clustering_edits",
+            },
+            make_eval_env=lambda: gym.make(ENV_ID, **eval_kwargs),
+            view="clustering_edits",
+            tb_name="clustering_ppo",
+            extra_meta={"eval_env_kwargs": eval_kwargs},
+            pretrain=pretrain,
+            policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
+            features_extractor=extractor,
+            extractor_kwargs=extractor_kwargs,
+        )
 
 
 def cli() -> None:
-    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
-    main()
+    """Console-script entry point (same options as ``main``).
+
+    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
+    130 / 143 after SIGINT / SIGTERM (the last completed iteration saved, see ``--resume``).
+    """
+    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 
 
 if __name__ == "__main__":
-    main()
+    cli()

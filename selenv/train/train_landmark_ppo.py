@@ -23,7 +23,14 @@ from typing import Any
 import gymnasium as gym
 
 from selenv.learned.config import parse_config
-from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
+from selenv.learned.rl.training import (
+    PPOConfig,
+    check_run_outputs,
+    output_lock,
+    output_paths,
+    run_cli,
+    train,
+)
 
 ENV_ID = "selenv/LandmarkSelection-v1"
 SCRIPT = "selenv.train.train_landmark_ppo"
@@ -58,23 +65,29 @@ def outputs(cfg: Config) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
-    check_run_outputs(cfg, f"python -m {SCRIPT}")
-    kwargs = cfg.kwargs()
-    return train(
-        cfg,
-        env_id=ENV_ID,
-        make_env=lambda: gym.make(ENV_ID, **kwargs),
-        make_eval_env=lambda: gym.make(ENV_ID, **kwargs),
-        view="identity",
-        tb_name="landmark_ppo",
-        native={"env_id": ENV_ID, "env_kwargs": kwargs, "view": None},
-    )
+    prog = f"python -m {SCRIPT}"
+    check_run_outputs(cfg, prog)
+    with output_lock(cfg.out, prog):  # one run per --out
+        kwargs = cfg.kwargs()
+        return train(
+            cfg,
+            env_id=ENV_ID,
+            make_env=lambda: gym.make(ENV_ID, **kwargs),
+            make_eval_env=lambda: gym.make(ENV_ID, **kwargs),
+            view="identity",
+            tb_name="landmark_ppo",
+            native={"env_id": ENV_ID, "env_kwargs": kwargs, "view": None},
+        )
 
 
 def cli() -> None:
-    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
-    main()
+    """Console-script entry point (same options as ``main``).
+
+    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
+    130 / 143 after SIGINT / SIGTERM (the last completed iteration saved, see ``--resume``).
+    """
+    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 
 
 if __name__ == "__main__":
-    main()
+    cli()

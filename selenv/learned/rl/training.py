@@ -13,20 +13,51 @@ A script defines a :class:`PPOConfig` subclass with its env's defaults and calls
    ``algo="maskable_ppo"`` (default: masks from the env's ``action_masks()``) or ``"ppo"``;
 3. training with a tqdm bar and TensorBoard logs (``runs/``);
 4. checkpoint ``<out>.zip`` + metadata ``<out>.json`` (env id and kwargs, candidate view,
-   layout, architecture, hyper-parameters, versions); an existing file is refused without
+   layout, architecture, hyper-parameters, versions, the zip's ``checkpoint_sha256``), written
+   as a pair by :func:`save_checkpoint` (temporary files, then both renamed: an interrupted or
+   failed write leaves the previous pair byte-identical); an existing file is refused without
    ``--force`` (:func:`check_run_outputs`, which the scripts call before any work);
 5. evaluation of the saved checkpoint, reloaded through the ``ppo`` agent adapter, against
    the env's heuristics on the same held-out seeds (``eval_seed``, ``eval_seed + 1``, ...);
    the metrics are written into the JSON.
+
+Long runs lose at most one interval:
+
+* ``--checkpoint-every N`` writes ``<out stem>.last.zip`` + ``.last.json`` (``"complete":
+  false``, ``num_timesteps``, the training log, the random generators' states) at the first
+  iteration boundary after every ``N`` environment steps; the pair is removed once the final
+  checkpoint is written.
+* SIGINT / SIGTERM during PPO stop at the end of the current rollout or update: the last
+  completed iteration is saved as the ``.last`` pair (``"interrupted": "SIGINT"``) and
+  :class:`TrainingInterrupted` / :class:`TrainingTerminated` (exit 130 / 143 through
+  :func:`run_cli`) carry the one line naming the file and the ``--resume`` option.
+* ``--resume PATH`` rebuilds the model from the options, loads the weights and the Adam state
+  from ``PATH`` (tensors only, never SB3's unpickling ``load``), restores the step count, the
+  update count, the training log and the ``random`` / ``numpy`` / ``torch`` generators, and
+  trains up to the same ``--total-timesteps``. SB3 does not save the envs' state: the resumed
+  run resets them with seeds ``seed + num_timesteps + b`` (deterministic given the checkpoint,
+  not bit-identical to an uninterrupted run).
+* Sizes are bounded before anything is built (:data:`LIMITS`, ``--allow-large``) and the
+  memory of the rollout buffer and the minibatch is estimated before the model is built
+  (``--max-memory-gb``).
 """
 
 from __future__ import annotations
 
+import base64
+import contextlib
 import dataclasses
+import hashlib
+import io
+import itertools
 import json
 import os
+import random
+import signal
+import sys
 import time
-from collections.abc import Callable
+import zipfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,9 +74,11 @@ from tqdm.auto import tqdm
 
 import selenv
 from selenv.agents import Agent
+from selenv.atomic import OutputBusyError, OutputLock, atomic_paths, write_json
 from selenv.bench.runner import AgentResult, run_episode
 from selenv.envs.resolved import resolved_env_config
-from selenv.learned.config import arg, check_outputs
+from selenv.exits import Terminated, UsageError, guarded_main
+from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
 from selenv.learned.rl.vec_env import make_native_vec_env
 
@@ -53,15 +86,43 @@ from selenv.learned.rl.vec_env import make_native_vec_env
 VEC_ENVS = ("native", "dummy", "subproc")
 
 __all__ = [
+    "LIMITS",
     "VEC_ENVS",
     "PPOConfig",
     "TqdmCallback",
+    "TrainingInterrupted",
+    "TrainingTerminated",
+    "check_bounds",
     "check_run_outputs",
+    "estimate_memory_bytes",
     "evaluate",
     "evaluate_checkpoint",
+    "file_sha256",
+    "last_paths",
+    "output_lock",
     "output_paths",
+    "read_checkpoint_metadata",
+    "run_cli",
+    "save_checkpoint",
     "train",
+    "verify_pair",
 ]
+
+#: ceilings of the sizes that multiply work or memory (``--allow-large`` lifts them; the
+#: memory estimate, ``--max-memory-gb``, still applies)
+LIMITS: dict[str, int] = {
+    "total_timesteps": 10**9,
+    "n_envs": 1024,
+    "n_steps": 65_536,
+    "batch_size": 1_048_576,
+    "n_epochs": 1000,
+    "eval_episodes": 100_000,
+    "hidden_width": 4096,
+    "hidden_layers": 16,
+}
+#: largest checkpoint JSON read back (``--resume``, evaluation) and largest optimizer state
+MAX_METADATA_BYTES = 16 * 2**20
+MAX_OPTIMIZER_BYTES = 256 * 2**20
 
 
 @dataclass
@@ -109,6 +170,27 @@ class PPOConfig:
     baselines: str = arg(
         "greedy,random", "comma-separated registered agents evaluated next to the policy"
     )
+    # long runs
+    checkpoint_every: int = arg(
+        50_000,
+        "environment steps between periodic checkpoints <out stem>.last.zip (+ .last.json), "
+        "written at the next iteration boundary and removed when the run completes (0: none; "
+        "SIGINT / SIGTERM always save one)",
+    )
+    resume: str = arg(
+        "",
+        "continue from this checkpoint (a .last.zip of an interrupted run, same options): "
+        "weights, optimizer state, step count, training log and random generators",
+    )
+    max_memory_gb: float = arg(
+        8.0, "refuse a run whose estimated rollout-buffer plus minibatch memory exceeds this"
+    )
+    allow_large: bool = arg(
+        False,
+        "lift the ceilings of --total-timesteps (1e9), --n-envs (1024), --n-steps (65536), "
+        "--batch-size (1048576), --n-epochs (1000), --eval-episodes (100000) and --hidden "
+        "(16 layers of <= 4096)",
+    )
 
     def kwargs(self) -> dict[str, Any]:
         """``env_kwargs`` parsed (a JSON object)."""
@@ -127,14 +209,348 @@ def output_paths(cfg: PPOConfig) -> list[Path]:
     return [out, out.with_suffix(".json")]
 
 
+def last_paths(out: str | Path) -> list[Path]:
+    """The periodic / interrupted checkpoint pair of ``out``: ``<stem>.last.zip`` and ``.json``."""
+    path = Path(out)
+    last = path.with_name(f"{path.stem}.last.zip")
+    return [last, last.with_suffix(".json")]
+
+
+def check_bounds(cfg: PPOConfig) -> None:
+    """Raise :class:`~selenv.exits.UsageError` naming the option when a size is out of range.
+
+    Lower bounds always apply; the ceilings of :data:`LIMITS` unless ``cfg.allow_large``.
+    """
+
+    def limit(option: str, value: int, key: str, low: int = 1) -> None:
+        if value < low:
+            raise UsageError(f"{option} must be >= {low}, got {value}")
+        if not cfg.allow_large and value > LIMITS[key]:
+            raise UsageError(
+                f"{option} {value} is above its ceiling {LIMITS[key]}: pass --allow-large to "
+                "lift the ceilings (the memory estimate, --max-memory-gb, still applies)"
+            )
+
+    limit("--total-timesteps", cfg.total_timesteps, "total_timesteps", 0)
+    limit("--n-envs", cfg.n_envs, "n_envs")
+    limit("--n-steps", cfg.n_steps, "n_steps")
+    limit("--batch-size", cfg.batch_size, "batch_size")
+    limit("--n-epochs", cfg.n_epochs, "n_epochs")
+    limit("--eval-episodes", cfg.eval_episodes, "eval_episodes", 0)
+    hidden = parse_hidden(cfg.hidden)
+    limit("--hidden (number of layers)", len(hidden), "hidden_layers")
+    for width in hidden:
+        limit("--hidden (width)", width, "hidden_width")
+    if cfg.checkpoint_every < 0:
+        raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
+    if not cfg.max_memory_gb > 0:
+        raise UsageError(f"--max-memory-gb must be > 0, got {cfg.max_memory_gb}")
+
+
+def parse_hidden(text: str) -> list[int]:
+    """``"64,64"`` -> ``[64, 64]``; :class:`~selenv.exits.UsageError` naming ``--hidden``."""
+    try:
+        widths = [int(h) for h in text.split(",")]
+    except ValueError:
+        raise UsageError(f"--hidden must be comma-separated integers, got {text!r}") from None
+    return widths
+
+
+def estimate_memory_bytes(
+    cfg: PPOConfig, obs_floats: int, n_candidates: int, candidate_features: int
+) -> int:
+    """A coarse upper estimate of the memory PPO allocates for one run's sizes.
+
+    The rollout buffer (``n_envs * n_steps`` float32 observations, masks and scalars, and
+    the flattened copy SB3 makes per update), the minibatch activations and gradients of the
+    per-candidate network (``batch_size * n_candidates * sum(hidden)``, times 6), and the
+    parameters with their gradients and Adam moments.
+    """
+    hidden = parse_hidden(cfg.hidden)
+    samples = cfg.n_envs * cfg.n_steps
+    buffer = 2 * samples * (obs_floats + n_candidates + 8) * 4
+    activations = 6 * cfg.batch_size * max(n_candidates, 1) * (sum(hidden) + candidate_features)
+    widths = [candidate_features, *hidden, 1]
+    params = sum(a * b + b for a, b in itertools.pairwise(widths))
+    return int(buffer + activations * 4 + 4 * params * 4)
+
+
 def check_run_outputs(cfg: PPOConfig, prog: str) -> None:
     """Exit 2 (one line, before any work) on outputs that exist or cannot be written.
 
-    An existing ``cfg.out`` or its ``.json`` without ``--force``, or an output or TensorBoard
-    folder that cannot be written (:func:`selenv.learned.config.check_outputs`).
+    An existing ``cfg.out`` or its ``.json`` without ``--force``, an output or TensorBoard
+    folder that cannot be written (a real write probe:
+    :func:`selenv.learned.config.check_outputs`), an unfinished run's ``.last`` checkpoint
+    next to ``--out`` without ``--resume`` or ``--force``, a ``--resume`` file that does not
+    exist, or a size out of range (:func:`check_bounds`).
     """
     folders = [cfg.tensorboard_dir] if cfg.tensorboard_dir else []
+    try:
+        check_bounds(cfg)
+    except UsageError as exc:
+        usage_error(prog, exc)
+    if cfg.resume and not Path(cfg.resume).is_file():
+        usage_error(prog, f"--resume {cfg.resume}: no such checkpoint")
+    last = last_paths(cfg.out)[0]
+    if last.exists() and not cfg.resume and not cfg.force:
+        usage_error(
+            prog,
+            f"{last} exists (an unfinished run of this --out): continue it with --resume "
+            f"{last}, or pass --force to start over",
+        )
     check_outputs(prog, output_paths(cfg), force=cfg.force, folders=folders)
+
+
+@contextlib.contextmanager
+def output_lock(out: str | Path, prog: str) -> Iterator[None]:
+    """Hold :class:`~selenv.atomic.OutputLock` on ``out`` for the block; busy: exit 2, one line."""
+    lock = OutputLock(out)
+    try:
+        lock.acquire()
+    except OutputBusyError as exc:
+        usage_error(prog, exc)
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+# -- checkpoint pairs ----------------------------------------------------------------------------
+def file_sha256(path: str | Path) -> str:
+    """The hex SHA-256 of the file at ``path``."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _named(exc: OSError, target: Path, temp: Path) -> OSError:
+    """``exc`` naming ``target`` instead of its temporary file."""
+    name = exc.filename
+    if name is None or str(name) == str(temp) or Path(str(name)).name.startswith("."):
+        name = str(target)
+    return type(exc)(exc.errno or 0, exc.strerror or str(exc), name)
+
+
+def save_checkpoint(
+    model: Any, meta: dict[str, Any], path: str | Path, *, exclude: list[str] | None = None
+) -> Path:
+    """Write the SB3 ``model`` to ``path`` (.zip) and ``meta`` to its ``.json``, as a pair.
+
+    Both files go to temporaries in the same folder first (``model.save``, then the JSON
+    with the zip's ``checkpoint_sha256``, which is also set in ``meta``); both are renamed
+    only when both are written and flushed. Any failure (``ENOSPC``, ``EFBIG``, an
+    interruption) leaves the previous pair byte-identical and no temporary behind; an
+    ``OSError`` is re-raised naming the target instead of the temporary. Returns ``path``.
+    """
+    target = Path(path)
+    json_path = target.with_suffix(".json")
+    try:
+        with atomic_paths([target, json_path]) as (tmp_zip, tmp_json):
+            try:
+                model.save(tmp_zip, exclude=exclude)
+            except RuntimeError as exc:  # torch reports some write failures this way
+                raise OSError(0, f"writing failed ({exc})", str(target)) from exc
+            meta["checkpoint_sha256"] = file_sha256(tmp_zip)
+            text = json.dumps(meta, indent=2) + "\n"
+            with open(tmp_json, "w", encoding="utf-8") as fh:
+                fh.write(text)
+    except OSError as exc:
+        which = json_path if exc.filename and str(exc.filename).endswith(".json") else target
+        raise _named(exc, which, which) from exc
+    return target
+
+
+def read_checkpoint_metadata(path: str | Path) -> dict[str, Any]:
+    """The JSON next to checkpoint ``path``, bounded in size and depth.
+
+    Raises:
+        ValueError: missing, larger than :data:`MAX_METADATA_BYTES`, not JSON, nested too
+            deep, or not an object.
+    """
+    json_path = Path(path).with_suffix(".json")
+    try:
+        size = json_path.stat().st_size
+        if size > MAX_METADATA_BYTES:
+            raise ValueError(
+                f"{json_path} is {size} bytes, more than MAX_METADATA_BYTES = {MAX_METADATA_BYTES}"
+            )
+        meta = json.loads(json_path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ValueError(f"cannot read the metadata {json_path}: {exc.strerror}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{json_path} is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise ValueError(f"{json_path}: JSON nested too deep") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{json_path} must hold a JSON object")
+    return meta
+
+
+def verify_pair(path: str | Path, meta: dict[str, Any]) -> None:
+    """Check that checkpoint ``path`` is the zip its metadata ``meta`` describes.
+
+    Metadata without ``checkpoint_sha256`` (written before it was recorded) is accepted.
+
+    Raises:
+        ValueError: the zip's SHA-256 differs from ``meta["checkpoint_sha256"]`` (a pair whose
+            halves come from different saves).
+    """
+    recorded = meta.get("checkpoint_sha256")
+    if recorded is None:
+        return
+    actual = file_sha256(path)
+    if actual != recorded:
+        json_path = Path(path).with_suffix(".json")
+        raise ValueError(
+            f"{path} and {json_path} do not match (mismatched pair): the metadata records "
+            f"sha256 {str(recorded)[:12]}..., the zip has {actual[:12]}...; use a checkpoint "
+            "and the metadata written with it"
+        )
+
+
+def _zip_member(path: Path, name: str, limit: int) -> bytes:
+    """Member ``name`` of the zip ``path``, at most ``limit`` bytes (``ValueError`` otherwise)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            try:
+                info = zf.getinfo(name)
+            except KeyError:
+                raise ValueError(f"checkpoint {path} has no {name}") from None
+            if info.file_size > limit:
+                raise ValueError(f"checkpoint {path}: {name} is {info.file_size} bytes (> {limit})")
+            return zf.read(info)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise ValueError(f"checkpoint {path} is not a readable zip file: {exc}") from exc
+
+
+# -- random generators ---------------------------------------------------------------------------
+def _b64(array: np.ndarray[Any, Any]) -> str:
+    return base64.b64encode(array.tobytes()).decode("ascii")
+
+
+def _unb64(text: str, dtype: Any) -> np.ndarray[Any, Any]:
+    return np.frombuffer(base64.b64decode(text, validate=True), dtype=dtype)
+
+
+def _rng_state() -> dict[str, Any]:
+    """The ``random``, ``numpy.random`` and ``torch`` generators' states, as JSON values.
+
+    The Mersenne-Twister words are base64 of little-endian ``uint32`` (a few KB in all).
+    """
+    version, internal, gauss = random.getstate()
+    name, keys, pos, has_gauss, cached = np.random.get_state(legacy=True)  # noqa: NPY002
+    return {
+        "python": [int(version), _b64(np.asarray(internal, dtype="<u4")), gauss],
+        "numpy": [
+            str(name),
+            _b64(np.asarray(keys, dtype="<u4")),
+            int(pos),
+            int(has_gauss),
+            float(cached),
+        ],
+        "torch": _b64(torch.get_rng_state().numpy()),
+    }
+
+
+def _set_rng_state(state: dict[str, Any]) -> None:
+    """Restore what :func:`_rng_state` recorded (``ValueError`` on a malformed record)."""
+    try:
+        version, internal, gauss = state["python"]
+        words = tuple(int(x) for x in _unb64(internal, "<u4"))
+        random.setstate((int(version), words, gauss))
+        name, keys, pos, has_gauss, cached = state["numpy"]
+        numpy_state = (str(name), _unb64(keys, "<u4").astype(np.uint32), pos, has_gauss, cached)
+        np.random.set_state(numpy_state)  # noqa: NPY002
+        raw = bytearray(base64.b64decode(state["torch"], validate=True))
+        torch.set_rng_state(torch.frombuffer(raw, dtype=torch.uint8))
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"the checkpoint's random generator states are malformed: {exc}") from exc
+
+
+# -- interruptions -------------------------------------------------------------------------------
+class TrainingInterrupted(KeyboardInterrupt):
+    """SIGINT stopped training after the last completed iteration was saved (exit 130)."""
+
+    exit_code = 130
+
+
+class TrainingTerminated(Terminated):
+    """SIGTERM stopped training after the last completed iteration was saved (exit 143)."""
+
+    exit_code = 143
+
+
+class _StopFlag:
+    """While active, SIGINT / SIGTERM set a flag (a second one raises at once)."""
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+        self._previous: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        name = signal.Signals(signum).name
+        if self.signal is not None:  # asked twice: stop now (atomic writes keep the files)
+            raise KeyboardInterrupt if signum == signal.SIGINT else Terminated()
+        self.signal = name
+
+    def __enter__(self) -> _StopFlag:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._previous[signum] = signal.signal(signum, self._handle)
+            except ValueError:  # not the main thread (e.g. a Ray Tune trial): signals unchanged
+                break
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous)
+        self._previous.clear()
+
+
+class _CheckpointCallback(BaseCallback):
+    """Iteration boundaries: periodic checkpoints, the training log, stop on a signal.
+
+    At every rollout start (the previous update is complete) the step count, update count and
+    generator states are recorded, and a periodic checkpoint is written when ``every`` steps
+    passed since the last one; a pending signal makes the next step end training.
+    """
+
+    def __init__(
+        self, every: int, save: Callable[[str | None], None], flag: _StopFlag, log: list[Any]
+    ) -> None:
+        super().__init__()
+        self.every = every
+        self.save_last = save
+        self.flag = flag
+        self.log = log
+        self.boundary: dict[str, Any] | None = None
+        self.last_saved = -1
+
+    def _on_rollout_start(self) -> None:
+        n = int(self.model.num_timesteps)
+        self.boundary = {
+            "num_timesteps": n,
+            "n_updates": int(getattr(self.model, "_n_updates", 0)),
+            "rng": _rng_state(),
+        }
+        if self.last_saved < 0:
+            self.last_saved = n  # the start (or the resumed step): nothing new to save
+        elif self.every and n - self.last_saved >= self.every and self.flag.signal is None:
+            self.save_last(None)
+            self.last_saved = n
+
+    def _on_rollout_end(self) -> None:
+        buf = self.model.ep_info_buffer
+        entry: dict[str, Any] = {"timesteps": int(self.model.num_timesteps)}
+        if buf:
+            entry["ep_return_mean"] = round(float(np.mean([ep["r"] for ep in buf])), 5)
+            entry["ep_length_mean"] = round(float(np.mean([ep["l"] for ep in buf])), 2)
+        self.log.append(entry)
+
+    def _on_step(self) -> bool:
+        return self.flag.signal is None
 
 
 class TqdmCallback(BaseCallback):
@@ -142,7 +558,12 @@ class TqdmCallback(BaseCallback):
 
     def _on_training_start(self) -> None:
         desc = type(self.model).__name__
-        self.bar = tqdm(total=self.locals["total_timesteps"], unit="step", desc=desc)
+        self.bar = tqdm(
+            total=self.locals["total_timesteps"],
+            initial=int(self.model.num_timesteps),  # a resumed run continues its count
+            unit="step",
+            desc=desc,
+        )
 
     def _on_step(self) -> bool:
         self.bar.update(self.training_env.num_envs)
@@ -197,11 +618,14 @@ def evaluate_checkpoint(
 
     The saved file, reloaded through the ``ppo`` agent (plus ``policy_variants``: name ->
     agent keyword arguments), against the comma-separated registered ``baselines``, one
-    episode per seed each.
+    episode per seed each. A checkpoint whose JSON records another ``checkpoint_sha256``
+    than the zip's is refused (``ValueError``).
     """
     from selenv.agents import make as make_agent
     from selenv.learned.rl.agent import SB3PolicyAgent  # the adapter sits above this module's users
 
+    if Path(checkpoint).with_suffix(".json").is_file():  # a mismatched pair is refused
+        verify_pair(checkpoint, read_checkpoint_metadata(checkpoint))
     agents: dict[str, Agent] = {"ppo": SB3PolicyAgent(checkpoint, env_id=env_id)}
     for name, kw in (policy_variants or {}).items():
         agents[name] = SB3PolicyAgent(checkpoint, env_id=env_id, **kw)
@@ -257,22 +681,21 @@ def train(
     torch.set_num_threads(cfg.torch_threads)
     out = Path(cfg.out)
     if out.suffix != ".zip":
-        raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
-    if cfg.total_timesteps < 0:
-        raise ValueError(f"--total-timesteps must be >= 0, got {cfg.total_timesteps}")
-    if cfg.eval_episodes < 0:
-        raise ValueError(f"--eval-episodes must be >= 0, got {cfg.eval_episodes}")
+        raise UsageError(f"--out must end in .zip, got {cfg.out!r}")
+    check_bounds(cfg)
     if cfg.algo not in ALGORITHMS:
-        raise ValueError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
+        raise UsageError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
     if cfg.vec_env not in VEC_ENVS:
-        raise ValueError(f"--vec-env must be one of {list(VEC_ENVS)}, got {cfg.vec_env!r}")
+        raise UsageError(f"--vec-env must be one of {list(VEC_ENVS)}, got {cfg.vec_env!r}")
     if cfg.vec_env == "native" and native is None:
-        raise ValueError(
+        raise UsageError(
             f"--vec-env native: {env_id} is trained through a wrapper without a native vector "
             "env; use --vec-env dummy or subproc"
         )
     check_run_outputs(cfg, "selenv.learned.rl.training.train")  # the scripts check first
+    resumed = _read_resume(cfg, env_id, view) if cfg.resume else None
     out.parent.mkdir(parents=True, exist_ok=True)
+    hidden = parse_hidden(cfg.hidden)
 
     # 1. envs
     def monitored() -> gym.Env[Any, Any]:
@@ -292,9 +715,22 @@ def train(
         )
         venv.seed(cfg.seed)
     layout = obs_layout(venv.observation_space)
+    obs_floats = sum(
+        int(np.prod(sp.shape or (1,)))
+        for sp in getattr(venv.observation_space, "spaces", {"": venv.observation_space}).values()
+    )
+    need = estimate_memory_bytes(cfg, obs_floats, int(layout["n"]), int(layout["n_features"]))
+    if need > cfg.max_memory_gb * 2**30:
+        venv.close()
+        raise UsageError(
+            f"this run needs about {need / 2**30:.1f} GB (rollout buffer of --n-envs x --n-steps "
+            f"= {cfg.n_envs * cfg.n_steps} observations of {obs_floats} floats, minibatches of "
+            f"--batch-size {cfg.batch_size} x {layout['n']} candidates x --hidden "
+            f"{cfg.hidden}), more than --max-memory-gb {cfg.max_memory_gb:g}: lower these "
+            "options or raise --max-memory-gb"
+        )
 
     # 2. model
-    hidden = [int(h) for h in cfg.hidden.split(",")]
     model = make_ppo(
         venv,
         cfg.algo,
@@ -316,73 +752,265 @@ def train(
             },
         },
     )
+    training_log: list[dict[str, Any]] = []
+    wall_before = 0.0
+    if resumed is not None:
+        _restore(model, venv, cfg, resumed)
+        training_log = list(resumed.get("training_log") or [])
+        wall_before = float(resumed.get("training", {}).get("wall_seconds", 0.0))
 
-    # 3. (optional pre-training, then) PPO
-    start = time.perf_counter()
-    pretraining = pretrain(model) if pretrain is not None else None
-    callbacks: list[BaseCallback] = [TqdmCallback()] if cfg.progress else []
-    if cfg.total_timesteps > 0:  # 0: keep the pre-trained policy as it is
-        model.learn(cfg.total_timesteps, callback=callbacks, tb_log_name=tb_name)
-    wall = time.perf_counter() - start
-    venv.close()
-
-    # 4. checkpoint + metadata (rollout buffers and episode stats are not needed to act)
-    model.save(out, exclude=["_last_obs", "_last_original_obs", "ep_info_buffer"])
     env_config = None  # the configuration trained on, resolved (Gymnasium ids)
     if env_id in gym.registry:
         probe = gym.make(env_id, **cfg.kwargs())
         env_config = resolved_env_config(probe)
         probe.close()
-    meta: dict[str, Any] = {
-        "env_id": env_id,
-        "env_kwargs": cfg.kwargs(),
-        "env_config": env_config,
-        "view": view,
-        "obs_layout": {
-            "whitened_dim": layout["whitened_dim"],
-            "n_features": layout["n_features"],
-            "n_candidates_trained": layout["n"],
-        },
-        "architecture": {
-            "policy": f"selenv.learned.rl.candidate_policy.{type(model.policy).__name__}",
-            "features_extractor": f"{features_extractor.__module__}.{features_extractor.__name__}",
-            "hidden": hidden,
-            "activation": cfg.activation,
-            "gain_skip_init": cfg.gain_skip_init,
-            **(extractor_kwargs or {}),
-            "net_arch": {"pi": [], "vf": [64]},
-            "n_parameters": int(sum(p.numel() for p in model.policy.parameters())),
-            "pool_size_independent": True,
-        },
-        "training": {
-            **dataclasses.asdict(cfg),
-            "algorithm": type(model).__name__,
-            "timesteps_done": int(model.num_timesteps),
-            "wall_seconds": round(wall, 1),
-        },
-        "pretraining": pretraining,
-        "metrics": None,
-        "selenv_version": selenv.__version__,
-        "torch_version": torch.__version__,
-        "sb3_version": stable_baselines3.__version__,
-        "sb3_contrib_version": sb3_contrib.__version__,
-        **(extra_meta or {}),
+
+    def metadata(wall: float, pretraining: Any, complete: bool) -> dict[str, Any]:
+        return {
+            "env_id": env_id,
+            "env_kwargs": cfg.kwargs(),
+            "env_config": env_config,
+            "view": view,
+            "obs_layout": {
+                "whitened_dim": layout["whitened_dim"],
+                "n_features": layout["n_features"],
+                "n_candidates_trained": layout["n"],
+            },
+            "architecture": {
+                "policy": f"selenv.learned.rl.candidate_policy.{type(model.policy).__name__}",
+                "features_extractor": (
+                    f"{features_extractor.__module__}.{features_extractor.__name__}"
+                ),
+                "hidden": hidden,
+                "activation": cfg.activation,
+                "gain_skip_init": cfg.gain_skip_init,
+                **(extractor_kwargs or {}),
+                "net_arch": {"pi": [], "vf": [64]},
+                "n_parameters": int(sum(p.numel() for p in model.policy.parameters())),
+                "pool_size_independent": True,
+            },
+            "training": {
+                **dataclasses.asdict(cfg),
+                "algorithm": type(model).__name__,
+                "timesteps_done": int(model.num_timesteps),
+                "wall_seconds": round(wall_before + wall, 1),
+            },
+            "pretraining": pretraining,
+            "metrics": None,
+            "complete": complete,
+            "num_timesteps": int(model.num_timesteps),
+            "selenv_version": selenv.__version__,
+            "torch_version": torch.__version__,
+            "sb3_version": stable_baselines3.__version__,
+            "sb3_contrib_version": sb3_contrib.__version__,
+            **(extra_meta or {}),
+        }
+
+    # 3. (optional pre-training, then) PPO
+    start = time.perf_counter()
+    if resumed is not None:  # the weights already hold the pre-training
+        pretraining = resumed.get("pretraining")
+    else:
+        pretraining = pretrain(model) if pretrain is not None else None
+    last_zip = last_paths(out)[0]
+    flag = _StopFlag()
+
+    def save_last(interrupted: str | None) -> None:
+        boundary = cb.boundary
+        assert boundary is not None  # set at the first rollout start
+        reached = int(model.num_timesteps)
+        model.num_timesteps = boundary["num_timesteps"]  # the last completed iteration
+        try:
+            meta = metadata(time.perf_counter() - start, pretraining, complete=False)
+            meta["resume_state"] = boundary
+            meta["training_log"] = [
+                e for e in training_log if e["timesteps"] <= boundary["num_timesteps"]
+            ]
+            if interrupted is not None:
+                meta["interrupted"] = interrupted
+            save_checkpoint(model, meta, last_zip, exclude=_NOT_SAVED)
+        finally:
+            model.num_timesteps = reached
+
+    cb = _CheckpointCallback(cfg.checkpoint_every, save_last, flag, training_log)
+    callbacks: list[BaseCallback] = [TqdmCallback()] if cfg.progress else []
+    remaining = cfg.total_timesteps - int(model.num_timesteps)
+    if remaining > 0:  # 0: keep the pre-trained (or resumed) policy as it is
+        with flag:
+            model.learn(
+                remaining,
+                callback=[*callbacks, cb],
+                tb_log_name=tb_name,
+                reset_num_timesteps=resumed is None,
+            )
+    wall = time.perf_counter() - start
+    venv.close()
+    stopped = flag.signal
+    if stopped is not None and int(model.num_timesteps) < cfg.total_timesteps:
+        save_last(stopped)
+        done = cb.boundary["num_timesteps"] if cb.boundary else 0
+        raise _stop_exception(
+            stopped,
+            f"saved the last completed iteration ({done} of {cfg.total_timesteps} steps) as "
+            f"{last_zip} (+ .json); continue with the same command and --resume {last_zip}",
+        )
+
+    # 4. checkpoint + metadata (rollout buffers and episode stats are not needed to act)
+    meta = metadata(wall, pretraining, complete=True)
+    meta["resume_state"] = {
+        "num_timesteps": int(model.num_timesteps),
+        "n_updates": int(getattr(model, "_n_updates", 0)),
+        "rng": _rng_state(),
     }
+    meta["training_log"] = training_log
     json_path = out.with_suffix(".json")
-    json_path.write_text(json.dumps(meta, indent=2) + "\n")
+    save_checkpoint(model, meta, out, exclude=_NOT_SAVED)
+    for stale in last_paths(out):  # superseded by the complete checkpoint
+        stale.unlink(missing_ok=True)
+    if stopped is not None:
+        raise _stop_exception(
+            stopped, f"training had completed: saved {out} (+ .json); its evaluation was skipped"
+        )
 
     # 5. evaluate the saved checkpoint (round trip through the agent) against the baselines
     if cfg.eval_episodes:
         seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
-        meta["metrics"] = evaluate_checkpoint(
-            out,
-            env_id=env_id,
-            make_eval_env=make_eval_env,
-            seeds=seeds,
-            baselines=cfg.baselines,
-            policy_variants=policy_variants,
-        )
-        json_path.write_text(json.dumps(meta, indent=2) + "\n")
+        try:
+            meta["metrics"] = evaluate_checkpoint(
+                out,
+                env_id=env_id,
+                make_eval_env=make_eval_env,
+                seeds=seeds,
+                baselines=cfg.baselines,
+                policy_variants=policy_variants,
+            )
+        except (KeyboardInterrupt, Terminated) as exc:
+            name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
+            raise _stop_exception(
+                name, f"during the evaluation: {out} (+ .json) is complete, without metrics"
+            ) from None
+        write_json(json_path, meta)
         summary = {k: v["mean_return"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_return": summary, "wall_seconds": round(wall, 1)}, indent=2))
     return meta
+
+
+#: model attributes a checkpoint leaves out (rollout state and episode stats: not needed)
+_NOT_SAVED = ["_last_obs", "_last_original_obs", "ep_info_buffer"]
+
+
+def _stop_exception(name: str, what: str) -> BaseException:
+    """The exception that ends a run stopped by signal ``name``, with its one line."""
+    if name == "SIGINT":
+        return TrainingInterrupted(f"interrupted (SIGINT): {what}")
+    return TrainingTerminated(f"terminated (SIGTERM): {what}")
+
+
+#: metadata that must agree between a resumed checkpoint and the options of the run
+_RESUME_KEYS = ("env_id", "env_kwargs", "view", "algorithm", "hidden", "activation")
+
+
+def _read_resume(cfg: PPOConfig, env_id: str, view: str) -> dict[str, Any]:
+    """The metadata of ``cfg.resume``, checked against the run (``UsageError`` otherwise)."""
+    path = Path(cfg.resume)
+    try:
+        meta = read_checkpoint_metadata(path)
+        verify_pair(path, meta)
+    except ValueError as exc:
+        raise UsageError(f"--resume {path}: {exc}") from None
+    state = meta.get("resume_state")
+    if not isinstance(state, dict) or not isinstance(state.get("num_timesteps"), int):
+        raise UsageError(
+            f"--resume {path}: no resume state in its metadata (a checkpoint written by a "
+            "training run of this version: <out stem>.last.zip or a final checkpoint)"
+        )
+    training = meta.get("training")
+    training = training if isinstance(training, dict) else {}
+    arch = meta.get("architecture")
+    arch = arch if isinstance(arch, dict) else {}
+    theirs = {
+        "env_id": meta.get("env_id"),
+        "env_kwargs": meta.get("env_kwargs"),
+        "view": meta.get("view"),
+        "algorithm": training.get("algorithm"),
+        "hidden": arch.get("hidden"),
+        "activation": arch.get("activation"),
+    }
+    algorithm = {"maskable_ppo": "MaskablePPO", "ppo": "PPO"}.get(cfg.algo, cfg.algo)
+    ours = {
+        "env_id": env_id,
+        "env_kwargs": cfg.kwargs(),
+        "view": view,
+        "algorithm": algorithm,
+        "hidden": parse_hidden(cfg.hidden),
+        "activation": cfg.activation,
+    }
+    for key in _RESUME_KEYS:
+        if theirs[key] != ours[key]:
+            raise UsageError(
+                f"--resume {path}: it was trained with {key} = {theirs[key]!r}, this run has "
+                f"{ours[key]!r}; resume with the options of the interrupted run"
+            )
+    done = state["num_timesteps"]
+    if done > cfg.total_timesteps:
+        raise UsageError(
+            f"--resume {path}: it already made {done} steps, more than --total-timesteps "
+            f"{cfg.total_timesteps}"
+        )
+    return meta
+
+
+def _restore(model: Any, venv: VecEnv, cfg: PPOConfig, meta: dict[str, Any]) -> None:
+    """Weights, Adam state, counters and generators of ``cfg.resume`` into the fresh ``model``.
+
+    Only tensors are read (``torch.load(weights_only=True)``); the zip's pickled ``data``
+    entry is never deserialised. The envs are reseeded with ``seed + num_timesteps``.
+    """
+    from selenv.learned.rl.safe_load import read_weights
+
+    path = Path(cfg.resume)
+    state = meta["resume_state"]
+    try:
+        model.policy.load_state_dict(read_weights(path), strict=True)
+        raw = _zip_member(path, "policy.optimizer.pth", MAX_OPTIMIZER_BYTES)
+        optimizer = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+        model.policy.optimizer.load_state_dict(optimizer)
+    except (ValueError, RuntimeError, KeyError, TypeError) as exc:
+        raise UsageError(f"--resume {path}: cannot load its weights: {exc}") from None
+    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
+        raise UsageError(
+            f"--resume {path}: policy.optimizer.pth is not plain tensors: {exc}"
+        ) from None
+    done = int(state["num_timesteps"])
+    model.num_timesteps = done
+    model._n_updates = int(state.get("n_updates", 0))
+    venv.seed(cfg.seed + done)
+    try:
+        _set_rng_state(state["rng"])
+    except (KeyError, ValueError) as exc:
+        raise UsageError(f"--resume {path}: {exc}") from None
+
+
+def run_cli(main: Callable[..., Any], prog: str, argv: list[str] | None = None) -> int:
+    """Run a training script's ``main(argv)``; the exit code of :mod:`selenv.exits`.
+
+    A stopped run (:class:`TrainingInterrupted` / :class:`TrainingTerminated`) prints its
+    line (what was saved, how to resume) and returns 130 / 143; everything else as
+    :func:`selenv.exits.guarded_main` (usage 2, I/O failure 1, SIGINT 130, SIGTERM 143).
+    """
+    try:
+        return guarded_main(_unwrap_stops, prog, main, argv)
+    except _Stopped as stop:
+        print(f"{prog}: {stop.args[0]}", file=sys.stderr)
+        return int(stop.args[1])
+
+
+class _Stopped(Exception):
+    """(message, exit code) of a stopped run, carried past :func:`guarded_main`."""
+
+
+def _unwrap_stops(main: Callable[..., Any], argv: list[str] | None) -> Any:
+    try:
+        return main(argv)
+    except (TrainingInterrupted, TrainingTerminated) as exc:
+        raise _Stopped(str(exc), exc.exit_code) from None
