@@ -520,6 +520,8 @@ def run_bench(
             _run_pooled(out, names, seeds, named, threads, executor, progress)
     except BaseException:
         out.complete = False
+        for name in names:  # an agent that had not started: 0 episodes
+            out.agents.setdefault(name, AgentResult(name))
         for name, why in inapplicable.items():
             out.agents[name] = AgentResult(name, skipped=why)
         out.agents = {n: out.agents[n] for n in (agent_names or names) if n in out.agents}
@@ -604,5 +606,5 @@ def _run_pooled(
         out.agents[name] = _merge_partial(name, got) if stopped else _merge(name, got)
     if stopped:
         raise WorkerDiedError(
-            "a process-pool worker was stopped (it received SIGINT) before finishing its episodes"
+            "a process-pool worker was stopped (SIGINT or SIGUSR1) before finishing its episodes"
         )

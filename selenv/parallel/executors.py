@@ -29,13 +29,14 @@ as it finishes, so a caller keeps what finished whatever happens next):
   the worker's PID and signal), instead of ``BrokenProcessPool`` / ``WorkerCrashedError``;
 * ``KeyboardInterrupt`` (or another ``BaseException`` such as a SIGTERM exception) in the
   caller during a pool's :meth:`~Executor.map`: the tasks not started are cancelled, the
-  workers are asked to stop (SIGINT: a task inside :func:`stoppable` gets
+  workers are asked to stop (SIGUSR1: a task inside :func:`stoppable` gets
   :class:`TaskStopped` and may return what it has; later tasks see :func:`stop_requested`),
   the results that arrive within ``STOP_GRACE_SECONDS`` go to ``on_result``, the workers still
   running are killed, and the exception is re-raised. Ray tasks are cancelled;
 * pool workers never print a ``KeyboardInterrupt`` traceback (a Ctrl-C that reaches the whole
-  process group is a stop request to them), and they die with their parent (Linux
-  ``PR_SET_PDEATHSIG``; elsewhere a watchdog thread), so none is left orphaned;
+  process group is a stop request to them, ignored if this process ignores SIGINT), and they
+  die with their parent (Linux ``PR_SET_PDEATHSIG``; elsewhere a watchdog thread), so none is
+  left orphaned;
 * ``--num-workers`` of the process pool is bounded by :func:`max_pool_workers`.
 """
 
@@ -173,13 +174,21 @@ def _die_with_parent(parent: int) -> None:
 
 
 def _worker_init(
-    parent: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]
+    parent: int,
+    initializer: Callable[..., None] | None,
+    initargs: tuple[Any, ...],
+    ignore_sigint: bool = False,
 ) -> None:
-    """Set up a pool worker: die with ``parent``, SIGINT = stop request, then the user's init."""
+    """Set up a pool worker, then run the user's initializer.
+
+    The worker dies with ``parent``; SIGUSR1 (the parent's stop request) and SIGINT (a Ctrl-C
+    to the process group; ignored if the parent ignores it) stop its task.
+    """
     global _in_worker
     _in_worker = True
     _die_with_parent(parent)
-    signal.signal(signal.SIGINT, _on_stop_signal)
+    signal.signal(signal.SIGUSR1, _on_stop_signal)
+    signal.signal(signal.SIGINT, signal.SIG_IGN if ignore_sigint else _on_stop_signal)
     if initializer is not None:
         initializer(*initargs)
 
@@ -326,7 +335,8 @@ def _single_threaded_children() -> Iterator[None]:
 class ProcessExecutor(Executor):
     """A pool of ``num_workers`` spawned processes on this machine (default: every CPU).
 
-    The workers die with this process, treat SIGINT as a stop request (no traceback) and are
+    The workers die with this process, treat SIGINT and SIGUSR1 as a stop request (no
+    traceback) and are
     killed when a :meth:`map` is interrupted or one of them dies (module docstring); a later
     :meth:`map` starts a fresh pool.
 
@@ -366,7 +376,12 @@ class ProcessExecutor(Executor):
                     self.num_workers,
                     mp_context=get_context("spawn"),
                     initializer=_worker_init,
-                    initargs=(os.getpid(), self._initializer, self._initargs),
+                    initargs=(
+                        os.getpid(),
+                        self._initializer,
+                        self._initargs,
+                        signal.getsignal(signal.SIGINT) is signal.SIG_IGN,
+                    ),
                 )
             self._procs = {}
         return self._pool
@@ -454,7 +469,7 @@ class ProcessExecutor(Executor):
         """Cancel what has not started, ask the workers to stop, collect, then kill them."""
         for fut in pending:
             fut.cancel()
-        self._signal_workers(signal.SIGINT)
+        self._signal_workers(signal.SIGUSR1)
         running = {f for f in pending if not f.cancelled()}
         deadline = time.monotonic() + STOP_GRACE_SECONDS
         with contextlib.suppress(Exception):
