@@ -18,6 +18,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -93,7 +94,7 @@ def _temporaries(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if ".tmp-" in p.name)
 
 
-def _meta(path: Path) -> dict:
+def _meta(path: Path) -> Any:
     return json.loads(path.with_suffix(".json").read_text())
 
 
@@ -123,7 +124,7 @@ def tiny_fs(tmp_path: Path) -> Iterator[Path]:
 
 # -- kill, then resume ---------------------------------------------------------------------------
 def test_sigkill_after_a_periodic_checkpoint_then_resume_reaches_the_same_step_count(
-    tmp_path: Path, capsys
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "p.zip"
     last, last_json = last_paths(out)
@@ -209,7 +210,7 @@ def test_full_disk_at_the_final_save_keeps_the_previous_checkpoint(tiny_fs: Path
 
 # -- in-process: the pair writer, the up-front checks --------------------------------------------
 @pytest.fixture(scope="module")
-def tiny_model():
+def tiny_model() -> Any:
     import gymnasium as gym
 
     import selenv  # noqa: F401  (registers the envs)
@@ -220,7 +221,9 @@ def tiny_model():
                     policy_kwargs={"features_extractor_kwargs": {"hidden": [4]}})  # fmt: skip
 
 
-def test_save_checkpoint_on_a_full_disk_leaves_the_previous_pair(tiny_fs: Path, tiny_model) -> None:
+def test_save_checkpoint_on_a_full_disk_leaves_the_previous_pair(
+    tiny_fs: Path, tiny_model: Any
+) -> None:
     target = tiny_fs / "c.zip"
     save_checkpoint(tiny_model, {"n": 1}, target)
     before = _snapshot([target, target.with_suffix(".json")])
@@ -234,7 +237,9 @@ def test_save_checkpoint_on_a_full_disk_leaves_the_previous_pair(tiny_fs: Path, 
     assert _temporaries(tiny_fs) == []
 
 
-def test_a_mismatched_pair_is_refused(tmp_path: Path, tiny_model, capsys) -> None:
+def test_a_mismatched_pair_is_refused(
+    tmp_path: Path, tiny_model: Any, capsys: pytest.CaptureFixture[str]
+) -> None:
     a, b = tmp_path / "a.zip", tmp_path / "b.zip"
     save_checkpoint(tiny_model, {"resume_state": {"num_timesteps": 0}}, a)
     tiny_model.policy.features_extractor.gain_skip.data += 1.0  # another save: another zip
@@ -249,7 +254,9 @@ def test_a_mismatched_pair_is_refused(tmp_path: Path, tiny_model, capsys) -> Non
     assert len(err.splitlines()) == 1 and "do not match" in err and str(a) in err
 
 
-def test_full_output_folder_is_found_before_any_work(tiny_fs: Path, capsys) -> None:
+def test_full_output_folder_is_found_before_any_work(
+    tiny_fs: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     (tiny_fs / "filler").write_bytes(b"\0" * (os.statvfs(tiny_fs).f_bavail * 4096))
     with pytest.raises(SystemExit) as exc:
         train_fim_ppo.main([*TINY, f"--out={tiny_fs / 'sub' / 'p.zip'}"])
@@ -258,7 +265,9 @@ def test_full_output_folder_is_found_before_any_work(tiny_fs: Path, capsys) -> N
     assert len(err.splitlines()) == 1 and "ENOSPC" in err and str(tiny_fs) in err, err
 
 
-def test_second_run_on_the_same_out_is_refused(tmp_path: Path, capsys) -> None:
+def test_second_run_on_the_same_out_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "p.zip"
     lock = tmp_path / ".p.zip.lock"
     lock.write_text("1\n")  # PID 1 is alive: another run holds --out
@@ -283,7 +292,7 @@ def test_second_run_on_the_same_out_is_refused(tmp_path: Path, capsys) -> None:
     ],
 )
 def test_sizes_beyond_their_ceilings_exit_2_naming_the_option(
-    argv: list[str], needle: str, tmp_path: Path, capsys
+    argv: list[str], needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     with pytest.raises(SystemExit) as exc:
         train_fim_ppo.main([*TINY, *argv, f"--out={tmp_path / 'p.zip'}"])
@@ -293,7 +302,9 @@ def test_sizes_beyond_their_ceilings_exit_2_naming_the_option(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_memory_estimate_is_checked_before_the_model_is_built(tmp_path: Path, capsys) -> None:
+def test_memory_estimate_is_checked_before_the_model_is_built(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     argv = [*TINY, "--n-steps=65536", "--max-memory-gb=0.25", f"--out={tmp_path / 'p.zip'}"]
     assert run_cli(train_fim_ppo.main, PROG, argv) == 2
     err = capsys.readouterr().err.strip()

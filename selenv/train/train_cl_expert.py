@@ -20,6 +20,8 @@ the checkpoint's metadata.
 
 Outputs (all refused if they exist, unless ``--force``): ``<out>.zip`` + ``.json``, every
 round's ``<out>_round<r>.zip`` + ``.json`` and, with ``--eval-episodes``, ``<out>.bench.json``.
+Each checkpoint and its JSON are written as an atomic pair (the JSON records the zip's
+``checkpoint_sha256``): an interrupted run keeps every round completed so far, intact.
 """
 
 from __future__ import annotations
@@ -38,12 +40,20 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
+from selenv.atomic import write_json
 from selenv.envs.resolved import resolved_env_config
 from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.expert import CL_ID, collect_cl_rollout_labels
 from selenv.learned.rl.ranking import RankingData, fit_ranking
 from selenv.learned.rl.safe_load import model_from_checkpoint
+from selenv.learned.rl.training import (
+    output_lock,
+    read_checkpoint_metadata,
+    run_cli,
+    save_checkpoint,
+    verify_pair,
+)
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
 SCRIPT = "selenv.train.train_cl_expert"
@@ -108,9 +118,8 @@ def outputs(cfg: Config) -> list[Path]:
 
 
 def _save(model: Any, meta: dict[str, Any], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    model.save(path)
-    path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+    """``path`` and its ``.json`` as an atomic pair (``training.save_checkpoint``)."""
+    save_checkpoint(model, meta, path)
 
 
 def evaluate_with_bench(
@@ -148,7 +157,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
     check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
-    return run_expert_iteration(cfg, argv, CL_ID, collect_cl_rollout_labels, SCRIPT, "greedy")
+    with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
+        return run_expert_iteration(cfg, argv, CL_ID, collect_cl_rollout_labels, SCRIPT, "greedy")
 
 
 def run_expert_iteration(
@@ -173,6 +183,8 @@ def run_expert_iteration(
     if not isinstance(kwargs, dict):
         raise ValueError(f"--env-kwargs must be a JSON object, got {cfg.env_kwargs!r}")
     src = load_metadata(cfg.checkpoint)
+    if Path(cfg.checkpoint).with_suffix(".json").is_file():  # refuse a mismatched pair
+        verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
     if src.get("env_id") != env_id:
         raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {src.get('env_id')!r}")
     torch.set_num_threads(1)
@@ -240,14 +252,18 @@ def run_expert_iteration(
             "results": bench["results"],
             "provenance": bench.get("provenance"),
         }
-        out.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+        write_json(out.with_suffix(".json"), meta)
     return meta
 
 
 def cli() -> None:
-    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
-    main()
+    """Console-script entry point (same options as ``main``).
+
+    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
+    130 / 143 after SIGINT / SIGTERM.
+    """
+    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 
 
 if __name__ == "__main__":
-    main()
+    cli()

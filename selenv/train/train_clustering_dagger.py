@@ -32,6 +32,7 @@ from typing import Any
 import gymnasium as gym
 import torch
 
+from selenv.atomic import write_json
 from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.candidate_policy import make_ppo
@@ -43,7 +44,14 @@ from selenv.learned.rl.edit_policy import (
 )
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
 from selenv.learned.rl.safe_load import model_from_checkpoint
-from selenv.learned.rl.training import evaluate_checkpoint
+from selenv.learned.rl.training import (
+    evaluate_checkpoint,
+    output_lock,
+    read_checkpoint_metadata,
+    run_cli,
+    save_checkpoint,
+    verify_pair,
+)
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/ReceiverClustering-v1"
@@ -158,6 +166,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit, save, evaluate; return the new checkpoint's metadata."""
     cfg = parse_args(argv)
     check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
+    with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
+        return _run(cfg)
+
+
+def _run(cfg: Config) -> dict[str, Any]:
+    """The round itself (``main`` after the output checks, holding the lock)."""
     out = Path(cfg.out)
     if out.suffix != ".zip":
         raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
@@ -166,6 +180,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if cfg.edit_rank < 1:
         raise ValueError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
     meta = load_metadata(cfg.checkpoint)
+    if Path(cfg.checkpoint).with_suffix(".json").is_file():  # refuse a mismatched pair
+        verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
     if meta.get("env_id") != ENV_ID:
         raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {meta.get('env_id')!r}")
     kwargs = json.loads(cfg.env_kwargs)
@@ -200,15 +216,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         seed=cfg.seed,
         progress=cfg.progress,
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    model.save(out)
     meta = {
         **meta,
         "dagger": {**asdict(cfg), **fit, "wall_seconds": round(time.perf_counter() - start, 1)},
         "metrics": None,
     }
+    meta.pop("checkpoint_sha256", None)  # the source's: replaced by the new zip's
     json_path = out.with_suffix(".json")
-    json_path.write_text(json.dumps(meta, indent=2) + "\n")
+    save_checkpoint(model, meta, out)  # zip + JSON as an atomic pair
     if cfg.eval_episodes:
         eval_kwargs = meta.get("eval_env_kwargs", kwargs)
         ks = [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]
@@ -220,16 +235,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             baselines=cfg.baselines,
             policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
         )
-        json_path.write_text(json.dumps(meta, indent=2) + "\n")
+        write_json(json_path, meta)
         summary = {k: v["mean_final_objective"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_final_objective": summary}, indent=2))
     return meta
 
 
 def cli() -> None:
-    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
-    main()
+    """Console-script entry point (same options as ``main``).
+
+    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
+    130 / 143 after SIGINT / SIGTERM.
+    """
+    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 
 
 if __name__ == "__main__":
-    main()
+    cli()

@@ -26,11 +26,21 @@ from typing import Any
 
 import numpy as np
 
+from selenv.atomic import write_json
 from selenv.families.fim.agents import CooperativeGreedyPolicy
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.rl.marl import SharedPolicyEnv
 from selenv.learned.rl.safe_load import load_policy
-from selenv.learned.rl.training import PPOConfig, check_run_outputs, output_paths, train
+from selenv.learned.rl.training import (
+    PPOConfig,
+    check_run_outputs,
+    output_lock,
+    output_paths,
+    read_checkpoint_metadata,
+    run_cli,
+    train,
+    verify_pair,
+)
 from selenv.multiagent import fim_selection_v0
 
 ENV_ID = "selenv.multiagent.fim_selection_v0"
@@ -99,27 +109,37 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if not Path(cfg.out).is_file():
             usage_error(prog, f"--eval-only: no checkpoint {cfg.out}")
         check_outputs(prog, outputs(cfg), force=cfg.force)
-        meta = json.loads(Path(cfg.out).with_suffix(".json").read_text())
-        kwargs = meta["env_kwargs"]  # what the checkpoint was trained on
-        return _evaluate(cfg, kwargs, meta)
+        with output_lock(cfg.out, prog):
+            try:
+                meta = read_checkpoint_metadata(cfg.out)
+            except ValueError as exc:
+                usage_error(prog, exc)
+            kwargs = meta["env_kwargs"]  # what the checkpoint was trained on
+            return _evaluate(cfg, kwargs, meta)
     check_run_outputs(cfg, prog)
-    kwargs = cfg.kwargs()
-    meta = train(
-        dataclasses.replace(cfg, eval_episodes=0),
-        env_id=ENV_ID,
-        make_env=lambda: SharedPolicyEnv(fim_selection_v0.parallel_env(mode=cfg.mode, **kwargs)),
-        make_eval_env=lambda: SharedPolicyEnv(fim_selection_v0.parallel_env(**kwargs)),
-        view="shared_policy_turns",
-        tb_name="fim_marl_ppo",
-        extra_meta={"marl": {"path": "selenv.learned.rl.marl.SharedPolicyEnv", "mode": cfg.mode}},
-    )
-    meta["training"]["eval_episodes"] = cfg.eval_episodes  # train() ran none: _evaluate does
-    return _evaluate(cfg, kwargs, meta)
+    with output_lock(cfg.out, prog):  # one run per --out
+        kwargs = cfg.kwargs()
+        meta = train(
+            dataclasses.replace(cfg, eval_episodes=0),
+            env_id=ENV_ID,
+            make_env=lambda: SharedPolicyEnv(
+                fim_selection_v0.parallel_env(mode=cfg.mode, **kwargs)
+            ),
+            make_eval_env=lambda: SharedPolicyEnv(fim_selection_v0.parallel_env(**kwargs)),
+            view="shared_policy_turns",
+            tb_name="fim_marl_ppo",
+            extra_meta={
+                "marl": {"path": "selenv.learned.rl.marl.SharedPolicyEnv", "mode": cfg.mode}
+            },
+        )
+        meta["training"]["eval_episodes"] = cfg.eval_episodes  # train() ran none: _evaluate does
+        return _evaluate(cfg, kwargs, meta)
 
 
 def _evaluate(cfg: Config, kwargs: dict[str, Any], meta: dict[str, Any]) -> dict[str, Any]:
     """Final objectives of the shared policy and the greedy schemes on held-out seeds."""
     if cfg.eval_episodes:
+        verify_pair(cfg.out, meta)  # the zip is the one this JSON describes
         model = load_policy(cfg.out, meta)  # weights only: never unpickles the zip
         seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
         greedy = CooperativeGreedyPolicy()
@@ -136,15 +156,19 @@ def _evaluate(cfg: Config, kwargs: dict[str, Any], meta: dict[str, Any]) -> dict
             "mean_final_objective": {k: round(float(np.mean(v)), 4) for k, v in finals.items()},
             "final_objectives": {k: [round(x, 4) for x in v] for k, v in finals.items()},
         }
-        Path(cfg.out).with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+        write_json(Path(cfg.out).with_suffix(".json"), meta)
         print(json.dumps(meta["metrics"]["mean_final_objective"], indent=2))
     return meta
 
 
 def cli() -> None:
-    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
-    main()
+    """Console-script entry point (same options as ``main``).
+
+    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
+    130 / 143 after SIGINT / SIGTERM.
+    """
+    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 
 
 if __name__ == "__main__":
-    main()
+    cli()

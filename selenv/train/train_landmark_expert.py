@@ -23,6 +23,7 @@ from typing import Any
 from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+from selenv.learned.rl.training import output_lock, run_cli
 from selenv.train.train_cl_expert import expert_outputs, run_expert_iteration
 
 SCRIPT = "selenv.train.train_landmark_expert"
@@ -78,15 +79,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     cfg = parse_args(argv)
     check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
     json.loads(cfg.env_kwargs)
-    return run_expert_iteration(
-        cfg, argv, LANDMARK_ID, collect_landmark_rollout_labels, SCRIPT, "brute_force"
-    )
+    with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
+        return run_expert_iteration(
+            cfg, argv, LANDMARK_ID, collect_landmark_rollout_labels, SCRIPT, "brute_force"
+        )
 
 
 def cli() -> None:
-    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
-    main()
+    """Console-script entry point (same options as ``main``).
+
+    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
+    130 / 143 after SIGINT / SIGTERM.
+    """
+    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 
 
 if __name__ == "__main__":
-    main()
+    cli()

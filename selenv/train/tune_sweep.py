@@ -21,7 +21,8 @@ losses. Ray is started (or joined, ``--address``) and stopped by
     \
         --timesteps 20000 --eval-episodes 30 --out runs/tune_fim_ppo
 
-Writes ``<out>/results.md``, ``<out>/results.json`` (provenance, every trial's returns, the rows)
+Writes ``<out>/results.md``, ``<out>/results.json`` (provenance, every trial's returns, the rows;
+each replaced atomically, after the table is printed: a failed write is one line and exit 1)
 and Tune's experiment state under ``<out>/tune``. ``--address HOST:PORT`` runs the trials on a
 Ray cluster whose nodes see this checkout and ``--out`` (a shared file system).
 """
@@ -41,6 +42,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from selenv.atomic import describe_os_error, write_json, write_text
 from selenv.train.tune_results import format_table, summarize
 
 SCRIPTS = {
@@ -446,9 +448,15 @@ def main(argv: list[str] | None = None) -> int:
         "best": rows[0] if rows else None,
         "trials": trials,
     }
-    (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
-    (out / "results.md").write_text(table)
     print(table, end="")
+    try:  # atomic: a failed write leaves no half-written table
+        write_json(out / "results.json", report)
+        write_text(out / "results.md", table)
+    except OSError as exc:
+        print(
+            f"{parser.prog}: {describe_os_error(exc)} (the table is printed above)", file=sys.stderr
+        )
+        return 1
     return 1 if failed or not rows else 0
 
 
