@@ -10,7 +10,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import subprocess
+import sys
 import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +27,10 @@ from selenv.parallel import (
     LocalExecutor,
     ProcessExecutor,
     RayExecutor,
+    WorkerDiedError,
     check_address,
     make_executor,
+    max_pool_workers,
     ray_session,
 )
 
@@ -343,7 +349,82 @@ def test_reproduction_script_identical_on_ray(tmp_path, ray_executor):
         np.testing.assert_array_equal(other["mean_nees"], res["mean_nees"], method)
 
 
-def test_reproduction_script_bad_executor(tmp_path):
+def test_reproduction_script_bad_executor(tmp_path, capsys):
+    """A bad executor choice is a usage error of the script: exit 2, one line."""
+    from selenv.exits import guarded_main
+
     script = _load_script("reproduce_chen_kia")
-    with pytest.raises(SystemExit, match="--address only applies to --executor ray"):
-        script.main(["--quick", "--out", str(tmp_path), "--address", "127.0.0.1:1"])
+    argv = ["--quick", "--out", str(tmp_path), "--address", "127.0.0.1:1"]
+    assert guarded_main(script.main, "reproduce_chen_kia.py", argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--address only applies to --executor ray" in err[0]
+
+
+def _die_on_one(x: int) -> int:
+    if x == 1:
+        os.kill(os.getpid(), signal.SIGKILL)
+    time.sleep(0.2)
+    return x
+
+
+def test_dead_pool_worker_is_one_worker_died_error():
+    """A worker killed mid-map: WorkerDiedError naming its PID and signal; finished results
+    were handed to on_result; the next map gets a fresh pool."""
+    got: dict[int, int] = {}
+    with ProcessExecutor(num_workers=2) as ex:
+        with pytest.raises(WorkerDiedError, match=r"PID \d+ killed by SIGKILL"):
+            ex.map(_die_on_one, [0, 1, 2, 3], progress=False, on_result=got.__setitem__)
+        assert set(got) <= {0, 2, 3} and all(got[k] == k for k in got)
+        assert ex.map(abs, [-1, -2], progress=False) == [1, 2]
+
+
+def test_pool_size_ceiling():
+    with pytest.raises(ExecutorError, match="--num-workers 100000 exceeds the ceiling"):
+        ProcessExecutor(num_workers=100_000)
+    assert max_pool_workers() >= 16
+
+
+def _marked(mark: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            environ = (entry / "environ").read_bytes()
+        except OSError:
+            continue
+        if f"SELENV_FAULT_MARK={mark}".encode() in environ.split(b"\0"):
+            pids.append(int(entry.name))
+    return pids
+
+
+def test_pool_workers_die_with_their_parent(tmp_path):
+    """SIGKILL of the process that owns a pool: its workers do not outlive it."""
+    mark = uuid.uuid4().hex
+    code = (
+        "import time\n"
+        "from selenv.parallel import ProcessExecutor\n"
+        "with ProcessExecutor(num_workers=2) as ex:\n"
+        "    ex.map(time.sleep, [60, 60], progress=False)\n"
+    )
+    env = {
+        **os.environ,
+        "SELENV_FAULT_MARK": mark,
+        "PYTHONPATH": str(Path(__file__).resolve().parents[1]),
+    }
+    parent = subprocess.Popen([sys.executable, "-c", code], env=env, cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 30
+        while len(set(_marked(mark)) - {parent.pid}) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        workers = set(_marked(mark)) - {parent.pid}
+        assert len(workers) >= 2, "the pool's workers did not start"
+        parent.kill()
+        parent.wait(10)
+        deadline = time.monotonic() + 10
+        while set(_marked(mark)) & workers and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not set(_marked(mark)) & workers, "pool workers outlived their parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
