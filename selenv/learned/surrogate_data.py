@@ -37,13 +37,8 @@ diagonal entries as ``log P_kk``, off-diagonal ones as correlations ``P_kl / sqr
 
 from __future__ import annotations
 
-import ctypes
 import json
 import os
-import signal
-import sys
-import threading
-import time
 import zipfile
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -73,7 +68,6 @@ __all__ = [
     "load_dataset",
     "n_features",
     "save_dataset",
-    "worker_dies_with_parent",
 ]
 
 FORMAT = "selenv-surrogate-data-v1"
@@ -297,8 +291,8 @@ def generate_dataset(
         n_samples: rows.
         seed: master seed (task seeds are spawned from it).
         workers: processes when no ``executor`` is given (0: ``os.cpu_count()``; 1: in this
-            process, no pool). The pool's workers ignore SIGINT (the parent stops the run)
-            and die with this process (:func:`worker_dies_with_parent`).
+            process, no pool). The pool's workers die with this process and leave SIGINT
+            to it (:class:`selenv.parallel.ProcessExecutor`).
         gen: sampling knobs (default :class:`GenerationConfig`).
         progress: show a tqdm bar over the samples.
         executor: where the tasks run (:mod:`selenv.parallel`: local, a process pool, Ray);
@@ -318,11 +312,7 @@ def generate_dataset(
     tasks = list(zip(seeds, sizes, [gen] * n_tasks, strict=True))
     if executor is None:
         workers = min(workers or os.cpu_count() or 1, n_tasks)
-        executor = (
-            LocalExecutor()
-            if workers == 1
-            else ProcessExecutor(workers, worker_dies_with_parent, (os.getpid(),))
-        )
+        executor = LocalExecutor() if workers == 1 else ProcessExecutor(workers)
         with executor:
             parts = executor.map(
                 _run_task,
@@ -517,40 +507,3 @@ def load_dataset(path: str | Path, *, max_rows: int = MAX_ROWS) -> SurrogateData
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ValueError(f"surrogate dataset {path}: header format is not {FORMAT!r}")
     return SurrogateDataset(header=header, **{k: data[k] for k in ARRAYS})
-
-
-# -- pool workers that die with their parent ---------------------------------------------------
-
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
-
-
-def _watch_parent(parent_pid: int, interval: float) -> None:
-    """Exit this process as soon as its parent is gone (portable fallback of PDEATHSIG)."""
-    while True:
-        if os.getppid() != parent_pid:
-            os._exit(1)
-        time.sleep(interval)
-
-
-def worker_dies_with_parent(parent_pid: int, interval: float = 0.5) -> None:
-    """Initializer of pool workers: ignore SIGINT, and die when ``parent_pid`` dies.
-
-    On Linux the kernel sends the worker SIGKILL when its parent exits
-    (``prctl(PR_SET_PDEATHSIG)``); everywhere a daemon thread checks ``os.getppid()`` every
-    ``interval`` seconds and exits the worker when the parent changed. A parent that is
-    already gone when this runs ends the worker at once. SIGINT is ignored so that Ctrl-C in
-    a terminal (sent to the whole process group) is handled by the parent alone, which stops
-    the pool, instead of printing a traceback per worker.
-    """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        except (OSError, AttributeError):  # pragma: no cover - no libc prctl: the thread below
-            pass
-    if os.getppid() != parent_pid:
-        os._exit(1)
-    threading.Thread(
-        target=_watch_parent, args=(parent_pid, interval), name="selenv-parent-watch", daemon=True
-    ).start()

@@ -47,7 +47,8 @@ Nothing a run produces is lost or half-written:
   50 million parameters), ``--batch-size`` <= ``--max-batch-size`` (65,536), ``--workers`` <=
   256; a ``--data`` file is checked against ``--max-samples`` from its zip directory and array
   headers before it is inflated;
-* the generation pool's workers die with this process (even after ``kill -9``).
+* the generation pool's workers die with this process, even after ``kill -9``
+  (:class:`selenv.parallel.ProcessExecutor`).
 """
 
 from __future__ import annotations
@@ -57,7 +58,6 @@ import dataclasses
 import hashlib
 import io
 import json
-import os
 import shlex
 import signal
 import sys
@@ -86,7 +86,6 @@ from selenv.learned.surrogate_data import (
     load_dataset,
     n_features,
     save_dataset,
-    worker_dies_with_parent,
 )
 from selenv.learned.surrogates import (
     C_SCALE,
@@ -100,7 +99,7 @@ from selenv.learned.surrogates import (
     n_parameters,
 )
 from selenv.parallel import make_executor
-from selenv.parallel.errors import ExecutorError
+from selenv.parallel.errors import ExecutorError, WorkerDiedError
 
 #: Table II's optimisers except LDMV: its SGD (lr 0.05, batch 256) stays at the mean on our data
 #: (test R 0.16; 0.24 with momentum 0.9) while Adam at the same lr reaches R 0.92 (50k samples,
@@ -432,8 +431,6 @@ def load_or_generate(cfg: Config) -> SurrogateDataset:
                 cfg.executor or "process",
                 num_workers=cfg.workers or None,
                 address=cfg.address or None,
-                initializer=worker_dies_with_parent,  # process pools only
-                initargs=(os.getpid(),),
             )
         except ExecutorError as exc:  # unknown executor, Ray missing, bad address
             raise UsageError(" ".join(str(exc).split())) from None
@@ -876,13 +873,8 @@ def _cli_main(argv: list[str] | None = None) -> int:
     """:func:`main` as a command: its exit code, one line for a pool worker that died."""
     try:
         return _exit_code(main(argv))
-    except BrokenProcessPool as exc:
-        print(f"{PROG}: a data-generation worker died: {exc}", file=sys.stderr)
-        return 1
-    except RuntimeError as exc:
-        if type(exc).__name__ != "WorkerDiedError":
-            raise
-        print(f"{PROG}: {' '.join(str(exc).split())}", file=sys.stderr)
+    except (WorkerDiedError, BrokenProcessPool) as exc:
+        print(f"{PROG}: data generation failed: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
 
 
