@@ -47,6 +47,7 @@ import torch as th
 from tqdm.auto import tqdm
 
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
+from selenv.learned.resources import bounded_widths
 from selenv.learned.rl.candidate_policy import obs_layout
 from selenv.learned.rl.rllib_env import SelenvMultiAgentEnv, resolve_env
 
@@ -144,7 +145,10 @@ def _widths(text: str, option: str) -> list[int]:
         raise UsageError(f"{option} must be comma-separated positive ints, got {text!r}") from None
     if (option == "--hidden" and not widths) or any(w < 1 for w in widths):
         raise UsageError(f"{option} must be comma-separated positive ints, got {text!r}")
-    return widths
+    try:  # the loaders refuse larger exports: refuse them before training, not after
+        return bounded_widths(widths, option, "model_config")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def parse_args(argv: list[str] | None = None) -> tuple[Config, dict[str, Any]]:

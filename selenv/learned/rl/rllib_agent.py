@@ -32,7 +32,12 @@ import numpy as np
 import torch as th
 
 from selenv.agents.multiagent import MultiAgentPolicy
-from selenv.learned.resources import checkpoint_dir, current_class_name
+from selenv.learned.resources import (
+    check_parameter_count,
+    checkpoint_dir,
+    current_class_name,
+    read_metadata,
+)
 from selenv.learned.rl.candidate_policy import OBS_KEYS, obs_layout
 from selenv.learned.rl.rllib_env import (
     CLUSTERING_MODULE,
@@ -43,6 +48,7 @@ from selenv.learned.rl.rllib_env import (
     resolve_env,
     view_for,
 )
+from selenv.learned.rl.safe_load import checked_layout, scorer_parameters
 
 __all__ = [
     "CHECKPOINT_DIR",
@@ -139,10 +145,7 @@ def _read_json(path: Path) -> dict[str, Any]:
         raise ValueError(f"RLlib export metadata {path} not found")
     if path.stat().st_size > MAX_JSON_BYTES:
         raise ValueError(f"RLlib export metadata {path} is larger than {MAX_JSON_BYTES} bytes")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"RLlib export metadata {path} is not valid JSON: {exc}") from exc
+    meta = read_metadata(path, "RLlib export metadata")
     if not isinstance(meta, dict):
         raise ValueError(f"RLlib export metadata {path} must be a JSON object")
     if meta.get("format") != FORMAT or meta.get("format_version") != FORMAT_VERSION:
@@ -230,13 +233,25 @@ def load_exported(path: str | Path) -> tuple[Any, dict[str, Any]]:
         _positive_int(layout.get(k)) for k in ("n_candidates_trained", "whitened_dim")
     ):
         raise ValueError(f"{json_path}: obs_layout needs positive integer "
-                         f"n_candidates_trained and whitened_dim, got {layout!r}")  # fmt: skip
+                         f"n_candidates_trained and whitened_dim, got {layout!r:.200}")  # fmt: skip
+    sizes = checked_layout(meta, str(json_path))  # every size against its ceiling
     try:
-        module = rm.build_module(
-            layout["n_candidates_trained"], layout["whitened_dim"], spec.get("model_config")
-        )
+        config = rm.check_model_config(spec.get("model_config"))
     except ValueError as exc:
         raise ValueError(f"{json_path}: {exc}") from None
+    check_parameter_count(
+        scorer_parameters(sizes["whitened_dim"], config["hidden"], config["vf"]),
+        f"{json_path}",
+    )
+    try:
+        module = rm.build_module(sizes["n"], sizes["whitened_dim"], config)
+    except ValueError as exc:
+        raise ValueError(f"{json_path}: {exc}") from None
+    except (RuntimeError, MemoryError) as exc:
+        raise ValueError(
+            f"{json_path}: cannot build the module its metadata describes: "
+            f"{type(exc).__name__}: {str(exc)[:200]}"
+        ) from None
     state = _read_weights(json_path, meta.get("weights"))
     try:
         module.load_state_dict(state, strict=True)

@@ -62,6 +62,7 @@ from ray.rllib.core.rl_module.torch.torch_rl_module import TorchRLModule
 from stable_baselines3.common.policies import BasePolicy
 from torch import nn
 
+from selenv.learned.resources import bounded_widths
 from selenv.learned.rl.candidate_policy import (
     MASKED_LOGIT,
     OBS_KEYS,
@@ -98,7 +99,9 @@ def check_model_config(config: dict[str, Any] | None) -> dict[str, Any]:
 
     Raises:
         ValueError: an unknown key, a non-positive or non-integer width, an empty ``hidden``,
-            an unknown activation or a non-finite ``gain_skip_init``.
+            a width or a number of layers above its ceiling (``max_width``, ``max_layers`` of
+            :data:`selenv.learned.resources.CHECKPOINT_LIMITS`), an unknown activation or a
+            non-finite ``gain_skip_init``.
     """
     config = dict(config or {})
     unknown = sorted(set(config) - set(DEFAULT_MODEL_CONFIG))
@@ -113,7 +116,9 @@ def check_model_config(config: dict[str, Any] | None) -> dict[str, Any]:
             isinstance(w, int | np.integer) and not isinstance(w, bool) and w >= 1 for w in widths
         ):
             raise ValueError(f"model_config {key} must be a list of positive ints, got {widths!r}")
-        out[key] = [int(w) for w in widths]
+        out[key] = bounded_widths(
+            [int(w) for w in widths], f"model_config {key}", "module", allow_empty=True
+        )
     if not out["hidden"]:
         raise ValueError("model_config hidden must hold at least one width")
     if out["activation"] not in _ACTIVATIONS:

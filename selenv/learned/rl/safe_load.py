@@ -143,15 +143,17 @@ def checked_layout(metadata: dict[str, Any], name: str = "") -> dict[str, int]:
     return {"n": n, "whitened_dim": width}
 
 
-def scorer_parameters(width: int, hidden: list[int], vf: list[int], head: int = 1) -> int:
+def scorer_parameters(whitened_dim: int, hidden: list[int], vf: list[int], head: int = 1) -> int:
     """Parameters of a candidate-scoring policy (an upper estimate, before building it).
 
-    ``width`` per-candidate inputs (``whitened_dim`` plus the extras), the DeepSets chain
+    ``whitened_dim`` plus 8 per-candidate inputs, the DeepSets chain
     ``hidden`` (each later layer with its context matrix), a score head of ``head`` outputs,
     the value MLP ``vf`` on the pooled ``2 H`` and its output; doubled for the critic's own
     features extractor.
     """
-    chain = mlp_parameters([width, *hidden]) + sum(a * b for a, b in pairwise(hidden))
+    chain = mlp_parameters([whitened_dim + _SCORER_EXTRA_INPUTS, *hidden]) + sum(
+        a * b for a, b in pairwise(hidden)
+    )
     scorer = chain + (hidden[-1] + 1) * head + 1
     value = mlp_parameters([2 * hidden[-1], *vf]) + (vf[-1] if vf else 2 * hidden[-1]) + 1
     return 2 * scorer + value
@@ -272,9 +274,7 @@ def policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dict[str
     source = f"checkpoint {name}" if name else "checkpoint"
     extractor, net_arch = _common_architecture(arch, source)
     check_parameter_count(
-        scorer_parameters(
-            _layout_width(metadata) + _SCORER_EXTRA_INPUTS, extractor["hidden"], net_arch["vf"]
-        ),
+        scorer_parameters(_layout_width(metadata), extractor["hidden"], net_arch["vf"]),
         source,
     )
     return algo, {"net_arch": net_arch, "features_extractor_kwargs": extractor}
