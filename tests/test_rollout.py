@@ -345,3 +345,27 @@ def test_landmark_candidates_without_enumeration_hold_the_greedy_subset() -> Non
 def test_cl_rollout_with_the_all_base_and_scarce_links_plays_an_episode() -> None:
     kw = {**CL_KW, "horizon": 8, "relative_every": 3, "objective": "trace"}
     assert np.isfinite(_episode(CL, "rollout", kw, 0, base="all", top_k=2, horizon=2))
+
+
+@pytest.mark.parametrize(
+    ("env_id", "options"),
+    [
+        ("selenv/CLScheduling-v1", {"top_k": 257}),
+        ("selenv/CLScheduling-v1", {"horizon": 10_001}),
+        ("selenv/LandmarkSelection-v1", {"top_k": 100_000}),
+        ("selenv/LandmarkSelection-v1", {"max_subsets": 10**8}),
+        ("selenv/ReceiverClustering-v1", {"samples": 1_001}),
+        ("selenv/ReceiverClustering-v1", {"horizon": 10**8}),
+    ],
+)
+def test_rollout_work_ceilings_refuse_before_any_work(env_id: str, options: dict) -> None:
+    """Sizes that multiply a decision's work are bounded; ``allow_large=True`` lifts the bound."""
+    from selenv.agents import make as make_agent
+    from selenv.agents.rollout import ROLLOUT_CEILINGS
+
+    ((name, value),) = options.items()
+    with pytest.raises(ValueError, match=rf"{name}={value} is above its ceiling .*allow_large"):
+        make_agent("rollout", env_id, **options)
+    assert value > ROLLOUT_CEILINGS[name]
+    agent = make_agent("rollout", env_id, allow_large=True, **options)
+    assert getattr(agent, name) == value

@@ -43,14 +43,48 @@ import numpy as np
 
 from selenv.core.linalg import FloatArray
 
-__all__ = ["best_index", "choice_option", "held_input", "int_option"]
+__all__ = [
+    "ROLLOUT_CEILINGS",
+    "best_index",
+    "ceiling_option",
+    "choice_option",
+    "held_input",
+    "int_option",
+]
 
 
-def int_option(value: Any, name: str, low: int) -> int:
-    """``value`` if it is an int ``>= low`` (bools refused), else ``ValueError`` naming it."""
+#: ceilings of the rollout agents' work-multiplying options (``allow_large=True`` lifts them):
+#: a decision simulates ``top_k`` candidates for ``horizon`` steps (``samples`` times)
+ROLLOUT_CEILINGS = {
+    "top_k": 256,
+    "horizon": 10_000,
+    "samples": 1_000,
+    "every": 1_000_000,
+    "max_subsets": 10_000_000,
+}
+
+
+def int_option(
+    value: Any, name: str, low: int, high: int | None = None, *, allow_large: bool = False
+) -> int:
+    """``value`` if it is an int in ``[low, high]`` (bools refused), else ``ValueError``.
+
+    ``high`` is a ceiling on work, not a validity bound: the message says how to lift it
+    (the agent option ``allow_large=True``), which ``allow_large`` does.
+    """
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
         raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+    if high is not None and value > high and not allow_large:
+        raise ValueError(
+            f"{name}={value} is above its ceiling {high:,} (each decision's work grows with "
+            f"it); pass allow_large=True (e.g. rollout:{name}={value}:allow_large=true) to run it"
+        )
     return int(value)
+
+
+def ceiling_option(value: Any, name: str, low: int, allow_large: bool) -> int:
+    """:func:`int_option` with the ceiling :data:`ROLLOUT_CEILINGS` gives ``name``."""
+    return int_option(value, name, low, ROLLOUT_CEILINGS[name], allow_large=allow_large)
 
 
 def choice_option(value: Any, name: str, allowed: Any) -> str:

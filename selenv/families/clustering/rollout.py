@@ -37,6 +37,7 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.agents.base import Agent, AgentSpec, register_agent
+from selenv.agents.rollout import ceiling_option
 from selenv.families.clustering.agents import CLUSTERING_ENV_ID, best_edit, clustering_env
 from selenv.families.clustering.env import apply_edit, edit_cost_changes, edit_mask
 from selenv.families.clustering.filters import ClusterFilterBank
@@ -45,12 +46,6 @@ from selenv.families.clustering.scenario import ClusteringProblem
 __all__ = ["FORECASTS", "ClusteringRolloutAgent"]
 
 FORECASTS = ("mean", "sample")
-
-
-def _int_option(value: Any, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
-    return int(value)
 
 
 class ClusteringRolloutAgent(Agent):
@@ -62,6 +57,8 @@ class ClusteringRolloutAgent(Agent):
         every: steps between decisions (and of the simulated greedy), ``>= 1``.
         forecast: ``"mean"`` (expected variance) or ``"sample"`` (sampled regime paths).
         samples: regime paths per decision with ``forecast="sample"``, ``>= 1``.
+        allow_large: lift the ceilings on ``top_k``, ``horizon``, ``every`` and ``samples``
+            (:data:`~selenv.agents.rollout.ROLLOUT_CEILINGS`).
 
     Attributes:
         last_scores: ``{edit: score}`` of the last decision (for inspection and tests).
@@ -76,14 +73,15 @@ class ClusteringRolloutAgent(Agent):
         every: int = 5,
         forecast: str = "mean",
         samples: int = 4,
+        allow_large: bool = False,
     ) -> None:
-        self.top_k = _int_option(top_k, "top_k", 1)
-        self.horizon = _int_option(horizon, "horizon", 0)
-        self.every = _int_option(every, "every", 1)
+        self.top_k = ceiling_option(top_k, "top_k", 1, allow_large)
+        self.horizon = ceiling_option(horizon, "horizon", 0, allow_large)
+        self.every = ceiling_option(every, "every", 1, allow_large)
         if not isinstance(forecast, str) or forecast not in FORECASTS:
             raise ValueError(f"forecast must be one of {FORECASTS}, got {forecast!r}")
         self.forecast = forecast
-        self.samples = _int_option(samples, "samples", 1)
+        self.samples = ceiling_option(samples, "samples", 1, allow_large)
         self.last_scores: dict[int, float] = {}
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102

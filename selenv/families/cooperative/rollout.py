@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.agents.base import Agent, AgentSpec, register_agent
-from selenv.agents.rollout import best_index, choice_option, int_option
+from selenv.agents.rollout import best_index, ceiling_option, choice_option
 from selenv.families.cooperative.env import CLSchedulingEnv
 from selenv.families.cooperative.forecast import CLForecast
 
@@ -35,13 +35,17 @@ class CLRolloutAgent(Agent):
         horizon: filter steps simulated after the current one (>= 0; 0: myopic).
         base: base policy of the simulation: ``"greedy"`` or ``"all"`` (open pairs in index
             order up to the budget).
+        allow_large: lift the ceilings on ``top_k`` and ``horizon``
+            (:data:`~selenv.agents.rollout.ROLLOUT_CEILINGS`).
     """
 
     name = "rollout"
 
-    def __init__(self, top_k: int = 3, horizon: int = 5, base: str = "greedy") -> None:
-        self.top_k = int_option(top_k, "top_k", 1)
-        self.horizon = int_option(horizon, "horizon", 0)
+    def __init__(
+        self, top_k: int = 3, horizon: int = 5, base: str = "greedy", allow_large: bool = False
+    ) -> None:
+        self.top_k = ceiling_option(top_k, "top_k", 1, allow_large)
+        self.horizon = ceiling_option(horizon, "horizon", 0, allow_large)
         self.base_policy = choice_option(base, "base", CL_BASES)
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102

@@ -14,7 +14,7 @@ import numpy as np
 
 from selenv.agents.base import AgentSpec, PlanAgent, register_agent
 from selenv.agents.fim_solvers import greedy_whitened
-from selenv.agents.rollout import best_index, choice_option, int_option
+from selenv.agents.rollout import best_index, ceiling_option, choice_option
 from selenv.core.information import block_logdet_gains
 from selenv.core.linalg import FloatArray, cholesky_spd
 from selenv.core.objectives import make_gain_state, subset_criteria
@@ -79,6 +79,8 @@ class LandmarkRolloutAgent(PlanAgent):
         horizon: future filter steps simulated (>= 0; 0: myopic).
         base: base policy of the simulation, ``"brute_force"`` or ``"greedy"``.
         max_subsets: largest ``C(N, K)`` ranked exhaustively.
+        allow_large: lift the ceilings on ``top_k``, ``horizon`` and ``max_subsets``
+            (:data:`~selenv.agents.rollout.ROLLOUT_CEILINGS`).
     """
 
     name = "rollout"
@@ -89,11 +91,12 @@ class LandmarkRolloutAgent(PlanAgent):
         horizon: int = 10,
         base: str = "brute_force",
         max_subsets: int = 20_000,
+        allow_large: bool = False,
     ) -> None:
-        self.top_k = int_option(top_k, "top_k", 1)
-        self.horizon = int_option(horizon, "horizon", 0)
+        self.top_k = ceiling_option(top_k, "top_k", 1, allow_large)
+        self.horizon = ceiling_option(horizon, "horizon", 0, allow_large)
         self.base_policy = choice_option(base, "base", LANDMARK_BASES)
-        self.max_subsets = int_option(max_subsets, "max_subsets", 1)
+        self.max_subsets = ceiling_option(max_subsets, "max_subsets", 1, allow_large)
         self._combos: dict[tuple[int, int], np.ndarray] = {}
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
