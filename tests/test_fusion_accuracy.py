@@ -279,3 +279,117 @@ def test_pecmv_update_scalar_accurate_up_to_cond_1e12() -> None:
             assert _is_spd(res.P)
             assert _rel_err(res.P, P_ref) <= TOL
     assert updated >= 3
+
+
+# ------------------------------------------------------------------ PECMV, the cvxpy reference
+
+
+def _ill_scaled(seed: int, cond_max: float = 3.0) -> tuple[np.ndarray, ...]:
+    """``(P_i, P_j, H_i, H_j, R)``: covariances of 1e8 .. 6e11 against noise ~1, m = 2."""
+    rng = np.random.default_rng(seed)
+    n_i, n_j, m = int(rng.integers(2, 4)), int(rng.integers(2, 4)), 2
+    P_i = _rand_spd(rng, n_i, 10 ** rng.uniform(0, cond_max), 10 ** rng.uniform(8, 11.8))
+    P_j = _rand_spd(rng, n_j, 10 ** rng.uniform(0, cond_max), 10 ** rng.uniform(8, 11.8))
+    H_i, H_j = rng.standard_normal((m, n_i)), rng.standard_normal((m, n_j))
+    return P_i, P_j, H_i, H_j, np.eye(m) * 10 ** rng.uniform(-1, 1)
+
+
+def _cancelling(seed: int) -> tuple[np.ndarray, ...]:
+    """Cases whose float64 Woodbury posterior ``P_i - U S^-1 U^T`` loses > 1e-6 in log det."""
+    rng = np.random.default_rng(seed)
+    n_i, n_j, m = int(rng.integers(2, 5)), int(rng.integers(2, 5)), int(rng.integers(2, 4))
+    P_i = _rand_spd(rng, n_i, 10 ** rng.uniform(0, 8), 10 ** rng.uniform(6, 11.8))
+    P_j = _rand_spd(rng, n_j, 10 ** rng.uniform(0, 8), 10 ** rng.uniform(6, 11.8))
+    H_i, H_j = rng.standard_normal((m, n_i)), rng.standard_normal((m, n_j))
+    return P_i, P_j, H_i, H_j, _rand_spd(rng, m, 10.0, 10 ** rng.uniform(-2, 2))
+
+
+def _posterior_reference(case: tuple[np.ndarray, ...], X: np.ndarray) -> tuple[mp.matrix, ...]:
+    """``(P, K, log det P)`` of the update with cross-covariance ``X``, in 60 digits."""
+    P_i, P_j, H_i, H_j, R = map(_mp, case)
+    Xm = _mp(X)
+    U = P_i * H_i.T + Xm * H_j.T
+    S = H_i * P_i * H_i.T + H_i * Xm * H_j.T + H_j * Xm.T * H_i.T + H_j * P_j * H_j.T + R
+    S_inv = mp.inverse(S)
+    P = P_i - U * S_inv * U.T
+    return P, U * S_inv, mp.log(mp.det(P))
+
+
+def _assert_exact_posterior(res: object, case: tuple[np.ndarray, ...]) -> None:
+    P_ref, K_ref, ld_ref = _posterior_reference(case, res.X)  # type: ignore[attr-defined]
+    assert abs(res.log_det - float(ld_ref)) <= 1e-9  # type: ignore[attr-defined]
+    assert _rel_err(res.P, P_ref) <= 1e-12  # type: ignore[attr-defined]
+    assert _rel_err(res.K, K_ref) <= 1e-12  # type: ignore[attr-defined]
+    assert _is_spd(res.P)  # type: ignore[attr-defined]
+
+
+def test_pecmv_sdp_reports_the_exact_posterior_of_its_X() -> None:
+    """Entries up to 6e11: ``P``, ``K``, ``log_det`` are those of the returned X (60 digits)."""
+    solved = 0
+    with mp.workdps(DPS):
+        for seed in range(8):
+            case = _ill_scaled(seed)
+            try:
+                res = pecmv_update(*case, method="sdp")
+            except ValueError as exc:  # Clarabel cannot solve every scaling: a clean refusal
+                assert "method='sdp'" in str(exc) and "method='fast'" in str(exc)
+                continue
+            solved += 1
+            _assert_exact_posterior(res, case)
+    assert solved >= 4
+
+
+@pytest.mark.parametrize("seed", [25, 44, 53])
+def test_pecmv_sdp_posterior_is_exact_where_float64_cancels(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The reported mismatch: a float64 evaluation of the posterior of X is off by > 1e-6.
+
+    The solver is replaced by the fast path's optimiser (Clarabel cannot solve these in the
+    full form); the reference path must still report the exact posterior of that X.
+    """
+    import selenv.core.fusion.pecmv as pecmv_mod
+    from selenv.core.fusion.common import pair
+
+    case = _cancelling(seed)
+    X = pecmv_update(*case, method="fast").X
+    float64_ld = pecmv_mod._assemble(pair(*case), X)[2]
+    monkeypatch.setattr(pecmv_mod, "pecmv_sdp_cvxpy", lambda *args: X.copy())
+    res = pecmv_update(*case, method="sdp")
+    with mp.workdps(DPS):
+        ld_ref = float(_posterior_reference(case, res.X)[2])
+        assert abs(float64_ld - ld_ref) > 1e-6  # what a float64 evaluation would report
+        _assert_exact_posterior(res, case)
+
+
+def test_pecmv_sdp_solver_failure_is_a_value_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    import cvxpy as cp
+
+    case = _ill_scaled(0)
+    with pytest.raises(ValueError, match="method='sdp'") as err:
+        pecmv_update(*_cancelling(25), method="sdp")  # a real Clarabel failure
+    assert "method='fast'" in str(err.value) and "\n" not in str(err.value)
+
+    def boom(self: object, *args: object, **kwargs: object) -> None:
+        raise cp.error.SolverError("Solver 'CLARABEL' failed. Try another solver.")
+
+    monkeypatch.setattr(cp.Problem, "solve", boom)
+    with pytest.raises(ValueError, match=r"method='sdp'.*Solver 'CLARABEL' failed") as err:
+        pecmv_update(*case, method="sdp")
+    assert "method='fast'" in str(err.value)
+
+
+def test_pecmv_sdp_refuses_an_inadmissible_solver_answer(monkeypatch: pytest.MonkeyPatch) -> None:
+    import selenv.core.fusion.pecmv as pecmv_mod
+
+    case = _ill_scaled(1)
+    P_i, P_j = case[0], case[1]
+    L_i, L_j = np.linalg.cholesky(P_i), np.linalg.cholesky(P_j)
+    C = np.zeros((len(P_i), len(P_j)))
+    C[0, 0] = 1.01  # ||C||_2 = 1.01: the joint covariance is not PSD
+    monkeypatch.setattr(pecmv_mod, "pecmv_sdp_cvxpy", lambda *args: L_i @ C @ L_j.T)
+    with pytest.raises(ValueError, match=r"method='sdp'.*not admissible.*1\.01"):
+        pecmv_update(*case, method="sdp")
+    C[0, 0] = 1.0 + 1e-9  # solver round-off: clipped, accepted
+    res = pecmv_update(*case, method="sdp")
+    assert np.linalg.norm(res.C, 2) <= 1.0 + 1e-12

@@ -247,7 +247,7 @@ def test_edit_policy_metadata_is_bounded(tmp_path: Path) -> None:
 
     checkpoint, meta = _edit_checkpoint(tmp_path)
     load_edit_policy(checkpoint, meta)  # the well-formed one loads
-    cases = [
+    cases: list[tuple[dict[str, Any], list[str]]] = [
         ({"architecture__rank": 10**6}, ["architecture.rank=1,000,000", "max_width"]),
         ({"architecture__rank": 4000, "architecture__hidden": [4000]}, ["max_parameters"]),
         ({"architecture__hidden": [20000, 20000]}, ["architecture.hidden[0]=20,000"]),
@@ -256,7 +256,11 @@ def test_edit_policy_metadata_is_bounded(tmp_path: Path) -> None:
     ]
     for changes, fragments in cases:
         bad = _edited(meta, **changes)
-        _refused(lambda bad=bad: load_edit_policy(checkpoint, bad), *fragments)
+
+        def load(bad: dict[str, Any] = bad) -> Any:
+            return load_edit_policy(checkpoint, bad)
+
+        _refused(load, *fragments)
     meta["checkpoint_sha256"] = "f" * 64
     _refused(lambda: load_edit_policy(checkpoint, meta), "edit.json", "different saves")
 
@@ -278,7 +282,7 @@ def test_rllib_metadata_sizes_are_bounded(rllib_copy: Path) -> None:
 
     good = json.loads(rllib_copy.read_text())
     load_exported(rllib_copy)
-    cases = [
+    cases: list[tuple[dict[str, Any], list[str]]] = [
         ({"module__model_config__hidden": [20000, 20000]}, ["hidden[0]=20,000", "4,096"]),
         ({"module__model_config__hidden": [4096, 4096]}, ["parameters", "max_parameters"]),
         ({"module__model_config__vf": [64] * 40}, ["40 layers", "max_layers"]),

@@ -66,7 +66,12 @@ from selenv.core.fusion.common import (
     tri_solve,
     validate_pair,
 )
-from selenv.core.fusion.sdp import pecmv_sdp_cvxpy, solve_reduced
+from selenv.core.fusion.sdp import (
+    SDP_FEASIBILITY_TOL,
+    exact_posterior,
+    pecmv_sdp_cvxpy,
+    solve_reduced,
+)
 from selenv.core.linalg import FloatArray, ShapeError, all_finite
 from selenv.core.spd import require_spd
 
@@ -242,9 +247,7 @@ def _solve(p: Pair, method: str, C_given: FloatArray | None = None) -> PECMVResu
             f"method='closed_form' needs a scalar measurement (m = 1), got m = {m}; use 'fast'"
         )
     elif method == "sdp":
-        C, path = _c_of_x(p, pecmv_sdp_cvxpy(p.P_i, p.P_j, p.H_i, p.H_j, p.R)), "sdp"
-        U_, sv, Vt = np.linalg.svd(C, full_matrices=False)
-        C = (U_ * np.minimum(sv, 1.0)) @ Vt  # clip solver round-off: ||C||_2 <= 1
+        return _sdp(p)
     else:
         C, path = _fast_C(p)
     X = p.L_i @ C @ p.L_j.T  # X = L_i C L_j^T (eq. 11)
@@ -253,14 +256,34 @@ def _solve(p: Pair, method: str, C_given: FloatArray | None = None) -> PECMVResu
         P, K, ld = p.P_i.copy(), np.zeros((n_i, m)), logdet_from_chol(p.L_i)
         return PECMVResult(P=P, K=K, X=X, C=C, updated=False, log_det=ld, path=path)
     P, K, ld = _assemble(p, X)
-    if path == "given":
-        updated = bool(np.any(K != 0.0))
-    elif path == "sdp":
-        G_i, G_j = _whitened(p)
-        updated = not _no_update(G_i @ G_i.T, G_j @ G_j.T)
-    else:
-        updated = True
+    updated = bool(np.any(K != 0.0)) if path == "given" else True
     return PECMVResult(P=P, K=K, X=X, C=C, updated=updated, log_det=ld, path=path)
+
+
+def _sdp(p: Pair) -> PECMVResult:
+    """The cvxpy reference: its ``X``, checked admissible, and that X's exact posterior.
+
+    The solver's ``C = L_i^-1 X L_j^-T`` may exceed the contraction bound by round-off; up
+    to ``SDP_FEASIBILITY_TOL`` its singular values are clipped to 1, beyond it the answer is
+    refused. ``P``, ``K`` and ``log_det`` are then computed from the returned ``X`` in exact
+    rational arithmetic (:func:`~selenv.core.fusion.sdp.exact_posterior`), so they are the
+    posterior of that ``X`` to float64 rounding however the problem is scaled.
+    """
+    C = _c_of_x(p, pecmv_sdp_cvxpy(p.P_i, p.P_j, p.H_i, p.H_j, p.R))
+    U_, sv, Vt = np.linalg.svd(C, full_matrices=False)
+    if not np.all(np.isfinite(sv)) or sv.max(initial=0.0) > 1.0 + SDP_FEASIBILITY_TOL:
+        raise ValueError(
+            "pecmv_update(method='sdp'): the conic solver's cross-covariance is not admissible "
+            f"(||C||_2 = {sv.max(initial=0.0):.9g} > 1 + {SDP_FEASIBILITY_TOL:g}); the full SDP "
+            "is too badly scaled for it: use method='fast' (or 'auto'), the exact reduction "
+            "to m dimensions"
+        )
+    C = (U_ * np.minimum(sv, 1.0)) @ Vt  # clip solver round-off: ||C||_2 <= 1
+    X = p.L_i @ C @ p.L_j.T  # X = L_i C L_j^T (eq. 11)
+    P, K, ld = exact_posterior(p.P_i, p.P_j, p.H_i, p.H_j, p.R, X)
+    G_i, G_j = _whitened(p)
+    updated = not _no_update(G_i @ G_i.T, G_j @ G_j.T)
+    return PECMVResult(P=P, K=K, X=X, C=C, updated=updated, log_det=ld, path="sdp")
 
 
 def pecmv_update(
@@ -289,7 +312,10 @@ def pecmv_update(
         method: ``"auto"`` (closed form for m = 1, the exact fast path otherwise),
             ``"closed_form"`` (m = 1 only), ``"fast"`` (exact reduction to m dimensions:
             closed forms or a small Clarabel MAXDET; the m = 1 closed form when m = 1) or
-            ``"sdp"`` (the full problem in cvxpy with Clarabel: the reference, slow).
+            ``"sdp"`` (the full problem in cvxpy with Clarabel: the reference, slow; its
+            ``P``, ``K`` and ``log_det`` are the posterior of the returned ``X`` computed in
+            exact rational arithmetic; badly scaled problems, which Clarabel cannot solve
+            in this form, are a ``ValueError`` pointing to ``"fast"``).
         C: (n_i, n_j) use ``X = L_i C L_j^T`` instead of optimising (e.g. a learned LPECMV
             estimate); needs ``||C||_2 <= 1``.
         validate: check shapes, symmetry, finiteness, definiteness and the valid range
@@ -307,8 +333,11 @@ def pecmv_update(
             non-SPD ``P_i``/``P_j``/``R``, entries outside the valid range
             (:func:`~selenv.core.linalg.check_magnitude`) or a result that overflows float64,
             an unknown ``method``, ``closed_form`` with m > 1, ``x_i`` without ``residual``,
-            or a ``C`` that is not a contraction (names the argument).
-        RuntimeError: if a conic solver fails.
+            or a ``C`` that is not a contraction (names the argument); ``method="sdp"``
+            when cvxpy/Clarabel fails or returns an inadmissible ``X`` (names the method
+            and the cause).
+        RuntimeError: if the fast path's reduced conic problem and its barrier fallback
+            both fail.
     """
     if not isinstance(method, str):
         raise TypeError(f"method must be a str, got {type(method).__name__}")

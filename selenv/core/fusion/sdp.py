@@ -26,13 +26,28 @@ triangular and ``(t_k, 1, Lam_kk)`` in the exponential cone (``t_k <= log Lam_kk
 
 from __future__ import annotations
 
+import math
+from fractions import Fraction
 from typing import Any
 
 import numpy as np
 
 from selenv.core.linalg import FloatArray
 
-__all__ = ["pecmv_sdp_cvxpy", "polish_reduced", "reduced_objective", "solve_reduced"]
+__all__ = [
+    "exact_posterior",
+    "pecmv_sdp_cvxpy",
+    "polish_reduced",
+    "reduced_objective",
+    "solve_reduced",
+]
+
+#: the cvxpy reference's ``X`` is refused when ``||L_i^-1 X L_j^-T||_2`` exceeds 1 by more
+SDP_FEASIBILITY_TOL = 1e-6
+_SDP_ADVICE = (
+    "use method='fast' (or 'auto'): the exact reduction to m dimensions solves the same "
+    "problem and copes with this scaling"
+)
 
 _SQRT2 = float(np.sqrt(2.0))
 _OK = ("Solved", "AlmostSolved")
@@ -274,7 +289,10 @@ def pecmv_sdp_cvxpy(
     Inputs must be validated (see :func:`selenv.core.fusion.pecmv_update`, ``method="sdp"``).
 
     Raises:
-        RuntimeError: if the solver does not report an optimal (or optimal-inaccurate) status.
+        ValueError: cvxpy's ``SolverError`` (Clarabel fails on badly scaled problems, e.g.
+            covariances of 1e10 against unit noise) or a status other than optimal /
+            optimal-inaccurate; the message names the method and the cause and points to
+            ``method="fast"``.
     """
     import cvxpy as cp  # deferred: cvxpy is heavy to import and only this path uses it
 
@@ -287,7 +305,95 @@ def pecmv_sdp_cvxpy(
     M = cp.bmat([[P_i - Y, U], [U.T, S]])
     J = cp.bmat([[P_i, X], [X.T, P_j]])
     problem = cp.Problem(cp.Maximize(cp.log_det(Y)), [(M + M.T) / 2 >> 0, (J + J.T) / 2 >> 0])
-    problem.solve(solver=cp.CLARABEL)
+    try:
+        problem.solve(solver=cp.CLARABEL)
+    except cp.error.SolverError as exc:
+        cause = (str(exc).splitlines() or ["solver error"])[0]
+        raise ValueError(
+            f"pecmv_update(method='sdp'): cvxpy/Clarabel failed on this problem ({cause}); "
+            f"the full SDP is too badly scaled for the conic solver: {_SDP_ADVICE}"
+        ) from None
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or X.value is None:
-        raise RuntimeError(f"cvxpy/Clarabel failed on the PECMV SDP (status {problem.status})")
+        raise ValueError(
+            f"pecmv_update(method='sdp'): cvxpy/Clarabel did not solve this problem (status "
+            f"{problem.status}); {_SDP_ADVICE}"
+        )
     return np.asarray(X.value, dtype=np.float64)
+
+
+# -- the exact posterior of a given X (rational arithmetic) ---------------------------------
+def _fractions(A: FloatArray) -> list[list[Fraction]]:
+    return [[Fraction(float(v)) for v in row] for row in np.atleast_2d(A)]
+
+
+def _t(A: list[list[Fraction]]) -> list[list[Fraction]]:
+    return [list(col) for col in zip(*A, strict=True)]
+
+
+def _mul(A: list[list[Fraction]], B: list[list[Fraction]]) -> list[list[Fraction]]:
+    cols = _t(B)
+    return [[sum((a * b for a, b in zip(r, c, strict=True)), Fraction(0)) for c in cols] for r in A]
+
+
+def _add(*mats: list[list[Fraction]]) -> list[list[Fraction]]:
+    return [
+        [sum(vals, Fraction(0)) for vals in zip(*rows, strict=True)]
+        for rows in zip(*mats, strict=True)
+    ]
+
+
+def _eliminate(M: list[list[Fraction]], n: int) -> Fraction:
+    """Gauss-Jordan on the first ``n`` columns of ``M`` in place; returns their determinant."""
+    det = Fraction(1)
+    for c in range(n):
+        piv = next((r for r in range(c, n) if M[r][c] != 0), None)
+        if piv is None:
+            return Fraction(0)
+        if piv != c:
+            M[c], M[piv] = M[piv], M[c]
+            det = -det
+        det *= M[c][c]
+        inv = 1 / M[c][c]
+        M[c] = [v * inv for v in M[c]]
+        for r in range(n):
+            if r != c and M[r][c] != 0:
+                f = M[r][c]
+                M[r] = [a - f * b for a, b in zip(M[r], M[c], strict=True)]
+    return det
+
+
+def exact_posterior(
+    P_i: FloatArray, P_j: FloatArray, H_i: FloatArray, H_j: FloatArray, R: FloatArray,
+    X: FloatArray,
+) -> tuple[FloatArray, FloatArray, float]:  # fmt: skip
+    """``(P, K, log det P)`` of the update with cross-covariance ``X``, in exact arithmetic.
+
+    Every float64 input is converted exactly to a rational (:class:`fractions.Fraction`), so
+    ``U = P_i H_i^T + X H_j^T``, ``S = H_J P_J(X) H_J^T + R``, ``K = U S^-1`` and
+    ``P = P_i - U S^-1 U^T`` are exact; ``P`` and ``K`` are then rounded to the nearest
+    float64 and ``log det P`` is taken of the exact determinant (``-inf`` when ``det P <= 0``).
+    No cancellation can lose digits, whatever the scaling (entries of 1e11 included), at a
+    cost that grows with the size: ~10 ms for ``n = 9``, ``m = 3``; ~1 s for ``n = 30``.
+    The reference path (``method="sdp"``) reports this instead of a float64 evaluation.
+
+    Raises:
+        ZeroDivisionError: ``S`` is singular (impossible for an SPD ``R`` and admissible X).
+    """
+    Pi, Pj, Hi, Hj, Rf, Xf = map(_fractions, (P_i, P_j, H_i, H_j, R, X))
+    Hit, Hjt = _t(Hi), _t(Hj)
+    U = _add(_mul(Pi, Hit), _mul(Xf, Hjt))  # (n_i, m)
+    V = _add(_mul(_t(Xf), Hit), _mul(Pj, Hjt))  # (n_j, m)
+    S = _add(_mul(Hi, U), _mul(Hj, V), Rf)  # (m, m)
+    m = len(S)
+    Ut = _t(U)
+    M = [S[k] + Ut[k] for k in range(m)]
+    if _eliminate(M, m) == 0:
+        raise ZeroDivisionError("S(X) is singular")
+    Y = [row[m:] for row in M]  # S^-1 U^T, (m, n_i)
+    K = _t(Y)  # U S^-1 (S symmetric)
+    UY = _mul(U, Y)
+    P = [[a - b for a, b in zip(r1, r2, strict=True)] for r1, r2 in zip(Pi, UY, strict=True)]
+    det = _eliminate([list(row) for row in P], len(P))
+    log_det = math.log(det.numerator) - math.log(det.denominator) if det > 0 else -math.inf
+    as_array = lambda A: np.array([[float(v) for v in row] for row in A], dtype=np.float64)  # noqa: E731
+    return as_array(P), as_array(K), log_det
