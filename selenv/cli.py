@@ -508,8 +508,29 @@ def _run_envs(
         stop = ("terminated (SIGTERM)", 143)
     except WorkerDiedError as exc:
         stop = (str(exc), 1)
+    except Exception as exc:  # a signal raised inside a C extension comes back wrapped
+        stop = _signal_behind(exc)
+        if stop is None:
+            raise
     with _signals_deferred() as late:
         return _finish(args, results, stop, executor, late)
+
+
+def _signal_behind(exc: BaseException) -> tuple[str, int] | None:
+    """The stop of a SIGINT / SIGTERM exception in ``exc``'s chain, else ``None``.
+
+    Ray's Cython wrappers turn an exception raised by a signal handler into ``SystemError``.
+    """
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        if isinstance(cur, KeyboardInterrupt):
+            return ("interrupted (SIGINT)", 130)
+        if isinstance(cur, _Terminated):
+            return ("terminated (SIGTERM)", 143)
+        cur = cur.__cause__ or cur.__context__
+    return None
 
 
 def _finish(

@@ -385,14 +385,23 @@ def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any]) -> None:
     build().close()
 
 
-def _blocks_per_agent(episodes: int, workers: int) -> int:
+#: most episodes in one Ray block: an interrupted Ray run loses the episodes of the blocks in
+#: flight (a pool's workers hand theirs back), so at most this many per worker
+RAY_BLOCK_EPISODES = 50
+
+
+def _blocks_per_agent(episodes: int, workers: int, max_block: int | None = None) -> int:
     """Blocks each agent's episodes are cut into: two per worker (at most one per episode).
 
     Per agent, not per bench: agents differ by orders of magnitude in cost (a ``rollout``
     reference against a random pick), so the expensive agent's episodes must spread over every
-    worker by themselves; each block pays one env and agent construction.
+    worker by themselves; each block pays one env and agent construction. With ``max_block``
+    more blocks are made so that none has more than ``max_block`` episodes.
     """
-    return max(1, min(episodes, 2 * workers))
+    parts = max(1, min(episodes, 2 * workers))
+    if max_block is not None:
+        parts = max(parts, -(-episodes // max_block))
+    return parts
 
 
 def _split(seeds: list[int], parts: int) -> list[tuple[int, ...]]:
@@ -578,7 +587,8 @@ def _run_pooled(
     progress: bool,
 ) -> None:
     """Play the agents' episodes as blocks on ``executor``, filling ``out`` with what finished."""
-    parts = _blocks_per_agent(len(seeds), executor.num_workers)
+    cap = RAY_BLOCK_EPISODES if executor.name == "ray" else None
+    parts = _blocks_per_agent(len(seeds), executor.num_workers, cap)
     blocks = [
         EpisodeBlock(out.env_id, out.kind, out.env_kwargs, name, chunk, named, threads)
         for name in names
