@@ -543,6 +543,7 @@ def _finish(
     """Print what a stopped run kept, write the JSON and the plots; return the exit code."""
     from selenv.bench import format_table, plot_filename, plot_result, results_to_json
 
+    args.finished = True
     code = 0 if stop is None else stop[1]
     if stop is not None and results and not results[-1].complete:
         if len(results) > 1:
@@ -623,7 +624,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "train":
         return cmd_train(args)
     args.argv = ["selenv", *(sys.argv[1:] if argv is None else argv)]
-    return cmd_bench(args)
+    try:
+        with _sigterm_raises():
+            return cmd_bench(args)
+    except KeyboardInterrupt:  # during the checks or start-up, or while shutting down
+        print(f"selenv: interrupted (SIGINT) {_when_stopped(args)}", file=sys.stderr)
+        return 130
+    except _Terminated:
+        print(f"selenv: terminated (SIGTERM) {_when_stopped(args)}", file=sys.stderr)
+        return 143
+
+
+def _when_stopped(args: argparse.Namespace) -> str:
+    """What an interruption outside the run left: nothing, or the outputs already written."""
+    if getattr(args, "finished", False):
+        return "while shutting down (the results were already reported above)"
+    return "before any episode ran; nothing written"
 
 
 if __name__ == "__main__":

@@ -542,3 +542,22 @@ def test_incomplete_result_pairs_only_the_common_seeds() -> None:
     assert doc["agents"]["a"]["returns"] == [1.0, 2.0, 3.0]  # every finished episode kept
     assert doc["agents"]["a"]["mean_return"] == pytest.approx(1.5)  # stats on seeds 0, 1
     assert doc["agents"]["b"]["paired"]["n"] == 2
+
+
+@pytest.mark.parametrize(("exc", "code"), [(KeyboardInterrupt, 130), ("term", 143)])
+def test_interrupt_before_the_run_is_one_line(
+    exc: object, code: int, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C / SIGTERM while the arguments are checked (e.g. a checkpoint loads): one line."""
+    import selenv.cli as cli
+
+    def stop(args: object) -> int:
+        if exc == "term":
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "cmd_bench", stop)
+    assert main(_bench_args(episodes=1)) == code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "before any episode ran; nothing written" in err[0]
