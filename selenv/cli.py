@@ -225,12 +225,29 @@ def training_scripts() -> dict[str, str]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """Run ``selenv.train.<script>.main(script_args)``; its exit code is the command's."""
+    """Run the script's console entry point (``cli``, else ``main``) on ``script_args``.
+
+    Through ``cli`` a stopped or failed run prints the script's own line (what was saved, how to
+    resume) and its exit code (usage 2, I/O 1, SIGINT 130, SIGTERM 143) is the command's.
+    """
     import importlib
+    import inspect
 
     module = importlib.import_module(f"selenv.train.{args.script}")
+    argv = list(args.script_args)
+    entry = getattr(module, "cli", None)
     try:
-        result = module.main(list(args.script_args))
+        if entry is None:
+            result = module.main(argv)
+        elif inspect.signature(entry).parameters:
+            result = entry(argv)
+        else:  # a console script reading sys.argv
+            saved = sys.argv
+            sys.argv = [f"selenv train {args.script}", *argv]
+            try:
+                result = entry()
+            finally:
+                sys.argv = saved
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     return result if isinstance(result, int) else 0
