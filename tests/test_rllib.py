@@ -369,6 +369,8 @@ def test_bench_agent_without_export_says_how_to_train(tmp_path: Path, monkeypatc
         (["--env", "cartpole"], "invalid choice"),
         (["--minibatch-size", "64", "--train-batch-size", "32"], "minibatch"),
         (["--hidden", "16,x"], "--hidden"),
+        (["--env-kwargs", "[" * 100_000 + "]" * 100_000], "nested too deeply"),
+        (["--vf", "64," * 20 + "64"], "--vf has 21 layers"),
     ],
 )
 def test_train_usage_errors_exit_2_on_one_line(argv, reason, tmp_path, capsys) -> None:
@@ -438,3 +440,98 @@ def test_shipped_modules_load_and_beat_random(env_id: str) -> None:
     res = run_bench(env_id, ["random", "rllib"], episodes=3, seed=777, progress=False)
     assert res.agents["rllib"].skipped is None
     assert res.agents["rllib"].mean_return > res.agents["random"].mean_return
+
+
+# -- (d) outputs that survive failures and interruptions ---------------------------------------
+def _tiny_tmpfs(tmp_path: Path, size: str) -> Path:
+    import subprocess
+
+    mnt = tmp_path / "tiny"
+    mnt.mkdir()
+    proc = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)],
+        capture_output=True,
+        check=False,
+    )
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.decode().strip()}")
+    return mnt
+
+
+def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path) -> None:
+    """ENOSPC while exporting: an OSError naming the output, the old pair byte-identical."""
+    import errno
+    import subprocess
+
+    mnt = _tiny_tmpfs(tmp_path, "256k")
+    try:
+        module = build_module(5, 2, {"hidden": [48, 48], "vf": [48]})
+        meta = {"env_id": FIM_MODULE, "env_kwargs": {}}
+        json_path, pth_path = export_module(module, mnt / "policy", meta)
+        old = {p: p.read_bytes() for p in (json_path, pth_path)}
+        used = sum(len(b) for b in old.values())
+        (mnt / "filler").write_bytes(b"\0" * (256 * 1024 - used - 40 * 1024))  # ~40 KB left
+        bigger = build_module(5, 2, {"hidden": [48, 48], "vf": [48]})
+        with pytest.raises(OSError) as err:
+            export_module(bigger, mnt / "policy", meta)
+        assert err.value.errno == errno.ENOSPC and err.value.filename in map(str, old)
+        assert {p: p.read_bytes() for p in old} == old  # byte-identical
+        assert sorted(p.name for p in mnt.iterdir()) == ["filler", "policy.json", "policy.pth"]
+        load_exported(json_path)  # still a matching, loadable pair
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True, check=False)
+
+
+@pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
+def test_interrupted_training_keeps_the_last_completed_iteration(
+    ray_local, signum, code, word, tmp_path, capsys, monkeypatch
+) -> None:
+    """The signal arrives right after iteration 2 finished, before it is recorded.
+
+    The run keeps iteration 1's module (a loadable export marked incomplete) and its
+    metrics, skips the evaluation, and ends with exit 130 / 143 and one line.
+    """
+    import signal
+
+    record = train_rllib_marl._record
+
+    def record_then_signal(it, result, seconds):
+        out = record(it, result, seconds)
+        if it == 2:
+            os.kill(os.getpid(), signal.Signals(signum))
+        return out
+
+    monkeypatch.setattr(train_rllib_marl, "_record", record_then_signal)
+    out = tmp_path / "run" / "policy"
+    argv = [*TINY, "--iterations", "4", "--eval-episodes", "2", "--out", str(out)]
+    assert train_rllib_marl.cli(argv) == code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and word in err[0] and "after iteration 1 of 4" in err[0], err
+    assert str(out.with_suffix(".json")) in err[0]
+    module, meta = load_exported(out.with_suffix(".json"))
+    assert meta["training"]["complete"] is False and meta["training"]["interrupted"] == word
+    assert meta["iterations"] == 1 and "eval" not in meta
+    records = json.loads(out.with_suffix(".metrics.json").read_text())
+    assert [r["iteration"] for r in records] == [1]
+    leftovers = [p.name for p in out.parent.iterdir() if p.name.startswith(".")]
+    assert leftovers == []  # no temporary and no lock file left
+
+
+def test_a_second_training_on_the_same_out_is_refused(tmp_path, capsys) -> None:
+    """Another live process holds the output's lock: exit 2, one line, nothing written."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "p"
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (tmp_path / ".p.json.lock").write_text(f"{other.pid}\n")
+        with pytest.raises(SystemExit) as exc:  # usage errors exit through argparse's way
+            train_rllib_marl.cli([*TINY, "--out", str(out)])
+        assert exc.value.code == 2
+    finally:
+        other.kill()
+        other.wait()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "p.json" in err[0] and str(other.pid) in err[0], err
+    assert not out.with_suffix(".json").exists()

@@ -18,6 +18,14 @@ unless ``--force``, before Ray starts):
   agents, the learner's losses, steps, wall time), plus TensorBoard scalars with
   ``--tensorboard-dir``.
 
+The outputs are written atomically (:mod:`selenv.atomic`): the ``.pth`` and ``.json`` as one
+pair, so a failed or killed write leaves the previous files byte-identical. A second run on
+the same ``--out`` is refused while this one holds its lock (exit 2, one line). SIGINT /
+SIGTERM stop the run after keeping the module of the last completed iteration (its JSON marked
+``"complete": false`` and ``"interrupted"``) and its metrics: exit 130 / 143 with one line.
+``--hidden`` / ``--vf`` widths beyond the loaders' ceilings
+(:data:`selenv.learned.resources.CHECKPOINT_LIMITS`) are refused up front (exit 2).
+
 After training, ``--eval-episodes`` held-out episodes (seeds ``--eval-seed ...``) are played by
 ``greedy`` and the exported module through ``selenv bench``'s runner (team return, paired
 difference with its 95 % CI); the summary goes into the JSON.
@@ -46,10 +54,13 @@ import numpy as np
 import torch as th
 from tqdm.auto import tqdm
 
+from selenv.atomic import OutputBusyError, OutputLock, write_json
+from selenv.exits import Terminated
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
-from selenv.learned.resources import bounded_widths
+from selenv.learned.resources import bounded_widths, read_metadata
 from selenv.learned.rl.candidate_policy import obs_layout
 from selenv.learned.rl.rllib_env import SelenvMultiAgentEnv, resolve_env
+from selenv.learned.rl.training import TrainingInterrupted, TrainingTerminated, run_cli
 
 __all__ = ["Config", "UsageError", "build_config", "main", "outputs", "parse_args"]
 
@@ -199,7 +210,9 @@ def _check(cfg: Config) -> dict[str, Any]:
     _widths(cfg.vf, "--vf")
     try:
         env_kwargs = json.loads(cfg.env_kwargs)
-    except json.JSONDecodeError as exc:
+    except RecursionError:
+        raise UsageError("--env-kwargs is nested too deeply") from None
+    except ValueError as exc:  # JSONDecodeError, ints beyond the digit limit
         raise UsageError(f"--env-kwargs is not valid JSON: {exc}") from None
     if not isinstance(env_kwargs, dict):
         raise UsageError(f"--env-kwargs must be a JSON object, got {cfg.env_kwargs!r}")
@@ -346,10 +359,32 @@ def _evaluate(cfg: Config, env_kwargs: dict[str, Any], json_path: Path) -> dict[
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Train, export, evaluate; return the exported metadata (the JSON's content)."""
+    """Train, export, evaluate; return the exported metadata (the JSON's content).
+
+    The outputs are locked for the run (a second run on the same ``--out``: exit 2, one
+    line). SIGINT / SIGTERM (the latter while :func:`selenv.exits.sigterm_raises` is active,
+    as under :func:`cli`) stop the run: the module of the last completed iteration is
+    exported (marked ``"complete": false``, ``"interrupted": "SIGINT"``) with the metrics so
+    far, the evaluation is skipped, and ``TrainingInterrupted`` / ``TrainingTerminated`` is
+    raised (exit 130 / 143 with one line through :func:`cli`).
+    """
     cfg, env_kwargs = parse_args(argv)
     folders = [cfg.tensorboard_dir] if cfg.tensorboard_dir else []
     check_outputs(PROG, outputs(cfg), force=cfg.force, folders=folders)
+    json_path, _, _ = _outputs(cfg)
+    lock = OutputLock(json_path)
+    try:
+        lock.acquire()
+    except OutputBusyError as exc:
+        _fail(exc)
+    try:
+        return _train(cfg, env_kwargs)
+    finally:
+        lock.release()
+
+
+def _train(cfg: Config, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """:func:`main` after the checks, under the output lock."""
     import ray
 
     from selenv.learned.rl.rllib_agent import export_module
@@ -365,6 +400,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
         writer = SummaryWriter(cfg.tensorboard_dir)
     start = time.perf_counter()
+    stopped: str | None = None
+    weights: dict[str, Any] | None = None  # the module after the last completed iteration
     with contextlib.ExitStack() as stack:
         try:
             stack.enter_context(ray_session(cfg.address, cfg.num_cpus))
@@ -375,34 +412,44 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         bar = tqdm(range(1, cfg.iterations + 1), desc=f"rllib {cfg.env}", unit="it",
                    disable=not cfg.progress)  # fmt: skip
         longest = 0.0
-        for it in bar:
-            t0 = time.perf_counter()
-            if cfg.max_minutes and t0 + longest - start > 60.0 * cfg.max_minutes:
-                break
-            result = algo.train()
-            longest = max(longest, time.perf_counter() - t0)
-            record = _record(it, result, time.perf_counter() - t0)
-            records.append(record)
-            ret = record["episode_return_mean_sum_over_agents"]
-            if ret is not None and np.isfinite(ret):
-                bar.set_postfix_str(f"return(sum over agents)={ret:.3f}")
-            if writer is not None:
-                for key, value in record.items():
-                    if isinstance(value, int | float) and key != "iteration":
-                        writer.add_scalar(f"rllib/{key}", value, it)
+        try:
+            for it in bar:
+                t0 = time.perf_counter()
+                if cfg.max_minutes and t0 + longest - start > 60.0 * cfg.max_minutes:
+                    break
+                result = algo.train()
+                longest = max(longest, time.perf_counter() - t0)
+                record = _record(it, result, time.perf_counter() - t0)
+                current = algo.learner_group.get_weights(module_ids=[SHARED_MODULE_ID])
+                weights = {k: np.array(v, copy=True) for k, v in current[SHARED_MODULE_ID].items()}
+                records.append(record)
+                ret = record["episode_return_mean_sum_over_agents"]
+                if ret is not None and np.isfinite(ret):
+                    bar.set_postfix_str(f"return(sum over agents)={ret:.3f}")
+                if writer is not None:
+                    for key, value in record.items():
+                        if isinstance(value, int | float) and key != "iteration":
+                            writer.add_scalar(f"rllib/{key}", value, it)
+        except KeyboardInterrupt:
+            stopped = "SIGINT"
+        except Terminated:
+            stopped = "SIGTERM"
         bar.close()
-        weights = algo.learner_group.get_weights(module_ids=[SHARED_MODULE_ID])[SHARED_MODULE_ID]
         n_ray_version = ray.__version__
     wall = time.perf_counter() - start
     if writer is not None:
         writer.close()
+    stop_error = TrainingInterrupted if stopped == "SIGINT" else TrainingTerminated
+    how = f"{'interrupted' if stopped == 'SIGINT' else 'terminated'} ({stopped})"
+    if weights is None:
+        if stopped is not None:
+            raise stop_error(f"{how} before the first iteration completed: nothing was written")
+        raise ValueError("no iteration ran (--max-minutes too small?)")
     probe = SelenvMultiAgentEnv({"env": cfg.env, "env_kwargs": env_kwargs})
     layout = obs_layout(probe.agent_observation_space)
     probe.close()
     module = build_module(layout["n"], layout["whitened_dim"], _model_config(cfg))
-    module.load_state_dict(
-        {k: th.as_tensor(np.asarray(v)) for k, v in weights.items()}, strict=True
-    )
+    module.load_state_dict({k: th.as_tensor(v) for k, v in weights.items()}, strict=True)
     from selenv import __version__ as selenv_version
 
     metadata = {
@@ -416,6 +463,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "agent_steps": records[-1]["module_steps_lifetime"] if records else 0,
             "wall_seconds": round(wall, 1),
             "metrics_file": metrics_path.name,
+            "complete": stopped is None,
+            **({"interrupted": stopped} if stopped else {}),
         },
         "iterations": len(records),
         "ray_version": n_ray_version,
@@ -423,21 +472,29 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "selenv_version": selenv_version,
     }
     json_path, _ = export_module(module, json_path, metadata)
-    metrics_path.write_text(json.dumps(records, indent=1) + "\n")
+    write_json(metrics_path, records, indent=1)
+    metadata = read_metadata(json_path, "RLlib export metadata")
+    if stopped is not None:
+        raise stop_error(
+            f"{how} after iteration {len(records)} of {cfg.iterations}: kept {json_path} "
+            "(+ .pth, .metrics.json) of the last completed iteration, marked incomplete"
+        )
     if cfg.eval_episodes:
-        metadata = json.loads(json_path.read_text())
         metadata["eval"] = _evaluate(cfg, env_kwargs, json_path)
-        json_path.write_text(json.dumps(metadata, indent=2) + "\n")
-    else:
-        metadata = json.loads(json_path.read_text())
+        write_json(json_path, metadata)  # the weights are unchanged: the pair still matches
     print(f"wrote {json_path} (+ .pth, .metrics.json) in {wall:.0f} s", file=sys.stderr)
     return metadata
 
 
-def cli() -> None:
-    """Console-script entry point (same options as ``main``; exit code 0 after a run)."""
-    main()
+def cli(argv: list[str] | None = None) -> int:
+    """Command-line entry point: :func:`main` with the exit codes of :mod:`selenv.exits`.
+
+    Returns 0 after a run; 1 with one line for an I/O failure (the previous outputs are left
+    as they were); 130 / 143 with one line naming what was kept after SIGINT / SIGTERM.
+    A usage error or a busy output exits 2 with one line (``SystemExit``, as argparse does).
+    """
+    return run_cli(main, PROG, argv)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli())

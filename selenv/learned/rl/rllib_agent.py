@@ -32,6 +32,7 @@ import numpy as np
 import torch as th
 
 from selenv.agents.multiagent import MultiAgentPolicy
+from selenv.atomic import atomic_paths
 from selenv.learned.resources import (
     check_parameter_count,
     checkpoint_dir,
@@ -96,6 +97,9 @@ def export_module(module: Any, out: str | Path, metadata: dict[str, Any]) -> tup
 
     ``metadata`` must hold ``env_id`` and ``env_kwargs``; the format, view, layout, module
     class and config, parameter count and the weights' name, size and sha256 are added here.
+    The two files are written as a pair (:func:`selenv.atomic.atomic_paths`: temporaries in
+    the same folder, flushed, then both renamed): a failed or interrupted export leaves a
+    previous pair byte-identical and no partial file; an ``OSError`` names the output.
 
     Returns:
         The JSON and weights paths.
@@ -104,12 +108,10 @@ def export_module(module: Any, out: str | Path, metadata: dict[str, Any]) -> tup
     if not isinstance(module, rm.CandidateScoringRLModule):
         raise TypeError(f"expected a CandidateScoringRLModule, got {type(module).__name__}")
     json_path, pth_path = export_paths(out)
-    json_path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().clone() for k, v in module.state_dict().items()}
     buffer = io.BytesIO()
     th.save(state, buffer)
     raw = buffer.getvalue()
-    pth_path.write_bytes(raw)
     env_id = resolve_env(metadata["env_id"])
     layout = obs_layout(module.observation_space)
     meta = {
@@ -136,7 +138,14 @@ def export_module(module: Any, out: str | Path, metadata: dict[str, Any]) -> tup
             "sha256": hashlib.sha256(raw).hexdigest(),
         },
     }
-    json_path.write_text(json.dumps(meta, indent=2) + "\n")
+    text = json.dumps(meta, indent=2) + "\n"  # serialised before anything is written
+    try:
+        with atomic_paths([pth_path, json_path]) as (tmp_pth, tmp_json):
+            tmp_pth.write_bytes(raw)
+            tmp_json.write_text(text, encoding="utf-8")
+    except OSError as exc:  # name the output, not its temporary
+        target = json_path if str(exc.filename or "").endswith(".json") else pth_path
+        raise type(exc)(exc.errno or 0, exc.strerror or str(exc), str(target)) from exc
     return json_path, pth_path
 
 
