@@ -144,6 +144,8 @@ def test_deep_or_large_metadata_is_refused_before_parsing(tmp_path: Path) -> Non
         ({"obs_layout__m": 3}, ["whitened_dim=14 != m*d = 3*7"]),
         ({"obs_layout__n_features": 10**7}, ["n_features", "max_candidate_width"]),
         ({"obs_layout__whitened_dim": True}, ["whitened_dim", "positive integer"]),
+        ({"view": {"a": 1}}, ["'view' must be a string"]),
+        ({"env_id": ["selenv/FIMSelection-v1"]}, ["'env_id' must be a string"]),
     ],
 )
 def test_ppo_metadata_sizes_are_bounded(
@@ -289,6 +291,7 @@ def test_rllib_metadata_sizes_are_bounded(rllib_copy: Path) -> None:
         ({"obs_layout__n_candidates_trained": 10**9}, ["n_candidates_trained", "100,000"]),
         ({"obs_layout__whitened_dim": 10**6}, ["whitened_dim=1,000,000"]),
         ({"obs_layout__n_features": 5}, ["n_features=5"]),
+        ({"module__model_config": [1]}, ["model_config must be a mapping"]),
     ]
     for changes, fragments in cases:
         rllib_copy.write_text(json.dumps(_edited(good, **changes)))

@@ -75,7 +75,8 @@ def load_metadata(checkpoint: str | Path) -> dict[str, Any]:
     Raises:
         ValueError: the JSON is missing, unreadable, too large, nested too deep, not an
             object, or its ``obs_layout`` lacks an integer ``whitened_dim``, has sizes beyond
-            ``CHECKPOINT_LIMITS`` or ``whitened_dim != m d``; the message names the file.
+            ``CHECKPOINT_LIMITS`` or ``whitened_dim != m d``; a ``view`` or ``env_id`` that is
+            not a string; the message names the file.
     """
     path = Path(checkpoint).with_suffix(".json")
     if not path.is_file():
@@ -84,6 +85,11 @@ def load_metadata(checkpoint: str | Path) -> dict[str, Any]:
     if not isinstance(meta, dict):
         raise ValueError(f"checkpoint metadata {path} must be a JSON object")
     checked_layout(meta, f"metadata {path}")
+    for key in ("view", "env_id"):
+        if meta.get(key) is not None and not isinstance(meta[key], str):
+            raise ValueError(
+                f"checkpoint metadata {path}: {key!r} must be a string, got {meta[key]!r:.80}"
+            )
     return cast(dict[str, Any], meta)
 
 

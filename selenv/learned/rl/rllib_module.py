@@ -98,11 +98,13 @@ def check_model_config(config: dict[str, Any] | None) -> dict[str, Any]:
     """``config`` over :data:`DEFAULT_MODEL_CONFIG`, as plain JSON types.
 
     Raises:
-        ValueError: an unknown key, a non-positive or non-integer width, an empty ``hidden``,
-            a width or a number of layers above its ceiling (``max_width``, ``max_layers`` of
-            :data:`selenv.learned.resources.CHECKPOINT_LIMITS`), an unknown activation or a
-            non-finite ``gain_skip_init``.
+        ValueError: not a mapping, an unknown key, a non-positive or non-integer width, an
+            empty ``hidden``, a width or a number of layers above its ceiling (``max_width``,
+            ``max_layers`` of :data:`selenv.learned.resources.CHECKPOINT_LIMITS`), an unknown
+            activation or a non-finite ``gain_skip_init``.
     """
+    if config is not None and not isinstance(config, dict):
+        raise ValueError(f"model_config must be a mapping, got {config!r:.80}")
     config = dict(config or {})
     unknown = sorted(set(config) - set(DEFAULT_MODEL_CONFIG))
     if unknown:
