@@ -54,7 +54,7 @@ from torch import nn
 import selenv
 from selenv.atomic import atomic_paths
 from selenv.core.linalg import FloatArray, as_float_array, check_finite
-from selenv.learned.resources import checkpoint_path
+from selenv.learned.resources import checkpoint_path, read_metadata
 from selenv.learned.surrogate_data import features, n_features
 
 __all__ = [
@@ -86,7 +86,6 @@ MAX_HIDDEN_WIDTH = 65_536
 MAX_HIDDEN_LAYERS = 64
 MAX_PARAMETERS = 50_000_000  # 200 MB of float32 weights
 MAX_STATE_DIM = 64  # n and m
-_MAX_JSON_BYTES = 16 << 20
 _CLAMP = 1e4  # standardised features are clamped to +-this (finite outputs for any input)
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"sigmoid": nn.Sigmoid, "tanh": nn.Tanh, "relu": nn.ReLU}
 _NUMPY_ACTIVATIONS: dict[type[nn.Module], Any] = {
@@ -459,14 +458,9 @@ class Surrogate:
         pt = Path(path).with_suffix(".pt")
         js = pt.with_suffix(".json")
         try:
-            if js.stat().st_size > _MAX_JSON_BYTES:
-                raise ValueError(f"surrogate metadata {js} is over {_MAX_JSON_BYTES >> 20} MiB")
-            meta = json.loads(js.read_text())
+            meta = read_metadata(js, "surrogate metadata")
         except FileNotFoundError:
             raise ValueError(f"surrogate metadata {js} is missing") from None
-        except RecursionError:
-            msg = f"surrogate metadata {js} is not valid JSON: nested too deep"
-            raise ValueError(msg) from None
         except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"surrogate metadata {js} is not valid JSON: {exc}") from None
         try:
@@ -712,7 +706,7 @@ def shipped_catalogue(kind: str) -> list[dict[str, Any]]:
             if not (pt.is_file() and js.is_file()):
                 continue
             try:
-                meta = json.loads(js.read_text())
+                meta = read_metadata(js, "surrogate metadata")
                 R = np.asarray(meta["R"], dtype=np.float64)
                 entry = {"path": pt, "n": int(meta["n"]), "m": int(meta["m"]), "R": R.tolist(),
                          "bearing_sigma_deg": meta.get("bearing_sigma_deg"),

@@ -79,6 +79,7 @@ from selenv.bench.runner import AgentResult, run_episode
 from selenv.envs.resolved import resolved_env_config
 from selenv.exits import Terminated, UsageError, guarded_main
 from selenv.learned.config import arg, check_outputs, usage_error
+from selenv.learned.resources import read_metadata
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
 from selenv.learned.rl.vec_env import make_native_vec_env
 
@@ -120,8 +121,6 @@ LIMITS: dict[str, int] = {
     "hidden_width": 4096,
     "hidden_layers": 16,
 }
-#: largest checkpoint JSON read back (``--resume``, evaluation) and largest optimizer state
-MAX_METADATA_BYTES = 16 * 2**20
 MAX_OPTIMIZER_BYTES = 256 * 2**20
 
 
@@ -366,23 +365,14 @@ def read_checkpoint_metadata(path: str | Path) -> dict[str, Any]:
     """The JSON next to checkpoint ``path``, bounded in size and depth.
 
     Raises:
-        ValueError: missing, larger than :data:`MAX_METADATA_BYTES`, not JSON, nested too
-            deep, or not an object.
+        ValueError: missing, or refused by :func:`selenv.learned.resources.read_metadata`
+            (too large, nested too deep, not JSON), or not an object.
     """
     json_path = Path(path).with_suffix(".json")
     try:
-        size = json_path.stat().st_size
-        if size > MAX_METADATA_BYTES:
-            raise ValueError(
-                f"{json_path} is {size} bytes, more than MAX_METADATA_BYTES = {MAX_METADATA_BYTES}"
-            )
-        meta = json.loads(json_path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ValueError(f"cannot read the metadata {json_path}: {exc.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{json_path} is not valid JSON: {exc}") from None
-    except RecursionError:
-        raise ValueError(f"{json_path}: JSON nested too deep") from None
+        meta = read_metadata(json_path, "checkpoint metadata")
+    except FileNotFoundError as exc:
+        raise ValueError(f"cannot read the metadata {json_path}: {exc}") from None
     if not isinstance(meta, dict):
         raise ValueError(f"{json_path} must hold a JSON object")
     return meta
