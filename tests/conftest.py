@@ -143,3 +143,44 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if "fuzz_long" in item.keywords:
             item.add_marker(skip)
+
+
+# -- a real full file system for the fault-injection tests -------------------------------------
+
+
+@pytest.fixture
+def tmpfs_of_size(tmp_path: Path):
+    """``make(size)``: a fresh tmpfs of ``size`` (``"64k"``) mounted under ``tmp_path``.
+
+    Root only: skips where mounting is not allowed. Unmounted at teardown (lazily if a file is
+    still open, e.g. referenced by a failed save's traceback).
+    """
+    import gc
+    import subprocess
+
+    mounts: list[Path] = []
+
+    def make(size: str = "64k") -> Path:
+        mnt = tmp_path / f"tmpfs{len(mounts)}"
+        mnt.mkdir()
+        proc = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)],
+            capture_output=True,
+            check=False,
+        )
+        if proc.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.decode().strip()}")
+        mounts.append(mnt)
+        return mnt
+
+    yield make
+    gc.collect()
+    for mnt in mounts:
+        if subprocess.run(["umount", str(mnt)], capture_output=True, check=False).returncode:
+            subprocess.run(["umount", "-l", str(mnt)], capture_output=True, check=False)
+
+
+@pytest.fixture
+def tiny_fs(tmpfs_of_size) -> Path:
+    """A 64 KiB tmpfs: writes of more than that fail with ENOSPC."""
+    return tmpfs_of_size("64k")

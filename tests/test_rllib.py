@@ -443,27 +443,12 @@ def test_shipped_modules_load_and_beat_random(env_id: str) -> None:
 
 
 # -- (d) outputs that survive failures and interruptions ---------------------------------------
-def _tiny_tmpfs(tmp_path: Path, size: str) -> Path:
-    import subprocess
-
-    mnt = tmp_path / "tiny"
-    mnt.mkdir()
-    proc = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)],
-        capture_output=True,
-        check=False,
-    )
-    if proc.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.decode().strip()}")
-    return mnt
-
-
-def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path) -> None:
+def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path, tmpfs_of_size) -> None:
     """ENOSPC while exporting: an OSError naming the output, the old pair byte-identical."""
     import errno
     import subprocess
 
-    mnt = _tiny_tmpfs(tmp_path, "256k")
+    mnt = tmpfs_of_size("256k")
     try:
         module = build_module(5, 2, {"hidden": [48, 48], "vf": [48]})
         meta = {"env_id": FIM_MODULE, "env_kwargs": {}}

@@ -9,14 +9,12 @@ checkpoint pair is written, sends itself the signal (no sleeps).
 
 from __future__ import annotations
 
-import gc
 import json
 import os
 import resource
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -100,26 +98,6 @@ def _meta(path: Path) -> Any:
 
 def _snapshot(paths: list[Path]) -> list[bytes]:
     return [p.read_bytes() for p in paths]
-
-
-@pytest.fixture
-def tiny_fs(tmp_path: Path) -> Iterator[Path]:
-    """A 64 KiB tmpfs (root only; skipped where mounting is not allowed)."""
-    mnt = tmp_path / "tiny"
-    mnt.mkdir()
-    proc = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)],
-        capture_output=True,
-        check=False,
-    )
-    if proc.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.decode().strip()}")
-    try:
-        yield mnt
-    finally:
-        gc.collect()  # a file object still referenced by a failed save's traceback
-        if subprocess.run(["umount", str(mnt)], capture_output=True, check=False).returncode:
-            subprocess.run(["umount", "-l", str(mnt)], capture_output=True, check=False)
 
 
 # -- kill, then resume ---------------------------------------------------------------------------
