@@ -60,6 +60,7 @@ from selenv import __version__
 from selenv.agents import AGENTS, agents_for, parse_spec
 from selenv.atomic import OutputBusyError, OutputLock, describe_os_error
 from selenv.atomic import write_json as atomic_write_json
+from selenv.exits import Terminated, sigterm_raises
 from selenv.families import ENV_IDS
 from selenv.parallel import (
     ExecutorError,
@@ -354,34 +355,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 if output:
                     locks.enter_context(OutputLock(output))
             executor = executor_from_args(args)
-            with executor, _sigterm_raises():  # after the executor: Ray sets its own handler
+            with executor, sigterm_raises():  # after the executor: Ray sets its own handler
                 return _run_envs(args, env_ids, names, several, executor)
     except (ExecutorError, OutputBusyError) as exc:
         return _error(str(exc))
     except OSError as exc:  # the lock file could not be created
         return _error(describe_os_error(exc))
-
-
-class _Terminated(BaseException):
-    """SIGTERM, raised in the main thread like ``KeyboardInterrupt`` for SIGINT."""
-
-
-@contextlib.contextmanager
-def _sigterm_raises() -> Iterator[None]:
-    """While active, SIGTERM raises :class:`_Terminated` in the main thread."""
-
-    def _raise(signum: int, frame: FrameType | None) -> None:
-        raise _Terminated()
-
-    try:
-        previous = signal.signal(signal.SIGTERM, _raise)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager
@@ -521,7 +500,7 @@ def _run_envs(
             print(format_table(result), flush=True)
     except KeyboardInterrupt:
         stop = ("interrupted (SIGINT)", 130)
-    except _Terminated:
+    except Terminated:
         stop = ("terminated (SIGTERM)", 143)
     except WorkerDiedError as exc:
         stop = (str(exc), 1)
@@ -544,7 +523,7 @@ def _signal_behind(exc: BaseException) -> tuple[str, int] | None:
         seen.add(id(cur))
         if isinstance(cur, KeyboardInterrupt):
             return ("interrupted (SIGINT)", 130)
-        if isinstance(cur, _Terminated):
+        if isinstance(cur, Terminated):
             return ("terminated (SIGTERM)", 143)
         cur = cur.__cause__ or cur.__context__
     return None
@@ -642,12 +621,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_train(args)
     args.argv = ["selenv", *(sys.argv[1:] if argv is None else argv)]
     try:
-        with _sigterm_raises():
+        with sigterm_raises():
             return cmd_bench(args)
     except KeyboardInterrupt:  # during the checks or start-up, or while shutting down
         print(f"selenv: interrupted (SIGINT) {_when_stopped(args)}", file=sys.stderr)
         return 130
-    except _Terminated:
+    except Terminated:
         print(f"selenv: terminated (SIGTERM) {_when_stopped(args)}", file=sys.stderr)
         return 143
 
