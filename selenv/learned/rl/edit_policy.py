@@ -66,7 +66,6 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from selenv.envs.views import candidate_space
 from selenv.families.clustering.view import (
     SOURCE_COLUMNS,
     ClusteringEditView,
@@ -84,10 +83,9 @@ from selenv.learned.rl.candidate_policy import (
     obs_layout,
 )
 from selenv.learned.rl.safe_load import (
-    _build_errors,
     _common_architecture,
+    build_on_training_pool,
     check_checkpoint_hash,
-    checked_layout,
     model_from_checkpoint,
     read_weights,
 )
@@ -371,19 +369,7 @@ def build_edit_policy(
         ValueError: see :func:`edit_policy_spec`; a missing or malformed ``obs_layout``.
     """
     algo, policy_kwargs = edit_policy_spec(metadata, name)
-    layout = checked_layout(metadata, name)
-    n, width = layout["n"], layout["whitened_dim"]
-    if not n:
-        raise ValueError(f"checkpoint {name}: obs_layout lacks n_candidates_trained")
-    with _build_errors(name):
-        space = candidate_space(n, width)
-        try:
-            policy: CandidateScoringPolicy | CandidateScoringPPOPolicy = _POLICY_CLASSES[algo](
-                space, spaces.Discrete(n), lambda _: 0.0, **policy_kwargs
-            )
-        except ValueError as exc:
-            raise ValueError(f"checkpoint {name}: {exc}") from exc
-    return policy
+    return build_on_training_pool(_POLICY_CLASSES[algo], policy_kwargs, metadata, name)
 
 
 def load_edit_policy(

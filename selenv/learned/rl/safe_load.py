@@ -334,13 +334,30 @@ def build_policy(
         ValueError: see :func:`policy_spec`; a missing ``obs_layout``.
     """
     algo, policy_kwargs = policy_spec(metadata, name)
+    return build_on_training_pool(POLICY_CLASSES[algo], policy_kwargs, metadata, name)
+
+
+def build_on_training_pool(
+    policy_class: Any, policy_kwargs: dict[str, Any], metadata: dict[str, Any], name: str
+) -> CandidateScoringPolicy | CandidateScoringPPOPolicy:
+    """``policy_class`` built on the checkpoint's training pool (bounded ``obs_layout``).
+
+    Construction failures (a torch ``RuntimeError``, ``MemoryError``, a ``ValueError`` of the
+    class) become a ``ValueError`` naming the checkpoint.
+    """
     layout = checked_layout(metadata, name)
     n, width = layout["n"], layout["whitened_dim"]
     if not n:
         raise ValueError(f"checkpoint {name}: obs_layout lacks n_candidates_trained")
     with _build_errors(name):
         space = candidate_space(n, width)
-        return POLICY_CLASSES[algo](space, spaces.Discrete(n), lambda _: 0.0, **policy_kwargs)
+        try:
+            policy: CandidateScoringPolicy | CandidateScoringPPOPolicy = policy_class(
+                space, spaces.Discrete(n), lambda _: 0.0, **policy_kwargs
+            )
+        except ValueError as exc:
+            raise ValueError(f"checkpoint {name}: {exc}") from exc
+    return policy
 
 
 @contextlib.contextmanager
