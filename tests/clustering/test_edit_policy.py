@@ -417,7 +417,7 @@ def test_tampered_factorised_metadata_is_refused(trained: tuple[Path, Any]) -> N
     arch = meta["architecture"]
     with pytest.raises(ValueError, match="weights do not fit"):
         load_edit_policy(out, {**meta, "architecture": {**arch, "rank": 4}})
-    with pytest.raises(ValueError, match="incomplete architecture"):
+    with pytest.raises(ValueError, match=r"architecture\.rank must be a positive integer"):
         load_edit_policy(out, {**meta, "architecture": {**arch, "rank": "8"}})
     with pytest.raises(ValueError, match="architecture policy"):
         load_edit_policy(out, {**meta, "architecture": {**arch, "policy": "os.system"}})
