@@ -253,7 +253,7 @@ def test_metadata_disagreeing_with_model_is_rejected(tmp_path: Path) -> None:
         SB3PolicyAgent(zip_path)
     del meta["obs_layout"]
     zip_path.with_suffix(".json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match="lacks obs_layout"):
+    with pytest.raises(ValueError, match="lacks an obs_layout object"):
         SB3PolicyAgent(zip_path)
 
 
