@@ -343,7 +343,7 @@ def test_pecmv_sdp_reports_the_exact_posterior_of_its_X() -> None:
 def test_pecmv_sdp_posterior_is_exact_where_float64_cancels(
     seed: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The reported mismatch: a float64 evaluation of the posterior of X is off by > 1e-6.
+    """The reported mismatch: a float64 evaluation of the posterior of X is off by ~1e-6.
 
     The solver is replaced by the fast path's optimiser (Clarabel cannot solve these in the
     full form); the reference path must still report the exact posterior of that X.
@@ -358,7 +358,10 @@ def test_pecmv_sdp_posterior_is_exact_where_float64_cancels(
     res = pecmv_update(*case, method="sdp")
     with mp.workdps(DPS):
         ld_ref = float(_posterior_reference(case, res.X)[2])
-        assert abs(float64_ld - ld_ref) > 1e-6  # what a float64 evaluation would report
+        # what a float64 evaluation would report: its loss depends on the BLAS kernel's
+        # rounding (about 1e-6 under Haswell, 8e-7 under Prescott), far above the 1e-9 the
+        # exact recomputation meets
+        assert abs(float64_ld - ld_ref) > 1e-7
         _assert_exact_posterior(res, case)
 
 
