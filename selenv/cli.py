@@ -49,9 +49,8 @@ import os
 import signal
 import sys
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -60,7 +59,7 @@ from selenv import __version__
 from selenv.agents import AGENTS, agents_for, parse_spec
 from selenv.atomic import OutputBusyError, OutputLock, describe_os_error
 from selenv.atomic import write_json as atomic_write_json
-from selenv.exits import Terminated, sigterm_raises
+from selenv.exits import DeferredSignals, Terminated, sigterm_raises
 from selenv.families import ENV_IDS
 from selenv.parallel import (
     ExecutorError,
@@ -363,26 +362,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return _error(describe_os_error(exc))
 
 
-@contextlib.contextmanager
-def _signals_deferred() -> Iterator[list[int]]:
-    """While the results are written, SIGINT / SIGTERM are recorded (in the list), not raised."""
-    got: list[int] = []
-
-    def _record(signum: int, frame: FrameType | None) -> None:
-        got.append(signum)
-
-    try:
-        previous = {s: signal.signal(s, _record) for s in (signal.SIGINT, signal.SIGTERM)}
-    except ValueError:  # not the main thread
-        yield got
-        return
-    try:
-        yield got
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-
-
 def _probe(folder: Path) -> str | None:
     """Why no file can be written in the existing ``folder`` (``None`` if one can).
 
@@ -508,8 +487,8 @@ def _run_envs(
         stop = _signal_behind(exc)
         if stop is None:
             raise
-    with _signals_deferred() as late:
-        return _finish(args, results, stop, executor, late)
+    with DeferredSignals(second_raises=False) as late:
+        return _finish(args, results, stop, executor, late.received)
 
 
 def _signal_behind(exc: BaseException) -> tuple[str, int] | None:

@@ -29,7 +29,7 @@ from typing import Any
 
 from selenv.atomic import OutputBusyError, describe_os_error
 
-__all__ = ["Terminated", "UsageError", "guarded_main", "sigterm_raises"]
+__all__ = ["DeferredSignals", "Terminated", "UsageError", "guarded_main", "sigterm_raises"]
 
 
 class Terminated(BaseException):
@@ -56,6 +56,48 @@ def sigterm_raises() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+class DeferredSignals:
+    """While active (``with``), SIGINT and SIGTERM are recorded instead of raised.
+
+    A long run checks :attr:`signal` at its safe points (after an episode, an update, an
+    epoch) and stops there, keeping its completed work; a writer holds the signals until its
+    files are in place. With ``second_raises`` (the default) a second signal raises at once
+    (``KeyboardInterrupt`` / :class:`Terminated`), abandoning the run; atomic writes keep the
+    files intact. Outside the main thread nothing is installed. The previous handlers are
+    restored on exit.
+
+    Attributes:
+        signal: the first signal's name (``"SIGINT"`` / ``"SIGTERM"``), else ``None``.
+        received: every signal number received, in order.
+    """
+
+    def __init__(self, *, second_raises: bool = True) -> None:
+        self.second_raises = second_raises
+        self.signal: str | None = None
+        self.received: list[int] = []
+        self._previous: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.signal is not None and self.second_raises:
+            raise KeyboardInterrupt if signum == signal.SIGINT else Terminated()
+        self.received.append(signum)
+        if self.signal is None:
+            self.signal = signal.Signals(signum).name
+
+    def __enter__(self) -> DeferredSignals:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._previous[signum] = signal.signal(signum, self._handle)
+            except ValueError:  # not the main thread: signals unchanged
+                break
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous)
+        self._previous.clear()
 
 
 def guarded_main(main: Callable[..., Any], prog: str, *args: Any, **kwargs: Any) -> int:

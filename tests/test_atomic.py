@@ -283,3 +283,23 @@ def test_sigterm_becomes_terminated_in_a_child(tmp_path: Path) -> None:
     child.send_signal(signal.SIGTERM)
     assert child.wait(timeout=30) == 143
     assert child.stderr.read().decode() == "prog: terminated (SIGTERM)\n"
+
+
+def test_deferred_signals_record_then_raise_on_the_second(tmp_path: Path) -> None:
+    """The first SIGINT / SIGTERM is recorded; a second one raises (or is recorded too)."""
+    from selenv.exits import DeferredSignals, Terminated
+
+    before = signal.getsignal(signal.SIGTERM)
+    with DeferredSignals() as stop:
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stop.signal == "SIGTERM" and stop.received == [signal.SIGTERM]
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+    with DeferredSignals() as stop, pytest.raises(Terminated):
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGTERM)
+    with DeferredSignals(second_raises=False) as late:
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGTERM)
+    assert late.signal == "SIGINT" and late.received == [signal.SIGINT, signal.SIGTERM]
+    assert signal.getsignal(signal.SIGTERM) is before  # restored

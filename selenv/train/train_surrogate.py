@@ -59,10 +59,9 @@ import hashlib
 import io
 import json
 import shlex
-import signal
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,7 +74,7 @@ from tqdm.auto import tqdm
 
 from selenv.atomic import OutputLock, describe_os_error, probe_writable, write_bytes
 from selenv.core.fusion import dmv_update, pecmv_update
-from selenv.exits import Terminated, UsageError, guarded_main
+from selenv.exits import DeferredSignals, UsageError, guarded_main
 from selenv.learned.config import arg, check_outputs, parse_config
 from selenv.learned.surrogate_data import (
     MAX_ROWS,
@@ -494,43 +493,6 @@ class FitResult:
     resume_state: bytes | None = None
 
 
-class StopRequest:
-    """Set by :func:`deferred_signals`: the name of the first signal received, or ``None``."""
-
-    signal: str | None = None
-
-
-@contextlib.contextmanager
-def deferred_signals() -> Iterator[StopRequest]:
-    """While active, the first SIGINT / SIGTERM only sets the yielded request's ``signal``.
-
-    The training loop checks it after each epoch and stops there; a second signal raises at
-    once (``KeyboardInterrupt`` / :class:`~selenv.exits.Terminated`), abandoning the run with
-    the outputs untouched. The previous handlers are restored on exit. Outside the main thread
-    nothing is installed.
-    """
-    stop = StopRequest()
-
-    def handler(signum: int, frame: Any) -> None:
-        if stop.signal is not None:
-            if signum == signal.SIGINT:
-                raise KeyboardInterrupt
-            raise Terminated()
-        stop.signal = signal.Signals(signum).name
-
-    previous: dict[signal.Signals, Any] = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, handler)
-    except ValueError:  # not the main thread
-        pass
-    try:
-        yield stop
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-
 def resume_blob(state: dict[str, Any]) -> bytes:
     """``state`` serialised with ``torch.save`` (tensors, numbers, strings: ``weights_only``)."""
     buffer = io.BytesIO()
@@ -567,7 +529,7 @@ def fit(
     name: str,
     writer: SummaryWriter | None,
     *,
-    stop: StopRequest | None = None,
+    stop: DeferredSignals | None = None,
     resume: dict[str, Any] | None = None,
     checkpoint: Callable[[bytes], object] | None = None,
     stamp: dict[str, Any] | None = None,
@@ -577,10 +539,10 @@ def fit(
     ``data`` is ``(X_train, Y_train, X_val, Y_val)``; batches are drawn by a generator seeded
     with ``cfg.seed``; stops after ``cfg.patience`` epochs without a better validation loss.
 
-    ``stop`` (from :func:`deferred_signals`) is checked after every epoch: when set, training
-    ends there (``FitResult.interrupted``) with the resume state of that epoch. ``resume``
-    (from :func:`read_resume`) restores the weights, optimiser, schedule, batch generator,
-    epoch count and best-so-far, so the run continues exactly where it stopped.
+    ``stop`` (a :class:`~selenv.exits.DeferredSignals`) is checked after every epoch: when
+    set, training ends there (``FitResult.interrupted``) with the resume state of that epoch.
+    ``resume`` (from :func:`read_resume`) restores the weights, optimiser, schedule, batch
+    generator, epoch count and best-so-far, so the run continues exactly where it stopped.
     ``checkpoint`` receives the serialised resume state every ``cfg.checkpoint_every`` epochs;
     ``stamp`` is stored in it (the config and data fingerprint a resume must match).
     """
@@ -789,7 +751,7 @@ def _run(
     log_dir = Path(cfg.tensorboard_dir) / f"surrogate_{name}_{cfg.seed}_{int(time.time())}"
     writer = SummaryWriter(str(log_dir)) if cfg.tensorboard_dir else None
     state_path = resume_path(cfg)
-    with deferred_signals() as stop:
+    with DeferredSignals() as stop:
         result = fit(
             cfg, sur.net, (Xt, Yt, Xv, Yv), loss_fn, optim, batch_size, name, writer,
             stop=stop, resume=resume, checkpoint=lambda blob: write_bytes(state_path, blob),

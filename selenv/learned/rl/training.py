@@ -53,7 +53,6 @@ import itertools
 import json
 import os
 import random
-import signal
 import sys
 import time
 import zipfile
@@ -77,7 +76,7 @@ from selenv.agents import Agent
 from selenv.atomic import OutputBusyError, OutputLock, atomic_paths, write_json
 from selenv.bench.runner import AgentResult, run_episode
 from selenv.envs.resolved import resolved_env_config
-from selenv.exits import Terminated, UsageError, guarded_main
+from selenv.exits import DeferredSignals, Terminated, UsageError, guarded_main
 from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.resources import read_metadata
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
@@ -472,33 +471,6 @@ class TrainingTerminated(Terminated):
     exit_code = 143
 
 
-class _StopFlag:
-    """While active, SIGINT / SIGTERM set a flag (a second one raises at once)."""
-
-    def __init__(self) -> None:
-        self.signal: str | None = None
-        self._previous: dict[int, Any] = {}
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        name = signal.Signals(signum).name
-        if self.signal is not None:  # asked twice: stop now (atomic writes keep the files)
-            raise KeyboardInterrupt if signum == signal.SIGINT else Terminated()
-        self.signal = name
-
-    def __enter__(self) -> _StopFlag:
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            try:
-                self._previous[signum] = signal.signal(signum, self._handle)
-            except ValueError:  # not the main thread (e.g. a Ray Tune trial): signals unchanged
-                break
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for signum, previous in self._previous.items():
-            signal.signal(signum, previous)
-        self._previous.clear()
-
-
 class _CheckpointCallback(BaseCallback):
     """Iteration boundaries: periodic checkpoints, the training log, stop on a signal.
 
@@ -508,7 +480,7 @@ class _CheckpointCallback(BaseCallback):
     """
 
     def __init__(
-        self, every: int, save: Callable[[str | None], None], flag: _StopFlag, log: list[Any]
+        self, every: int, save: Callable[[str | None], None], flag: DeferredSignals, log: list[Any]
     ) -> None:
         super().__init__()
         self.every = every
@@ -803,7 +775,7 @@ def train(
     else:
         pretraining = pretrain(model) if pretrain is not None else None
     last_zip = last_paths(out)[0]
-    flag = _StopFlag()
+    flag = DeferredSignals()
 
     def save_last(interrupted: str | None) -> None:
         boundary = cb.boundary
