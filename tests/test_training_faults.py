@@ -48,6 +48,15 @@ from selenv.atomic import describe_os_error
 from selenv.learned.rl import training
 from selenv.train import train_fim_ppo
 sig = int(sys.argv[1])
+kill_at = os.environ.get("KILL_AT_REPLACE")  # SIGKILL when os.replace targets this file
+if kill_at:
+    import selenv.atomic as atomic
+    real_replace = atomic.os.replace
+    def replace(src, dst):
+        if str(dst) == kill_at:
+            os.kill(os.getpid(), signal.SIGKILL)
+        real_replace(src, dst)
+    atomic.os.replace = replace
 if sig:
     real = training.save_checkpoint
     def save_then_signal(model, meta, path, **kw):
@@ -62,7 +71,7 @@ train_fim_ppo.cli()
 
 
 def _run(
-    argv: list[str], sig: int = 0, fsize: int | None = None
+    argv: list[str], sig: int = 0, fsize: int | None = None, kill_at: Path | None = None
 ) -> subprocess.CompletedProcess[str]:
     def limit() -> None:  # in the child: a file-size limit, SIGXFSZ ignored (EFBIG instead)
         if fsize is not None:
@@ -70,6 +79,8 @@ def _run(
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 
     env = {**os.environ, "PYTHONWARNINGS": "ignore", "OPENBLAS_NUM_THREADS": "1"}
+    if kill_at is not None:
+        env["KILL_AT_REPLACE"] = str(kill_at)
     return subprocess.run(
         [sys.executable, "-c", CHILD, str(sig), *argv],
         capture_output=True,
@@ -213,6 +224,37 @@ def test_save_checkpoint_on_a_full_disk_leaves_the_previous_pair(
     assert exc.value.filename == str(target) and "ENOSPC" in describe_os_error(exc.value)
     assert _snapshot([target, target.with_suffix(".json")]) == before
     assert _temporaries(tiny_fs) == []
+
+
+def test_sigkill_during_the_final_save_with_force_keeps_a_loadable_or_refused_pair(
+    tmp_path: Path, tiny_model: Any
+) -> None:
+    """``--force`` onto a good pair, SIGKILL at the rename of the new JSON, then of the zip.
+
+    Killed between the two renames, the new zip sits beside the old JSON and the pair check
+    refuses it; the next ``--force`` run replaces both and leaves nothing behind; killed before
+    the zip's rename, the old pair is byte-identical and loads (the reported bug left a 0-byte
+    ``policy.zip``).
+    """
+    out = tmp_path / "p.zip"
+    pair = [out, out.with_suffix(".json")]
+    save_checkpoint(tiny_model, {"a previous": "run"}, out)
+    before = _snapshot(pair)
+    quick = [*TINY, "--checkpoint-every=0", "--total-timesteps=32", f"--out={out}", "--force"]
+
+    assert _run(quick, kill_at=pair[1]).returncode == -signal.SIGKILL
+    assert pair[1].read_bytes() == before[1] and pair[0].read_bytes() != before[0]
+    with pytest.raises(ValueError, match="do not match"):
+        training.verify_pair(out, training.read_checkpoint_metadata(out))
+
+    assert _run(quick).returncode == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json", "p.zip"]
+    training.verify_pair(out, training.read_checkpoint_metadata(out))
+    before = _snapshot(pair)
+
+    assert _run(quick, kill_at=pair[0]).returncode == -signal.SIGKILL
+    assert _snapshot(pair) == before
+    training.verify_pair(out, training.read_checkpoint_metadata(out))
 
 
 def test_a_mismatched_pair_is_refused(
