@@ -94,3 +94,27 @@ def test_cli_start_imports_no_heavy_package() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def _every_agent_and_env() -> list[tuple[str, str]]:
+    import selenv  # noqa: F401  (registers the agents)
+    from selenv.agents.base import AGENTS
+
+    return sorted((name, env_id) for name, by_env in AGENTS.items() for env_id in by_env)
+
+
+@pytest.mark.parametrize(("name", "env_id"), _every_agent_and_env())
+def test_every_agent_refuses_an_unknown_option_when_built(name: str, env_id: str) -> None:
+    """A misspelt option is a ValueError naming it at construction, not a TypeError mid-run."""
+    from selenv.agents.base import make
+
+    with pytest.raises(ValueError, match="no_such_option"):
+        make(f"{name}:no_such_option=1", env_id)
+
+
+@pytest.mark.parametrize("spec", ["ga:population=10", "greedy:k=3", "ppo:foo=1"])
+def test_unknown_agent_option_is_one_line_exit_2(spec: str, capsys, no_run) -> None:
+    env = "selenv/ReceiverClustering-v1" if spec.startswith("ga") else FIM
+    assert main(["bench", env, "--agents", spec, "--episodes", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"cannot build agent {spec!r}" in err, err

@@ -16,6 +16,7 @@ the objective: they call the solvers and the scenario.
 from __future__ import annotations
 
 import importlib
+import inspect
 import json
 from abc import ABC, abstractmethod
 from collections.abc import Callable
@@ -97,12 +98,41 @@ class AgentSpec:
     all_versions: bool = True
 
     def build(self, **kwargs: Any) -> Agent:
-        """Instantiate the agent."""
+        """Instantiate the agent.
+
+        Raises:
+            ValueError: an option the agent does not have (the factory's ``TypeError`` for an
+                unexpected keyword, named after the agent), or a bad option value.
+        """
         fac = self.factory
         if isinstance(fac, str):
             module, attr = fac.split(":")
             fac = getattr(importlib.import_module(module), attr)
-        return fac(**{**self.kwargs, **kwargs})
+        options = {**self.kwargs, **kwargs}
+        _check_options(self.name, fac, options)
+        try:
+            return fac(**options)
+        except TypeError as exc:  # a factory that forwards **kwargs (CPython's wording)
+            if "unexpected keyword argument" in str(exc):
+                raise ValueError(f"agent {self.name!r} has no such option: {exc}") from None
+            raise
+
+
+def _check_options(name: str, factory: Callable[..., Agent], options: dict[str, Any]) -> None:
+    """``ValueError`` naming the options ``factory``'s signature does not take (if it is fixed)."""
+    try:
+        params = inspect.signature(factory).parameters.values()
+    except (TypeError, ValueError):  # no signature to check against: the call decides
+        return
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return
+    accepted = [p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise ValueError(
+            f"agent {name!r} has no option(s) {unknown}; its options: "
+            f"{', '.join(accepted) or 'none'}"
+        )
 
 
 #: name -> env id -> spec

@@ -13,6 +13,7 @@ on the trace; ``lazy_greedy`` refuses a non-log-det objective (it needs submodul
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -66,6 +67,14 @@ class FIMSolverAgent(PlanAgent):
         name: str,
         **solver_kwargs: Any,
     ) -> None:
+        try:  # the solver's options are checked now, not at the first decision
+            inspect.signature(solver).bind(None, None, 1, **solver_kwargs)
+        except TypeError:
+            params = list(inspect.signature(solver).parameters)[3:]
+            raise ValueError(
+                f"agent {name!r} has no option(s) {sorted(set(solver_kwargs) - set(params))}; "
+                f"its options: {', '.join(params) or 'none'}"
+            ) from None
         self.solver = solver
         self.name = name  # type: ignore[misc]
         self.solver_kwargs = solver_kwargs
