@@ -429,7 +429,7 @@ def _precheck(
                 )
             try:
                 agent = make(name, env_id)  # options parsed, checkpoint files found and loaded
-            except ValueError as exc:
+            except (TypeError, ValueError) as exc:  # a bad option name or value
                 return f"cannot build agent {name!r} for {env_id}: {exc}"
             close = getattr(agent, "close", None)
             if callable(close):

@@ -112,7 +112,10 @@ def test_every_agent_refuses_an_unknown_option_when_built(name: str, env_id: str
         make(f"{name}:no_such_option=1", env_id)
 
 
-@pytest.mark.parametrize("spec", ["ga:population=10", "greedy:k=3", "ppo:foo=1"])
+@pytest.mark.parametrize(
+    "spec",
+    ["ga:population=10", "greedy:k=3", "ppo:foo=1", 'greedy:objective="x"', "swap:objective=3"],
+)
 def test_unknown_agent_option_is_one_line_exit_2(spec: str, capsys, no_run) -> None:
     env = "selenv/ReceiverClustering-v1" if spec.startswith("ga") else FIM
     assert main(["bench", env, "--agents", spec, "--episodes", "1", "--no-progress"]) == 2

@@ -28,6 +28,7 @@ from selenv.agents.fim_solvers import (
     lazy_greedy_whitened,
     swap_whitened,
 )
+from selenv.core.objectives import check_objective
 
 __all__ = [
     "FIM_ENV_ID",
@@ -75,6 +76,8 @@ class FIMSolverAgent(PlanAgent):
                 f"agent {name!r} has no option(s) {sorted(set(solver_kwargs) - set(params))}; "
                 f"its options: {', '.join(params) or 'none'}"
             ) from None
+        if "objective" in solver_kwargs:  # a bad name is refused now, not at the first decision
+            check_objective(solver_kwargs["objective"])
         self.solver = solver
         self.name = name  # type: ignore[misc]
         self.solver_kwargs = solver_kwargs
