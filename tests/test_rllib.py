@@ -6,6 +6,8 @@ with no raylet / gcs_server child left, when the file ends.
 
 from __future__ import annotations
 
+import copy
+import itertools
 import json
 import os
 import shutil
@@ -467,39 +469,166 @@ def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path, tmpfs_of_
         subprocess.run(["umount", str(mnt)], capture_output=True, check=False)
 
 
-@pytest.mark.parametrize(("signum", "code", "word"), [(2, 130, "SIGINT"), (15, 143, "SIGTERM")])
-def test_interrupted_training_keeps_the_last_completed_iteration(
-    ray_local, signum, code, word, tmp_path, capsys, monkeypatch
-) -> None:
-    """The signal arrives right after iteration 2 finished, before it is recorded.
-
-    The run keeps iteration 1's module (a loadable export marked incomplete) and its
-    metrics, skips the evaluation, and ends with exit 130 / 143 and one line.
-    """
+def _signal_after_recording(monkeypatch, signum: int, at: int, check=None) -> None:
+    """Send ``signum`` to this process right after iteration ``at`` finished, before it is kept."""
     import signal
 
     record = train_rllib_marl._record
 
     def record_then_signal(it, result, seconds):
         out = record(it, result, seconds)
-        if it == 2:
+        if it == at:
+            if check is not None:
+                check()
             os.kill(os.getpid(), signal.Signals(signum))
         return out
 
     monkeypatch.setattr(train_rllib_marl, "_record", record_then_signal)
+
+
+def _last(out: Path) -> list[Path]:
+    cfg, _ = train_rllib_marl.parse_args(["--out", str(out)])
+    return train_rllib_marl.last_paths(cfg)
+
+
+def test_interrupted_training_keeps_the_last_completed_iteration(
+    ray_local, tmp_path, capsys, monkeypatch
+) -> None:
+    """SIGINT right after iteration 2 finished, before it is kept.
+
+    The run keeps iteration 1 as the checkpoint ``<out>.last.*`` (a loadable export marked
+    incomplete, with its metrics), skips the evaluation, writes no final export, and ends
+    with exit 130 and one line naming the ``--resume`` option.
+    """
+    _signal_after_recording(monkeypatch, 2, at=2)
     out = tmp_path / "run" / "policy"
-    argv = [*TINY, "--iterations", "4", "--eval-episodes", "2", "--out", str(out)]
-    assert train_rllib_marl.cli(argv) == code
+    argv = [*TINY, "--iterations", "4", "--eval-episodes", "2", "--checkpoint-every", "0",
+            "--out", str(out)]  # fmt: skip
+    assert train_rllib_marl.cli(argv) == 130
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and word in err[0] and "after iteration 1 of 4" in err[0], err
-    assert str(out.with_suffix(".json")) in err[0]
-    module, meta = load_exported(out.with_suffix(".json"))
-    assert meta["training"]["complete"] is False and meta["training"]["interrupted"] == word
+    last_json, _, optimizer, metrics = _last(out)
+    assert len(err) == 1 and "SIGINT" in err[0] and "after iteration 1 of 4" in err[0], err
+    assert err[0].endswith(f"--resume {last_json}")
+    module, meta = load_exported(last_json)  # playable as rllib:path=<out>.last.json
+    assert meta["training"]["complete"] is False and meta["training"]["interrupted"] == "SIGINT"
     assert meta["iterations"] == 1 and "eval" not in meta
-    records = json.loads(out.with_suffix(".metrics.json").read_text())
-    assert [r["iteration"] for r in records] == [1]
+    assert meta["resume_state"]["iterations_done"] == 1 and optimizer.is_file()
+    assert [r["iteration"] for r in json.loads(metrics.read_text())] == [1]
+    assert not out.with_suffix(".json").exists() and not out.with_suffix(".metrics.json").exists()
     leftovers = [p.name for p in out.parent.iterdir() if p.name.startswith(".")]
     assert leftovers == []  # no temporary and no lock file left
+
+
+def test_terminated_training_resumes_to_the_same_iteration_count(
+    ray_local, tmp_path, capsys, monkeypatch
+) -> None:
+    """SIGTERM right after iteration 2 finished (iteration 1 is kept), then --resume.
+
+    As under a fresh Ray start, Ray's SIGTERM handler is installed when the session starts:
+    the run must still stop through the command's own handler.
+
+    The checkpoint is checked before Ray starts: another training option, a tampered or
+    pickled optimizer file are refused (exit 2, one line). The resumed run restores the
+    saved optimizer state exactly (compared tensor by tensor) and the weights, reaches
+    iteration 4 with the metrics of iterations 1..4, and removes the checkpoint.
+    """
+    import contextlib
+    import hashlib
+    import signal
+    import sys
+
+    import selenv.parallel
+
+    out = tmp_path / "run" / "policy"
+    last_json, last_pth, optimizer, metrics = _last(out)
+
+    def periodic_checkpoint_exists() -> None:
+        meta = json.loads(last_json.read_text())
+        assert meta["resume_state"]["iterations_done"] == 1
+        assert meta["training"]["complete"] is False and "interrupted" not in meta["training"]
+
+    _signal_after_recording(monkeypatch, 15, at=2, check=periodic_checkpoint_exists)
+    session = selenv.parallel.ray_session
+
+    @contextlib.contextmanager
+    def session_as_if_started_here(*args, **kwargs):
+        """ray.init (skipped: Ray runs already) replaces the SIGTERM handler by an exit."""
+        with session(*args, **kwargs) as value:
+            previous = signal.signal(signal.SIGTERM, lambda *_: sys.exit(15))
+            try:
+                yield value
+            finally:
+                signal.signal(signal.SIGTERM, previous)
+
+    monkeypatch.setattr(selenv.parallel, "ray_session", session_as_if_started_here)
+    argv = [*TINY, "--iterations", "4", "--checkpoint-every", "1", "--out", str(out)]
+    assert train_rllib_marl.cli(argv) == 143
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "SIGTERM" in err[0] and err[0].endswith(f"--resume {last_json}")
+    monkeypatch.undo()  # no more signals
+    saved = th.load(optimizer, weights_only=True)
+    saved_weights = th.load(last_pth, weights_only=True)
+
+    def refused(extra: list[str], *words: str) -> None:
+        with pytest.raises(SystemExit) as exc:
+            train_rllib_marl.main([*argv, *extra])
+        line = capsys.readouterr().err.strip()
+        assert exc.value.code == 2 and len(line.splitlines()) == 1, line
+        assert all(w in line for w in words), line
+
+    refused([], "--resume", str(last_json), "--force")  # the checkpoint is not ignored
+    refused(["--resume", str(last_json), "--lr", "0.002"], "--lr", "0.001", "0.002")
+    good = optimizer.read_bytes()
+    optimizer.write_bytes(good[:-1] + bytes([good[-1] ^ 1]))
+    refused(["--resume", str(last_json)], "optimizer.pth", "sha256")
+    good_json = last_json.read_text()
+
+    def replace_optimizer(obj) -> None:  # a new file whose sha256 the JSON records
+        th.save(obj, optimizer)
+        data = optimizer.read_bytes()
+        meta = json.loads(good_json)
+        entry = meta["extra_files"]["optimizer.pth"]
+        entry.update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+        last_json.write_text(json.dumps(meta))
+
+    marker = tmp_path / "executed"
+    replace_optimizer({"x": _Boom(marker)})  # code on unpickling
+    refused(["--resume", str(last_json)], "not plain tensors")
+    assert not marker.exists()
+    wrong = copy.deepcopy(saved)
+    next(iter(wrong.values()))["state"]["state"][1]["exp_avg"] = th.zeros(3)
+    replace_optimizer(wrong)
+    refused(["--resume", str(last_json)], "exp_avg of parameter 1 has shape (3,)")
+    optimizer.write_bytes(good)
+    last_json.write_text(good_json)
+
+    restore = train_rllib_marl._restore
+    compared = []
+
+    def restore_and_compare(algo, resumed) -> None:
+        restore(algo, resumed)
+        state = algo.learner_group.get_state(components="learner")["learner"]
+        for name, entry in saved.items():
+            slots = state["optimizer"][name]["state"]["state"]
+            assert set(slots) == set(entry["state"]["state"])
+            for index, tensors in entry["state"]["state"].items():
+                for key, value in tensors.items():
+                    assert np.array_equal(np.asarray(slots[index][key]), np.asarray(value))
+                    compared.append(key)
+        module = state["rl_module"]["shared"]
+        assert all(np.array_equal(np.asarray(module[k]), v) for k, v in saved_weights.items())
+        assert algo.iteration == 1  # the checkpoint kept iteration 1
+
+    monkeypatch.setattr(train_rllib_marl, "_restore", restore_and_compare)
+    meta = train_rllib_marl.main([*argv, "--resume", str(last_json)])
+    assert {"exp_avg", "exp_avg_sq", "step"} <= set(compared)
+    assert meta["training"]["complete"] is True and meta["iterations"] == 4
+    records = json.loads(out.with_suffix(".metrics.json").read_text())
+    assert [r["iteration"] for r in records] == [1, 2, 3, 4]
+    steps = [r["env_steps_lifetime"] for r in records]
+    assert all(b > a for a, b in itertools.pairwise(steps)), steps  # the counters continue
+    assert not any(p.exists() for p in _last(out))  # superseded by the complete export
+    load_exported(out.with_suffix(".json"))
 
 
 def test_a_second_training_on_the_same_out_is_refused(tmp_path, capsys) -> None:

@@ -20,11 +20,35 @@ unless ``--force``, before Ray starts):
 
 The outputs are written atomically (:mod:`selenv.atomic`): the ``.pth`` and ``.json`` as one
 pair, so a failed or killed write leaves the previous files byte-identical. A second run on
-the same ``--out`` is refused while this one holds its lock (exit 2, one line). SIGINT /
-SIGTERM stop the run after keeping the module of the last completed iteration (its JSON marked
-``"complete": false`` and ``"interrupted"``) and its metrics: exit 130 / 143 with one line.
+the same ``--out`` is refused while this one holds its lock (exit 2, one line).
 ``--hidden`` / ``--vf`` widths beyond the loaders' ceilings
 (:data:`selenv.learned.resources.CHECKPOINT_LIMITS`) are refused up front (exit 2).
+
+Long runs lose at most one interval (resumable training, without pickle):
+
+* ``--checkpoint-every N`` writes, after every ``N``-th iteration, the checkpoint
+  ``<out>.last.json`` + ``.last.pth`` (an export of the module, playable as
+  ``rllib:path=<out>.last.json``, marked ``"complete": false``) with ``.last.optimizer.pth``
+  (the learner's Adam state: tensors and plain values, read back with
+  ``torch.load(weights_only=True)``) and ``.last.metrics.json`` (the metrics so far); the
+  four files are written as one atomic group, their sizes and sha256 recorded in the JSON,
+  and removed once the final export is written. The JSON's ``resume_state`` holds the
+  iteration count, RLlib's lifetime counters and this process's random generators.
+* SIGINT / SIGTERM stop the run: the last completed iteration is kept as that checkpoint
+  (``"interrupted": "SIGINT"``), the evaluation is skipped, and the run exits 130 / 143 with
+  one line naming the checkpoint and the ``--resume`` option to continue with (``ray.init``
+  replaces the SIGTERM handler with an immediate exit; the command's own is put back for the
+  training loop).
+* ``--resume <out>.last.json`` (with the options of the interrupted run: another training
+  option is refused, exit 2, naming it) builds a fresh Algorithm, restores the module
+  weights, the optimizer state (``Algorithm.set_state``, then synced to the env runners), the
+  iteration count, the lifetime counters and the generators, and trains up to
+  ``--iterations``; its metrics continue the checkpoint's (iterations 1..n). RLlib is
+  reseeded with ``--seed`` + the iterations done, so the resumed env runners do not replay
+  the first episodes: deterministic given the checkpoint, not bit-identical to an
+  uninterrupted run (env runners sample asynchronously). A checkpoint left next to ``--out``
+  makes a run without ``--resume`` or ``--force`` exit 2. RLlib's own (pickled) checkpoints
+  are never written nor read.
 
 After training, ``--eval-episodes`` held-out episodes (seeds ``--eval-seed ...``) are played by
 ``greedy`` and the exported module through ``selenv bench``'s runner (team return, paired
@@ -42,10 +66,14 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import io
 import json
 import math
+import re
+import signal
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
@@ -57,12 +85,28 @@ from tqdm.auto import tqdm
 from selenv.atomic import OutputBusyError, OutputLock, write_json
 from selenv.exits import Terminated
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
-from selenv.learned.resources import bounded_widths, read_metadata
+from selenv.learned.resources import CHECKPOINT_LIMITS, bounded_widths, json_depth, read_metadata
 from selenv.learned.rl.candidate_policy import obs_layout
 from selenv.learned.rl.rllib_env import SelenvMultiAgentEnv, resolve_env
-from selenv.learned.rl.training import TrainingInterrupted, TrainingTerminated, run_cli
+from selenv.learned.rl.training import (
+    MAX_OPTIMIZER_BYTES,
+    TrainingInterrupted,
+    TrainingTerminated,
+    _rng_state,
+    _set_rng_state,
+    run_cli,
+)
 
-__all__ = ["Config", "UsageError", "build_config", "main", "outputs", "parse_args"]
+__all__ = [
+    "Config",
+    "UsageError",
+    "build_config",
+    "last_paths",
+    "main",
+    "outputs",
+    "parse_args",
+    "read_optimizer_state",
+]
 
 ENVS = ("fim_selection_v0", "receiver_clustering_v1")
 #: --gain-skip-init when not given: 0 (near uniform) as the shipped fim_marl run; 1 for
@@ -143,6 +187,29 @@ class Config:
     )
     progress: bool = arg(True, "show a tqdm bar over the iterations")
     torch_threads: int = arg(1, "torch CPU threads of this process")
+    checkpoint_every: int = arg(
+        10,
+        "iterations between periodic checkpoints OUT.last.json (+ .last.pth, "
+        ".last.optimizer.pth, .last.metrics.json), removed when the run completes (0: none; "
+        "SIGINT / SIGTERM always keep one)",
+    )
+    resume: str = arg(
+        "",
+        "continue from this checkpoint (OUT.last.json of an unfinished run, same options): "
+        "module weights, optimizer state, iteration count, metrics and random generators",
+    )
+
+
+#: options that may differ between an interrupted run and its resumption (how long and where
+#: it runs, what it writes); every other option must be the checkpoint's
+RUN_OPTIONS = frozenset({
+    "iterations", "max_minutes", "address", "num_cpus", "num_env_runners", "out", "force",
+    "progress", "resume", "checkpoint_every", "eval_episodes", "eval_seed", "tensorboard_dir",
+    "torch_threads", "env_kwargs",  # env_kwargs: compared parsed, not as text
+})  # fmt: skip
+#: the extra files of a checkpoint (:func:`selenv.learned.rl.rllib_agent.export_module`)
+OPTIMIZER_FILE = "optimizer.pth"
+METRICS_FILE = "metrics.json"
 
 
 def _fail(message: object) -> NoReturn:
@@ -186,7 +253,7 @@ def _check(cfg: Config) -> dict[str, Any]:
     at_least = {
         "iterations": 1, "seed": 0, "num_env_runners": 0, "num_envs_per_env_runner": 1,
         "train_batch_size": 1, "minibatch_size": 1, "num_epochs": 1, "eval_episodes": 0,
-        "eval_seed": 0, "torch_threads": 1,
+        "eval_seed": 0, "torch_threads": 1, "checkpoint_every": 0,
     }  # fmt: skip
     for name, low in at_least.items():
         if getattr(cfg, name) < low:
@@ -230,6 +297,16 @@ def _outputs(cfg: Config) -> tuple[Path, Path, Path]:
     return json_path, pth_path, json_path.with_suffix(".metrics.json")
 
 
+def last_paths(cfg: Config) -> list[Path]:
+    """The checkpoint of an unfinished run: ``<out>.last.json``, ``.pth``, and its extra files."""
+    json_path = _outputs(cfg)[0]
+    last = json_path.with_name(f"{json_path.stem}.last.json")
+    stem = last.with_suffix("")
+    return [last, last.with_suffix(".pth")] + [
+        stem.with_name(f"{stem.name}.{key}") for key in (OPTIMIZER_FILE, METRICS_FILE)
+    ]
+
+
 def _shared(agent_id: Any, episode: Any, **kwargs: Any) -> str:
     """Policy mapping: every agent plays the one shared module (parameter sharing)."""
     from selenv.learned.rl.rllib_module import SHARED_MODULE_ID
@@ -237,8 +314,11 @@ def _shared(agent_id: Any, episode: Any, **kwargs: Any) -> str:
     return SHARED_MODULE_ID
 
 
-def build_config(cfg: Config, env_kwargs: dict[str, Any]) -> Any:
-    """The RLlib ``PPOConfig`` of ``cfg`` (new API stack, one shared RLModule)."""
+def build_config(cfg: Config, env_kwargs: dict[str, Any], *, seed: int | None = None) -> Any:
+    """The RLlib ``PPOConfig`` of ``cfg`` (new API stack, one shared RLModule).
+
+    ``seed`` replaces ``cfg.seed`` (a resumed run's ``seed + iterations done``).
+    """
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
@@ -279,7 +359,7 @@ def build_config(cfg: Config, env_kwargs: dict[str, Any]) -> Any:
             grad_clip=cfg.grad_clip or None,
             use_kl_loss=False,  # clipped surrogate only, as SB3's PPO
         )
-        .debugging(seed=cfg.seed, log_level="ERROR")
+        .debugging(seed=cfg.seed if seed is None else seed, log_level="ERROR")
     )
 
 
@@ -358,19 +438,407 @@ def _evaluate(cfg: Config, env_kwargs: dict[str, Any], json_path: Path) -> dict[
     }
 
 
+# -- resumable training ------------------------------------------------------------------------
+@dataclass
+class _Snapshot:
+    """The learner after a completed iteration: what a checkpoint keeps."""
+
+    iteration: int
+    weights: dict[str, np.ndarray]  # the shared module's state, copied
+    optimizer: dict[str, Any]  # RLlib's optimizer state, arrays as torch tensors
+    lifetime: dict[str, dict[str, Any]]  # RLlib's lifetime counters (metrics logger)
+    rng: dict[str, Any]  # this process's generators (:func:`_rng_state`)
+
+
+@dataclass
+class _Resumed:
+    """A checked ``--resume`` checkpoint."""
+
+    path: Path
+    snapshot: _Snapshot
+    records: list[dict[str, Any]]
+    wall_seconds: float
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with numpy scalars as Python numbers and arrays as copied torch tensors."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_plain(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return th.from_numpy(np.array(value, copy=True))
+    if isinstance(value, th.Tensor):
+        return value.detach().cpu().clone()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _snapshot(algo: Any, iteration: int) -> _Snapshot:
+    """Copy the learner's module and optimizer, the lifetime counters and the generators."""
+    from ray.rllib.core import COMPONENT_LEARNER, COMPONENT_OPTIMIZER, COMPONENT_RL_MODULE
+
+    from selenv.learned.rl.rllib_module import SHARED_MODULE_ID
+
+    components = [f"{COMPONENT_LEARNER}/{COMPONENT_RL_MODULE}/{SHARED_MODULE_ID}",
+                  f"{COMPONENT_LEARNER}/{COMPONENT_OPTIMIZER}"]  # fmt: skip
+    state = algo.learner_group.get_state(components=components)[COMPONENT_LEARNER]
+    module = state[COMPONENT_RL_MODULE][SHARED_MODULE_ID]
+    lifetime = {
+        key: {k: _plain(v) for k, v in stats.items()}
+        for key, stats in algo.metrics.get_state()["stats"].items()
+        if stats.get("stats_cls_identifier") == "lifetime_sum"
+    }
+    return _Snapshot(
+        iteration=iteration,
+        weights={k: np.array(v, copy=True) for k, v in module.items()},
+        optimizer=_plain(state[COMPONENT_OPTIMIZER]),
+        lifetime=lifetime,
+        rng=_rng_state(),
+    )
+
+
+def _metadata(
+    cfg: Config,
+    env_kwargs: dict[str, Any],
+    records: list[dict[str, Any]],
+    wall: float,
+    metrics_file: str,
+    stopped: str | None,
+    *,
+    complete: bool,
+) -> dict[str, Any]:
+    """The export's JSON content (before :func:`export_module` adds the module's facts)."""
+    import ray
+
+    from selenv import __version__ as selenv_version
+
+    skip = ("force", "progress", "resume")
+    return {
+        "env_id": resolve_env(cfg.env),
+        "env_kwargs": env_kwargs,
+        "training": {
+            **{k: v for k, v in dataclasses.asdict(cfg).items() if k not in skip},
+            "algorithm": "RLlib PPO (new API stack), one shared RLModule",
+            "iterations_done": len(records),
+            "env_steps": records[-1]["env_steps_lifetime"] if records else 0,
+            "agent_steps": records[-1]["module_steps_lifetime"] if records else 0,
+            "wall_seconds": round(wall, 1),
+            "metrics_file": metrics_file,
+            "complete": complete,
+            **({"interrupted": stopped} if stopped else {}),
+        },
+        "iterations": len(records),
+        "ray_version": ray.__version__,
+        "torch_version": th.__version__,
+        "selenv_version": selenv_version,
+    }
+
+
+def _module_of(cfg: Config, env_kwargs: dict[str, Any], weights: dict[str, Any]) -> Any:
+    """A fresh :class:`CandidateScoringRLModule` of ``cfg`` holding ``weights`` (strict)."""
+    from selenv.learned.rl.rllib_module import build_module
+
+    probe = SelenvMultiAgentEnv({"env": cfg.env, "env_kwargs": env_kwargs})
+    layout = obs_layout(probe.agent_observation_space)
+    probe.close()
+    module = build_module(layout["n"], layout["whitened_dim"], _model_config(cfg))
+    module.load_state_dict({k: th.as_tensor(v) for k, v in weights.items()}, strict=True)
+    return module
+
+
+def _save_last(
+    cfg: Config,
+    env_kwargs: dict[str, Any],
+    snap: _Snapshot,
+    records: list[dict[str, Any]],
+    wall: float,
+    stopped: str | None,
+) -> Path:
+    """Write the checkpoint of ``snap`` (:func:`last_paths`, one atomic group); its JSON."""
+    from selenv.learned.rl.rllib_agent import export_module
+
+    last = last_paths(cfg)
+    kept = records[: snap.iteration]
+    meta = _metadata(cfg, env_kwargs, kept, wall, last[3].name, stopped, complete=False)
+    meta["resume_state"] = {
+        "iterations_done": snap.iteration,
+        "wall_seconds": round(wall, 3),
+        "metrics_logger": snap.lifetime,
+        "rng": snap.rng,
+    }
+    buffer = io.BytesIO()
+    th.save(snap.optimizer, buffer)
+    metrics = (json.dumps(kept, indent=1) + "\n").encode("utf-8")
+    extra = {OPTIMIZER_FILE: buffer.getvalue(), METRICS_FILE: metrics}
+    module = _module_of(cfg, env_kwargs, snap.weights)
+    export_module(module, last[0], meta, extra_files=extra)
+    return last[0]
+
+
+def _remove_last(cfg: Config) -> None:
+    """Remove this ``--out``'s checkpoint (the JSON first: no half group looks valid)."""
+    for path in last_paths(cfg):
+        path.unlink(missing_ok=True)
+
+
+def read_optimizer_state(json_path: str | Path, meta: dict[str, Any]) -> dict[str, Any]:
+    """The optimizer state a checkpoint's JSON ``meta`` names, read without executing code.
+
+    The file's size and sha256 are checked against ``meta``, then it is read with
+    ``torch.load(weights_only=True)`` (tensors and plain values only).
+
+    Raises:
+        ValueError: missing, tampered, not plain tensors, or not an optimizer state;
+            the message names the file.
+    """
+    from selenv.learned.rl.rllib_agent import read_extra_file
+
+    raw = read_extra_file(json_path, meta, OPTIMIZER_FILE, MAX_OPTIMIZER_BYTES)
+    try:
+        state = th.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
+        raise ValueError(f"{OPTIMIZER_FILE} of {json_path} is not plain tensors: {exc}") from exc
+    if not isinstance(state, dict) or not state:
+        raise ValueError(f"{OPTIMIZER_FILE} of {json_path} is not an optimizer state")
+    return state
+
+
+def _check_optimizer(state: dict[str, Any], shapes: list[tuple[int, ...]], where: str) -> None:
+    """``ValueError`` unless ``state`` is an Adam state of the shared module's parameters."""
+    from selenv.learned.rl.rllib_module import SHARED_MODULE_ID
+
+    bad = f"{where}: not an optimizer state of this module"
+    for name, entry in state.items():
+        if not isinstance(name, str) or not isinstance(entry, dict):
+            raise ValueError(bad)
+        if entry.get("module_id") != SHARED_MODULE_ID:
+            raise ValueError(f"{where}: optimizer {name!r} is not of module {SHARED_MODULE_ID!r}")
+        inner = entry.get("state")
+        if not isinstance(inner, dict) or not isinstance(inner.get("param_groups"), list):
+            raise ValueError(bad)
+        per_param = inner.get("state")
+        if not isinstance(per_param, dict):
+            raise ValueError(bad)
+        groups = inner["param_groups"]
+        if not all(isinstance(g, dict) and _plain_group(g) for g in groups):
+            raise ValueError(f"{where}: malformed optimizer settings (param_groups)")
+        indices = [i for g in groups for i in g["params"]]
+        if sorted(indices) != list(range(len(shapes))):
+            raise ValueError(f"{where}: the optimizer holds other parameters than the module")
+        for index, slots in per_param.items():
+            if index not in range(len(shapes)) or not isinstance(slots, dict):
+                raise ValueError(bad)
+            for key, value in slots.items():
+                if isinstance(value, th.Tensor) and key != "step":
+                    if tuple(value.shape) != shapes[index]:
+                        raise ValueError(
+                            f"{where}: optimizer slot {key} of parameter {index} has shape "
+                            f"{tuple(value.shape)}, the module's is {shapes[index]}"
+                        )
+                elif not isinstance(value, th.Tensor | float | int):
+                    raise ValueError(bad)
+
+
+def _plain_group(group: dict[Any, Any]) -> bool:
+    """Whether an optimizer's param group holds plain settings and a list of parameter indices."""
+    params = group.get("params")
+    if not isinstance(params, list) or not all(type(i) is int for i in params):
+        return False
+    for key, value in group.items():
+        if not isinstance(key, str):
+            return False
+        if key in ("lr", "eps", "weight_decay") and not (_finite(value) and value >= 0):
+            return False
+        if key == "betas" and not (
+            isinstance(value, list | tuple) and len(value) == 2 and all(map(_finite, value))
+        ):
+            return False
+        if key != "params" and not isinstance(
+            value, bool | int | float | str | tuple | list | None
+        ):
+            return False
+    return True
+
+
+_LIFETIME_KEY = re.compile(r"[A-Za-z0-9_]+(--[A-Za-z0-9_]+){0,7}")
+
+
+def _check_lifetime(value: Any, where: str) -> dict[str, dict[str, Any]]:
+    """The lifetime counters of a checkpoint's ``resume_state``, checked (``ValueError``)."""
+    if not isinstance(value, dict) or len(value) > 10_000:
+        raise ValueError(f"{where}: resume_state.metrics_logger must be an object")
+    out = {}
+    for key, stats in value.items():
+        ok = (
+            _LIFETIME_KEY.fullmatch(key) is not None
+            and isinstance(stats, dict)
+            and stats.get("stats_cls_identifier") == "lifetime_sum"
+            and all(isinstance(stats.get(k), bool) for k in ("is_root", "is_leaf"))
+            and isinstance(stats.get("track_throughputs", False), bool)
+            and _finite(stats.get("lifetime_sum"))
+            and (stats.get("latest_merged") is None or _finite(stats.get("latest_merged")))
+        )
+        if not ok:
+            raise ValueError(f"{where}: malformed lifetime counter {key!r:.100}")
+        out[key] = {k: stats[k] for k in (
+            "stats_cls_identifier", "is_root", "is_leaf", "latest_merged", "lifetime_sum",
+            "track_throughputs") if k in stats}  # fmt: skip
+    return out
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _read_records(json_path: Path, meta: dict[str, Any], done: int) -> list[dict[str, Any]]:
+    """The checkpoint's metrics records, which must be iterations 1..``done``."""
+    from selenv.learned.rl.rllib_agent import read_extra_file
+
+    raw = read_extra_file(json_path, meta, METRICS_FILE, CHECKPOINT_LIMITS["max_metadata_bytes"])
+    try:
+        text = raw.decode("utf-8")
+        if json_depth(text) > 8:
+            raise ValueError("nested too deeply")
+        records = json.loads(text)
+    except ValueError as exc:  # UnicodeDecodeError, JSONDecodeError
+        raise ValueError(f"{METRICS_FILE} of {json_path} is not valid: {exc}") from None
+    if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
+        raise ValueError(f"{METRICS_FILE} of {json_path} must be a list of objects")
+    if [r.get("iteration") for r in records] != list(range(1, done + 1)):
+        raise ValueError(f"{METRICS_FILE} of {json_path} does not hold iterations 1..{done}")
+    return records
+
+
+def _read_resume(cfg: Config, env_kwargs: dict[str, Any]) -> _Resumed:
+    """The checkpoint ``cfg.resume``, checked against this run (``UsageError`` otherwise)."""
+    from selenv.learned.rl.rllib_agent import export_paths, load_exported
+
+    json_path, _ = export_paths(cfg.resume)
+    if not json_path.is_file():
+        raise UsageError(f"--resume {cfg.resume}: no such checkpoint ({json_path} not found)")
+    where = f"--resume {json_path}"
+    try:
+        module, meta = load_exported(json_path)  # the module's files, checked and loaded
+    except ValueError as exc:
+        raise UsageError(f"{where}: {exc}") from None
+    state = meta.get("resume_state")
+    state = state if isinstance(state, dict) else {}
+    training = meta.get("training")
+    done = state.get("iterations_done")
+    if not isinstance(training, dict) or not isinstance(done, int) or done < 1:
+        raise UsageError(f"{where}: no resume state in it (a checkpoint {json_path.name} written "
+                         "by --checkpoint-every or a stopped run is needed)")  # fmt: skip
+    theirs = {"env": meta.get("env_id"), "env_kwargs": meta.get("env_kwargs")}
+    ours = {"env": resolve_env(cfg.env), "env_kwargs": env_kwargs}
+    for name, value in dataclasses.asdict(cfg).items():
+        if name not in RUN_OPTIONS and name != "env":
+            theirs[name], ours[name] = training.get(name, "(not recorded)"), value
+    for name, value in ours.items():
+        if theirs[name] != value:
+            option = "--" + name.rstrip("_").replace("_", "-")
+            raise UsageError(
+                f"{where}: it was trained with {option} {theirs[name]!r:.200}, this run has "
+                f"{value!r:.200}; resume with the options of the interrupted run"
+            )
+    if done > cfg.iterations:
+        raise UsageError(f"{where}: it already ran {done} iterations, more than --iterations "
+                         f"{cfg.iterations}")  # fmt: skip
+    try:
+        optimizer = read_optimizer_state(json_path, meta)
+        _check_optimizer(optimizer, [tuple(q.shape) for q in module.parameters()], where)
+        records = _read_records(json_path, meta, done)
+        lifetime = _check_lifetime(state.get("metrics_logger"), where)
+        rng = state.get("rng")
+        _set_rng_state(rng if isinstance(rng, dict) else {})  # checked now, set again later
+        wall = state.get("wall_seconds", 0.0)
+        wall = float(wall) if _finite(wall) else 0.0
+    except ValueError as exc:
+        raise UsageError(exc if str(exc).startswith(where) else f"{where}: {exc}") from None
+    weights = {k: v.numpy().copy() for k, v in module.state_dict().items()}
+    snapshot = _Snapshot(done, weights, optimizer, lifetime, rng if isinstance(rng, dict) else {})
+    return _Resumed(json_path, snapshot, records, wall)
+
+
+def _restore(algo: Any, resumed: _Resumed) -> None:
+    """Put the checkpoint into the fresh ``algo`` (``Algorithm.set_state``) and the generators.
+
+    The learner gets the module's weights and the optimizer state and syncs the weights to
+    the env runners; the metrics logger gets the lifetime counters; the iteration count
+    continues.
+    """
+    from ray.rllib.core import (
+        COMPONENT_LEARNER,
+        COMPONENT_LEARNER_GROUP,
+        COMPONENT_METRICS_LOGGER,
+        COMPONENT_OPTIMIZER,
+        COMPONENT_RL_MODULE,
+    )
+    from ray.tune.result import TRAINING_ITERATION
+
+    from selenv.learned.rl.rllib_module import SHARED_MODULE_ID
+
+    snap = resumed.snapshot
+    learner = {
+        COMPONENT_RL_MODULE: {SHARED_MODULE_ID: snap.weights},
+        COMPONENT_OPTIMIZER: snap.optimizer,
+    }
+    algo.set_state({
+        COMPONENT_LEARNER_GROUP: {COMPONENT_LEARNER: learner},
+        COMPONENT_METRICS_LOGGER: {"stats": snap.lifetime},
+        TRAINING_ITERATION: snap.iteration,
+    })  # fmt: skip
+    _set_rng_state(snap.rng)
+
+
+@contextlib.contextmanager
+def _sigterm_handler_kept(handler: Any) -> Iterator[None]:
+    """Put back the caller's Python SIGTERM handler, which ``ray.init`` replaced, for the block.
+
+    Ray's driver handler exits at once (and its crash handler dumps a stack); the caller's
+    (:func:`selenv.exits.sigterm_raises` under :func:`cli`) lets the run keep its last
+    completed iteration. A default handler is left to Ray; Ray's is restored afterwards.
+    """
+    current = signal.getsignal(signal.SIGTERM)
+    if not callable(handler) or handler is current:
+        yield
+        return
+    try:
+        signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: nothing was changed
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, current if current is not None else signal.SIG_DFL)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, export, evaluate; return the exported metadata (the JSON's content).
 
     The outputs are locked for the run (a second run on the same ``--out``: exit 2, one
     line). SIGINT / SIGTERM (the latter while :func:`selenv.exits.sigterm_raises` is active,
-    as under :func:`cli`) stop the run: the module of the last completed iteration is
-    exported (marked ``"complete": false``, ``"interrupted": "SIGINT"``) with the metrics so
-    far, the evaluation is skipped, and ``TrainingInterrupted`` / ``TrainingTerminated`` is
-    raised (exit 130 / 143 with one line through :func:`cli`).
+    as under :func:`cli`) stop the run: the last completed iteration is kept as the
+    checkpoint :func:`last_paths` (marked ``"complete": false``, ``"interrupted": "SIGINT"``)
+    with the metrics so far, the evaluation is skipped, and ``TrainingInterrupted`` /
+    ``TrainingTerminated`` is raised (exit 130 / 143 with one line through :func:`cli`,
+    naming the ``--resume`` option that continues the run).
     """
     cfg, env_kwargs = parse_args(argv)
     folders = [cfg.tensorboard_dir] if cfg.tensorboard_dir else []
+    last = last_paths(cfg)[0]
+    if last.exists() and not cfg.resume and not cfg.force:
+        _fail(f"{last} exists (an unfinished run of this --out): continue it with --resume "
+              f"{last}, or pass --force to start over")  # fmt: skip
     check_outputs(PROG, outputs(cfg), force=cfg.force, folders=folders)
+    resumed = None
+    if cfg.resume:
+        try:
+            resumed = _read_resume(cfg, env_kwargs)
+        except UsageError as exc:
+            _fail(exc)
     json_path, _, _ = _outputs(cfg)
     lock = OutputLock(json_path)
     try:
@@ -378,22 +846,22 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     except OutputBusyError as exc:
         _fail(exc)
     try:
-        return _train(cfg, env_kwargs)
+        return _train(cfg, env_kwargs, resumed)
     finally:
         lock.release()
 
 
-def _train(cfg: Config, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+def _train(cfg: Config, env_kwargs: dict[str, Any], resumed: _Resumed | None) -> dict[str, Any]:
     """:func:`main` after the checks, under the output lock."""
-    import ray
-
     from selenv.learned.rl.rllib_agent import export_module
-    from selenv.learned.rl.rllib_module import SHARED_MODULE_ID, build_module
     from selenv.parallel import ExecutorError, ray_session
 
     th.set_num_threads(cfg.torch_threads)
     json_path, _, metrics_path = _outputs(cfg)
-    records: list[dict[str, Any]] = []
+    records: list[dict[str, Any]] = list(resumed.records) if resumed else []
+    done = resumed.snapshot.iteration if resumed else 0
+    wall_before = resumed.wall_seconds if resumed else 0.0
+    snap = resumed.snapshot if resumed else None  # the last completed iteration
     writer = None
     if cfg.tensorboard_dir:
         from torch.utils.tensorboard import SummaryWriter
@@ -401,16 +869,22 @@ def _train(cfg: Config, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         writer = SummaryWriter(cfg.tensorboard_dir)
     start = time.perf_counter()
     stopped: str | None = None
-    weights: dict[str, Any] | None = None  # the module after the last completed iteration
     with contextlib.ExitStack() as stack:
+        handler = signal.getsignal(signal.SIGTERM)
         try:
             stack.enter_context(ray_session(cfg.address, cfg.num_cpus))
         except ExecutorError as exc:
             _fail(exc)
-        algo = build_config(cfg, env_kwargs).build_algo()
+        stack.enter_context(_sigterm_handler_kept(handler))
+        algo = build_config(cfg, env_kwargs, seed=cfg.seed + done).build_algo()
         stack.callback(algo.stop)
-        bar = tqdm(range(1, cfg.iterations + 1), desc=f"rllib {cfg.env}", unit="it",
-                   disable=not cfg.progress)  # fmt: skip
+        if resumed is not None:
+            try:
+                _restore(algo, resumed)
+            except (ValueError, RuntimeError, KeyError) as exc:
+                _fail(f"--resume {resumed.path}: cannot restore its state: {exc}")
+        bar = tqdm(range(done + 1, cfg.iterations + 1), desc=f"rllib {cfg.env}", unit="it",
+                   initial=done, total=cfg.iterations, disable=not cfg.progress)  # fmt: skip
         longest = 0.0
         try:
             for it in bar:
@@ -420,9 +894,9 @@ def _train(cfg: Config, env_kwargs: dict[str, Any]) -> dict[str, Any]:
                 result = algo.train()
                 longest = max(longest, time.perf_counter() - t0)
                 record = _record(it, result, time.perf_counter() - t0)
-                current = algo.learner_group.get_weights(module_ids=[SHARED_MODULE_ID])
-                weights = {k: np.array(v, copy=True) for k, v in current[SHARED_MODULE_ID].items()}
-                records.append(record)
+                new = _snapshot(algo, it)
+                records.append(record)  # a signal in between: records[: snap.iteration] is kept
+                snap = new
                 ret = record["episode_return_mean_sum_over_agents"]
                 if ret is not None and np.isfinite(ret):
                     bar.set_postfix_str(f"return(sum over agents)={ret:.3f}")
@@ -430,55 +904,37 @@ def _train(cfg: Config, env_kwargs: dict[str, Any]) -> dict[str, Any]:
                     for key, value in record.items():
                         if isinstance(value, int | float) and key != "iteration":
                             writer.add_scalar(f"rllib/{key}", value, it)
+                if cfg.checkpoint_every and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
+                    wall = wall_before + time.perf_counter() - start
+                    _save_last(cfg, env_kwargs, snap, records, wall, None)
         except KeyboardInterrupt:
             stopped = "SIGINT"
         except Terminated:
             stopped = "SIGTERM"
         bar.close()
-        n_ray_version = ray.__version__
-    wall = time.perf_counter() - start
+    wall = wall_before + time.perf_counter() - start
     if writer is not None:
         writer.close()
     stop_error = TrainingInterrupted if stopped == "SIGINT" else TrainingTerminated
     how = f"{'interrupted' if stopped == 'SIGINT' else 'terminated'} ({stopped})"
-    if weights is None:
+    if snap is None:
         if stopped is not None:
             raise stop_error(f"{how} before the first iteration completed: nothing was written")
         raise ValueError("no iteration ran (--max-minutes too small?)")
-    probe = SelenvMultiAgentEnv({"env": cfg.env, "env_kwargs": env_kwargs})
-    layout = obs_layout(probe.agent_observation_space)
-    probe.close()
-    module = build_module(layout["n"], layout["whitened_dim"], _model_config(cfg))
-    module.load_state_dict({k: th.as_tensor(v) for k, v in weights.items()}, strict=True)
-    from selenv import __version__ as selenv_version
-
-    metadata = {
-        "env_id": resolve_env(cfg.env),
-        "env_kwargs": env_kwargs,
-        "training": {
-            **{k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("force", "progress")},
-            "algorithm": "RLlib PPO (new API stack), one shared RLModule",
-            "iterations_done": len(records),
-            "env_steps": records[-1]["env_steps_lifetime"] if records else 0,
-            "agent_steps": records[-1]["module_steps_lifetime"] if records else 0,
-            "wall_seconds": round(wall, 1),
-            "metrics_file": metrics_path.name,
-            "complete": stopped is None,
-            **({"interrupted": stopped} if stopped else {}),
-        },
-        "iterations": len(records),
-        "ray_version": n_ray_version,
-        "torch_version": th.__version__,
-        "selenv_version": selenv_version,
-    }
+    records = records[: snap.iteration]
+    if stopped is not None:
+        last = _save_last(cfg, env_kwargs, snap, records, wall, stopped)
+        raise stop_error(
+            f"{how} after iteration {snap.iteration} of {cfg.iterations}: saved it as {last} "
+            f"(+ .pth, .{OPTIMIZER_FILE}, .{METRICS_FILE}), marked incomplete; continue with "
+            f"the same command and --resume {last}"
+        )
+    module = _module_of(cfg, env_kwargs, snap.weights)
+    metadata = _metadata(cfg, env_kwargs, records, wall, metrics_path.name, None, complete=True)
     json_path, _ = export_module(module, json_path, metadata)
     write_json(metrics_path, records, indent=1)
+    _remove_last(cfg)  # superseded by the complete export
     metadata = read_metadata(json_path, "RLlib export metadata")
-    if stopped is not None:
-        raise stop_error(
-            f"{how} after iteration {len(records)} of {cfg.iterations}: kept {json_path} "
-            "(+ .pth, .metrics.json) of the last completed iteration, marked incomplete"
-        )
     if cfg.eval_episodes:
         metadata["eval"] = _evaluate(cfg, env_kwargs, json_path)
         write_json(json_path, metadata)  # the weights are unchanged: the pair still matches

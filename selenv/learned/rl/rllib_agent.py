@@ -8,7 +8,9 @@ loads them. :func:`export_module` writes the trained shared module as two plain 
                  (trained pool size N, per-candidate width W), module class and model_config,
                  weights file name + sha256 + size, training config, versions, eval result
 
-and :func:`load_exported` rebuilds the module **from the JSON** (class and ``model_config``
+plus, on request, further files next to them in the same atomic group (``extra_files``: a
+training run's resume state, :func:`read_extra_file`), and :func:`load_exported` rebuilds the
+module **from the JSON** (class and ``model_config``
 checked against :mod:`selenv.learned.rl.rllib_module`), then reads the weights with
 ``torch.load(weights_only=True)`` after checking their size and sha256, and loads them with
 ``strict=True``. Any malformed, tampered or mismatched file is a ``ValueError`` naming it.
@@ -25,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +65,7 @@ __all__ = [
     "export_paths",
     "load_exported",
     "make_rllib_policy",
+    "read_extra_file",
 ]
 
 #: ``format`` of the exported JSON (``format_version`` :data:`FORMAT_VERSION`)
@@ -73,6 +77,8 @@ MAX_WEIGHTS_BYTES = 64 * 2**20
 CHECKPOINT_DIR = checkpoint_dir()
 #: env module -> the candidate view name its module must have been trained with
 VIEW_NAMES = {FIM_MODULE: TurnView.name, CLUSTERING_MODULE: ClusterLabelView.name}
+#: how an extra file's key must look (it becomes the file name's tail: ``<stem>.<key>``)
+_EXTRA_KEY = re.compile(r"[a-z][a-z_]{0,31}\.(pth|json)")
 
 
 def _rllib_module() -> Any:
@@ -92,7 +98,13 @@ def export_paths(path: str | Path) -> tuple[Path, Path]:
     return stem.with_name(stem.name + ".json"), stem.with_name(stem.name + ".pth")
 
 
-def export_module(module: Any, out: str | Path, metadata: dict[str, Any]) -> tuple[Path, Path]:
+def export_module(
+    module: Any,
+    out: str | Path,
+    metadata: dict[str, Any],
+    *,
+    extra_files: dict[str, bytes] | None = None,
+) -> tuple[Path, Path]:
     """Write ``module``'s weights to ``<out>.pth`` and ``metadata`` + file facts to ``<out>.json``.
 
     ``metadata`` must hold ``env_id`` and ``env_kwargs``; the format, view, layout, module
@@ -101,6 +113,14 @@ def export_module(module: Any, out: str | Path, metadata: dict[str, Any]) -> tup
     the same folder, flushed, then both renamed): a failed or interrupted export leaves a
     previous pair byte-identical and no partial file; an ``OSError`` names the output.
 
+    Args:
+        module: the :class:`~selenv.learned.rl.rllib_module.CandidateScoringRLModule`.
+        out: the export's stem, ``.json`` or ``.pth``.
+        metadata: see above.
+        extra_files: key (``name.pth`` or ``name.json``, lower case) -> content, written as
+            ``<out>.<key>`` in the same atomic group, each recorded in the JSON's
+            ``extra_files`` with its size and sha256 (read back with :func:`read_extra_file`).
+
     Returns:
         The JSON and weights paths.
     """
@@ -108,6 +128,11 @@ def export_module(module: Any, out: str | Path, metadata: dict[str, Any]) -> tup
     if not isinstance(module, rm.CandidateScoringRLModule):
         raise TypeError(f"expected a CandidateScoringRLModule, got {type(module).__name__}")
     json_path, pth_path = export_paths(out)
+    extras = dict(extra_files or {})
+    for key in extras:
+        if not isinstance(key, str) or not _EXTRA_KEY.fullmatch(key):
+            raise ValueError(f"extra_files: key {key!r} must look like 'name.pth' or 'name.json'")
+    extra_paths = [json_path.with_name(f"{json_path.stem}.{key}") for key in extras]
     state = {k: v.detach().cpu().clone() for k, v in module.state_dict().items()}
     buffer = io.BytesIO()
     th.save(state, buffer)
@@ -138,13 +163,29 @@ def export_module(module: Any, out: str | Path, metadata: dict[str, Any]) -> tup
             "sha256": hashlib.sha256(raw).hexdigest(),
         },
     }
+    if extras:
+        meta["extra_files"] = {
+            key: {"file": path.name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+            for (key, data), path in zip(extras.items(), extra_paths, strict=True)
+        }
     text = json.dumps(meta, indent=2) + "\n"  # serialised before anything is written
+    targets = [pth_path, json_path, *extra_paths]
     try:
-        with atomic_paths([pth_path, json_path]) as (tmp_pth, tmp_json):
-            tmp_pth.write_bytes(raw)
-            tmp_json.write_text(text, encoding="utf-8")
+        with atomic_paths(targets) as temps:
+            temps[0].write_bytes(raw)
+            temps[1].write_text(text, encoding="utf-8")
+            for temp, data in zip(temps[2:], extras.values(), strict=True):
+                temp.write_bytes(data)
     except OSError as exc:  # name the output, not its temporary
-        target = json_path if str(exc.filename or "").endswith(".json") else pth_path
+        name = Path(str(exc.filename or ""))
+        target = next(
+            (
+                t
+                for t in targets
+                if name.name.startswith(f".{t.stem}.tmp-") and name.suffix == t.suffix
+            ),
+            json_path if name.suffix == ".json" else pth_path,
+        )
         raise type(exc)(exc.errno or 0, exc.strerror or str(exc), str(target)) from exc
     return json_path, pth_path
 
@@ -170,31 +211,66 @@ def _positive_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 1
 
 
-def _read_weights(json_path: Path, weights: Any) -> dict[str, th.Tensor]:
-    """The state_dict named by the JSON's ``weights`` entry, checked (see module docstring)."""
-    if not isinstance(weights, dict):
-        raise ValueError(f"{json_path}: 'weights' must be an object, got {weights!r}")
-    name, sha, size = weights.get("file"), weights.get("sha256"), weights.get("bytes")
+def _checked_file(
+    json_path: Path, entry: Any, what: str, suffix: str, limit: int
+) -> tuple[Path, bytes]:
+    """The path and bytes of the file a JSON ``entry`` (file, bytes, sha256) names, checked.
+
+    The name must be a bare file name with ``suffix`` next to ``json_path``; its size must
+    equal the recorded one and stay within ``limit``; its sha256 must match.
+    """
+    if not isinstance(entry, dict):
+        raise ValueError(f"{json_path}: {what!r} must be an object, got {entry!r:.200}")
+    name, sha, size = entry.get("file"), entry.get("sha256"), entry.get("bytes")
     if (
         not isinstance(name, str)
         or Path(name).name != name
         or name in ("", ".", "..")
-        or not name.endswith(".pth")
+        or not name.endswith(suffix)
     ):
-        raise ValueError(f"{json_path}: weights file must be a .pth name next to it, got {name!r}")
-    if not isinstance(sha, str) or not _positive_int(size):
-        raise ValueError(f"{json_path}: weights need a sha256 string and a byte count")
-    pth = json_path.with_name(name)
-    if not pth.is_file():
-        raise ValueError(f"weights {pth} (named by {json_path}) not found")
-    actual = pth.stat().st_size
-    if actual > MAX_WEIGHTS_BYTES or actual != size:
         raise ValueError(
-            f"weights {pth} are {actual} bytes; {json_path} says {size} (limit {MAX_WEIGHTS_BYTES})"
+            f"{json_path}: {what} file must be a {suffix} name next to it, got {name!r:.200}"
         )
-    raw = pth.read_bytes()
+    if not isinstance(sha, str) or not _positive_int(size):
+        raise ValueError(f"{json_path}: {what} need a sha256 string and a byte count")
+    path = json_path.with_name(name)
+    if not path.is_file():
+        raise ValueError(f"{what} {path} (named by {json_path}) not found")
+    actual = path.stat().st_size
+    if actual > limit or actual != size:
+        raise ValueError(
+            f"{what} {path} are {actual} bytes; {json_path} says {size} (limit {limit})"
+        )
+    raw = path.read_bytes()
     if hashlib.sha256(raw).hexdigest() != sha:
-        raise ValueError(f"weights {pth} do not match the sha256 recorded in {json_path}")
+        raise ValueError(f"{what} {path} do not match the sha256 recorded in {json_path}")
+    return path, raw
+
+
+def read_extra_file(json_path: str | Path, meta: dict[str, Any], key: str, limit: int) -> bytes:
+    """The bytes of the extra file ``key`` an export's JSON ``meta`` records, checked.
+
+    Args:
+        json_path: the export's JSON (the extra file lies next to it).
+        meta: its parsed content.
+        key: the key given to :func:`export_module`'s ``extra_files``.
+        limit: the largest size accepted, in bytes.
+
+    Raises:
+        ValueError: not recorded, missing, of another size than recorded or above ``limit``,
+            or not matching its sha256; the message names the file.
+    """
+    path = Path(json_path)
+    extras = meta.get("extra_files")
+    if not isinstance(extras, dict) or key not in extras:
+        raise ValueError(f"{path} records no {key!r} file")
+    suffix = "." + key.rsplit(".", 1)[-1]
+    return _checked_file(path, extras[key], key, suffix, limit)[1]
+
+
+def _read_weights(json_path: Path, weights: Any) -> dict[str, th.Tensor]:
+    """The state_dict named by the JSON's ``weights`` entry, checked (see module docstring)."""
+    pth, raw = _checked_file(json_path, weights, "weights", ".pth", MAX_WEIGHTS_BYTES)
     try:
         state = th.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
