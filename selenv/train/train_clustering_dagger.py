@@ -17,23 +17,34 @@ starting from the checkpoint's weights. The result is saved with the source meta
 ``hidden``, ``activation`` and ``gain_skip_init``) to the labels the checkpoint's behaviour
 collected, e.g. to distil the shipped ``mlp`` policy into the cheaper factorised one.
 
+Stopping and resuming: once the labels are collected they are saved with the run's state
+``<out stem>.last.zip`` (+ ``.json``, ``.labels.npz``, and ``.fit.pt`` mid-fit), rewritten every
+``--checkpoint-every`` fit epochs and removed when the run completes. SIGINT / SIGTERM while
+labelling abandons the labels (the workers stop; nothing is kept); during the fit the current
+epoch completes and the state is saved (``"complete": false``, ``"interrupted"``); the command
+exits 130 / 143 with one line naming ``--resume <out stem>.last.zip``, which continues with the
+same options to the weights of an uninterrupted run (other options are refused, exit 2).
+
 The shipped ``checkpoints/receiver_clustering_ppo.zip`` is one such round on the ranking-trained
 policy: ``configs/receiver_clustering_ppo.toml`` (its header gives both commands).
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import torch
+from gymnasium import spaces
 
 from selenv.atomic import write_json
-from selenv.learned.config import arg, check_outputs, parse_config
+from selenv.exits import DeferredSignals, Terminated, UsageError
+from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.candidate_policy import make_ppo
 from selenv.learned.rl.edit_policy import (
@@ -42,10 +53,25 @@ from selenv.learned.rl.edit_policy import (
     is_edit_architecture,
     scorer_policy_kwargs,
 )
-from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
-from selenv.learned.rl.safe_load import model_from_checkpoint
+from selenv.learned.rl.ranking import (
+    FitState,
+    RankingData,
+    collect_clustering_ranking,
+    fit_ranking,
+    fit_state_path,
+    load_labels,
+    read_fit_state,
+    read_resume,
+    save_labels,
+    save_resumable,
+)
+from selenv.learned.rl.safe_load import model_from_checkpoint, read_weights
 from selenv.learned.rl.training import (
+    _rng_state,
+    _set_rng_state,
+    _stop_exception,
     evaluate_checkpoint,
+    last_paths,
     output_lock,
     read_checkpoint_metadata,
     run_cli,
@@ -101,6 +127,17 @@ class Config:
         "checkpoint's behaviour)",
     )
     edit_rank: int = arg(16, "rank k of a fresh factorised scorer (with --scorer factorised)")
+    checkpoint_every: int = arg(
+        1,
+        "fit epochs between the periodic state <out stem>.last.zip (+ .json, .labels.npz, "
+        ".fit.pt); it is also written once the labels are collected and on SIGINT / SIGTERM "
+        "(0: only then)",
+    )
+    resume: str = arg(
+        "",
+        "continue an interrupted run (same options) from its <out stem>.last.zip: the labels "
+        "collected, the weights, the fit epoch and its optimizer",
+    )
 
 
 def fresh_model(
@@ -165,20 +202,60 @@ def outputs(cfg: Config) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit, save, evaluate; return the new checkpoint's metadata."""
     cfg = parse_args(argv)
-    check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
-    with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
+    prog = f"python -m {SCRIPT}"
+    last = last_paths(cfg.out)[0]
+    if cfg.resume:
+        if not Path(cfg.resume).is_file():
+            usage_error(prog, f"--resume {cfg.resume}: no such checkpoint")
+    elif last.exists() and not cfg.force:
+        usage_error(
+            prog,
+            f"{last} exists (an unfinished run of this --out): continue it with --resume "
+            f"{last}, or pass --force to start over",
+        )
+    check_outputs(prog, outputs(cfg), force=cfg.force)
+    with output_lock(cfg.out, prog):  # one run per --out
         return _run(cfg)
+
+
+def state_files(out: str | Path) -> list[Path]:
+    """The resume state of ``--out``, removed when the run completes.
+
+    ``<stem>.last.zip`` / ``.json`` / ``.labels.npz`` / ``.fit.pt``.
+    """
+    last = last_paths(out)
+    return [*last, last[0].with_suffix(".labels.npz"), fit_state_path(last[0])]
+
+
+#: options that may differ between an interrupted run and its --resume
+_FREE = (
+    "out",
+    "force",
+    "progress",
+    "eval_episodes",
+    "eval_seed",
+    "verify_top_k",
+    "baselines",
+    "resume",
+    "checkpoint_every",
+)
 
 
 def _run(cfg: Config) -> dict[str, Any]:
     """The round itself (``main`` after the output checks, holding the lock)."""
     out = Path(cfg.out)
     if out.suffix != ".zip":
-        raise ValueError(f"--out must end in .zip, got {cfg.out!r}")
+        raise UsageError(f"--out must end in .zip, got {cfg.out!r}")
     if cfg.scorer not in ("checkpoint", *SCORERS):
-        raise ValueError(f"--scorer must be one of {['checkpoint', *SCORERS]}, got {cfg.scorer!r}")
+        raise UsageError(f"--scorer must be one of {['checkpoint', *SCORERS]}, got {cfg.scorer!r}")
     if cfg.edit_rank < 1:
-        raise ValueError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
+        raise UsageError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
+    if cfg.checkpoint_every < 0:
+        raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
+    ours = {k: v for k, v in asdict(cfg).items() if k not in _FREE}
+    resumed = (
+        read_resume(cfg.resume, env_id=ENV_ID, block="dagger", ours=ours) if cfg.resume else None
+    )
     meta = load_metadata(cfg.checkpoint)
     if Path(cfg.checkpoint).with_suffix(".json").is_file():  # refuse a mismatched pair
         verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
@@ -187,17 +264,27 @@ def _run(cfg: Config) -> dict[str, Any]:
     kwargs = json.loads(cfg.env_kwargs)
     torch.set_num_threads(1)
     start = time.perf_counter()
-    data = collect_clustering_ranking(
-        kwargs,
-        cfg.states,
-        cfg.seed,
-        label_every=cfg.label_every,
-        explore=cfg.explore,
-        workers=cfg.workers,
-        progress=cfg.progress,
-        behaviour=cfg.checkpoint,
-        behaviour_top_k=cfg.behaviour_top_k,
-    )
+    last = last_paths(out)[0]
+    labels_file = state_files(out)[2]
+    data = None
+    if resumed is None:
+        try:
+            data = collect_clustering_ranking(
+                kwargs,
+                cfg.states,
+                cfg.seed,
+                label_every=cfg.label_every,
+                explore=cfg.explore,
+                workers=cfg.workers,
+                progress=cfg.progress,
+                behaviour=cfg.checkpoint,
+                behaviour_top_k=cfg.behaviour_top_k,
+            )
+        except (KeyboardInterrupt, Terminated) as exc:
+            name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
+            raise _stop_exception(
+                name, "while collecting the labels: nothing complete to keep; run it again"
+            ) from None
     # weights read safely (never SB3's load(), which unpickles the zip), onto a fresh model
     env = gym.make(ENV_ID, **{**kwargs, "action_mode": "edit"})
     env = CandidateViewWrapper(env, view_for(ENV_ID, env, meta.get("view")))
@@ -207,38 +294,138 @@ def _run(cfg: Config) -> dict[str, Any]:
     else:
         model, architecture = fresh_model(meta, env, cfg.scorer, cfg.edit_rank, cfg.seed)
         meta = {**meta, "architecture": architecture}
-    fit = fit_ranking(
-        model.policy,
-        data,
-        epochs=cfg.epochs,
-        learning_rate=cfg.learning_rate,
-        temperature=cfg.temperature,
-        seed=cfg.seed,
-        progress=cfg.progress,
-    )
-    meta = {
-        **meta,
-        "dagger": {**asdict(cfg), **fit, "wall_seconds": round(time.perf_counter() - start, 1)},
-        "metrics": None,
-    }
+    meta = {**meta, "dagger": asdict(cfg), "metrics": None}
     meta.pop("checkpoint_sha256", None)  # the source's: replaced by the new zip's
-    json_path = out.with_suffix(".json")
-    save_checkpoint(model, meta, out)  # zip + JSON as an atomic pair
+    flag = DeferredSignals()
+    wall_before = 0.0
+    fit_state: FitState | None = FitState(0, {})
+    labels: list[dict[str, Any]] = []
+    if resumed is not None:
+        space = cast(spaces.Dict, env.observation_space)
+        rows = {k: tuple(sp.shape or ()) for k, sp in space.spaces.items()}
+        data, labels, fit_state, wall_before = _restore(cfg, resumed, model, rows, labels_file)
+
+    def save(interrupted: str | None, fit: FitState | None) -> None:
+        snap = copy.deepcopy(meta)
+        snap["complete"] = False
+        snap["resume_state"] = {
+            "rounds_done": 0,
+            "labels": labels,
+            "rng": _rng_state(),
+            "wall_seconds": round(wall_before + time.perf_counter() - start, 1),
+        }
+        if interrupted is not None:
+            snap["interrupted"] = interrupted
+        save_resumable(model, snap, last, fit)
+
+    def stop(name: str, state: FitState | None) -> BaseException:
+        done = state.epochs_done if state is not None else 0
+        return _stop_exception(
+            name,
+            f"saved the labels and the fit after {done} of {cfg.epochs} epochs as {last} "
+            f"(+ .json); continue with the same command and --resume {last}",
+        )
+
+    assert data is not None
+    if resumed is None:
+        with flag:
+            sha = save_labels(data, labels_file)
+            labels.append({"round": 0, "states": len(data), "sha256": sha})
+            save(flag.signal, fit_state)  # labels collected: a resume fits them
+        if flag.signal is not None:
+            raise stop(flag.signal, fit_state)
+
+    def after_epoch(state: FitState) -> bool:
+        nonlocal fit_state
+        fit_state = state
+        every = cfg.checkpoint_every
+        if flag.signal is None and every and state.epochs_done % every == 0:
+            if state.epochs_done < cfg.epochs:
+                save(None, state)
+        return flag.signal is not None
+
+    with flag:
+        fit = fit_ranking(
+            model.policy,
+            data,
+            epochs=cfg.epochs,
+            learning_rate=cfg.learning_rate,
+            temperature=cfg.temperature,
+            seed=cfg.seed,
+            progress=cfg.progress,
+            start=fit_state,
+            after_epoch=after_epoch,
+        )
+        if fit["epochs_done"] < cfg.epochs:  # stopped by a signal after a completed epoch
+            name = flag.signal or "SIGINT"
+            save(name, fit_state)
+            raise stop(name, fit_state)
+        meta["dagger"] = {
+            **asdict(cfg),
+            **fit,
+            "wall_seconds": round(wall_before + time.perf_counter() - start, 1),
+        }
+        meta["complete"] = True
+        json_path = out.with_suffix(".json")
+        save_checkpoint(model, meta, out)  # zip + JSON as an atomic pair
+        for stale in state_files(out):  # superseded by the result
+            stale.unlink(missing_ok=True)
+    if flag.signal is not None:
+        raise _stop_exception(
+            flag.signal,
+            f"training had completed: saved {out} (+ .json); its evaluation was skipped",
+        )
     if cfg.eval_episodes:
         eval_kwargs = meta.get("eval_env_kwargs", kwargs)
         ks = [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]
-        meta["metrics"] = evaluate_checkpoint(
-            out,
-            env_id=ENV_ID,
-            make_eval_env=lambda: gym.make(ENV_ID, **eval_kwargs),
-            seeds=[cfg.eval_seed + e for e in range(cfg.eval_episodes)],
-            baselines=cfg.baselines,
-            policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
-        )
+        try:
+            meta["metrics"] = evaluate_checkpoint(
+                out,
+                env_id=ENV_ID,
+                make_eval_env=lambda: gym.make(ENV_ID, **eval_kwargs),
+                seeds=[cfg.eval_seed + e for e in range(cfg.eval_episodes)],
+                baselines=cfg.baselines,
+                policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
+            )
+        except (KeyboardInterrupt, Terminated) as exc:
+            name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
+            raise _stop_exception(
+                name, f"during the evaluation: {out} (+ .json) is complete, without metrics"
+            ) from None
         write_json(json_path, meta)
         summary = {k: v["mean_final_objective"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_final_objective": summary}, indent=2))
     return meta
+
+
+def _restore(
+    cfg: Config,
+    meta: dict[str, Any],
+    model: Any,
+    rows: dict[str, tuple[int, ...]],
+    labels_file: Path,
+) -> tuple[RankingData, list[dict[str, Any]], FitState | None, float]:
+    """Labels, weights, fit state and generators of ``cfg.resume`` (``UsageError`` if bad)."""
+    path = Path(cfg.resume)
+    state = meta["resume_state"]
+    labels = state.get("labels")
+    if not isinstance(labels, list) or len(labels) != 1 or not isinstance(labels[0], dict):
+        raise UsageError(f"--resume {path}: malformed resume state (no labels recorded)")
+    try:
+        data = load_labels(
+            labels_file,
+            sha256=str(labels[0].get("sha256")),
+            rows=cfg.states,
+            row_shapes=rows,
+            n_actions=rows["action_mask"][0],
+        )
+        fit = read_fit_state(path, state.get("fit"))
+        model.policy.load_state_dict(read_weights(path), strict=True)
+        _set_rng_state(state["rng"])
+    except (ValueError, RuntimeError, KeyError, TypeError) as exc:
+        raise UsageError(f"--resume {path}: {exc}") from None
+    wall = state.get("wall_seconds")
+    return data, labels, fit, float(wall) if isinstance(wall, int | float) else 0.0
 
 
 def cli() -> None:

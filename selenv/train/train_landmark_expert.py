@@ -10,21 +10,27 @@ checkpoint and keeps its view; the result is benchmarked against ``brute_force``
 
     python -m selenv.train.train_landmark_expert   # -> runs/train_landmark_expert/policy.zip
 
+Stops and resumes as :mod:`selenv.train.train_cl_expert` does (``--checkpoint-every``,
+``--resume``, ``<out stem>.last.zip``).
+
 The shipped ``checkpoints/landmark_selection_ppo.zip``: ``configs/landmark_selection_ppo.toml``.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from selenv.learned.config import arg, check_outputs, parse_config
+from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
 from selenv.learned.rl.training import output_lock, run_cli
-from selenv.train.train_cl_expert import expert_outputs, run_expert_iteration
+from selenv.train.train_cl_expert import (
+    check_expert_outputs,
+    expert_outputs,
+    run_expert_iteration,
+)
 
 SCRIPT = "selenv.train.train_landmark_expert"
 
@@ -62,6 +68,17 @@ class Config:
         30, "held-out episodes of the selenv bench evaluation after training (0: none)"
     )
     eval_seed: int = arg(1000, "seed of the first held-out episode (then +1, +2, ...)")
+    checkpoint_every: int = arg(
+        5,
+        "fit epochs between the periodic state <out stem>.last.zip (+ .json) within a round; it "
+        "is also written after every collection and round, and on SIGINT / SIGTERM (0: only "
+        "then)",
+    )
+    resume: str = arg(
+        "",
+        "continue an interrupted run (same options) from its <out stem>.last.zip or a round "
+        "checkpoint <out>_round<r>.zip: weights, labels so far, round, fit epoch and optimizer",
+    )
 
 
 def parse_args(argv: list[str] | None = None) -> Config:
@@ -77,8 +94,7 @@ def outputs(cfg: Config) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
-    check_outputs(f"python -m {SCRIPT}", outputs(cfg), force=cfg.force)
-    json.loads(cfg.env_kwargs)
+    check_expert_outputs(cfg, f"python -m {SCRIPT}")
     with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
         return run_expert_iteration(
             cfg, argv, LANDMARK_ID, collect_landmark_rollout_labels, SCRIPT, "brute_force"

@@ -20,14 +20,16 @@ the pairs tie exactly (about the first ten steps of the benchmark preset).
 ``LandmarkSelection-v1`` (:func:`collect_landmark_rollout_labels`) works the same way with
 the landmark ``rollout``; both share one collection loop (``_collect``).
 
+The workers are a :class:`selenv.parallel.ProcessExecutor` pool: they die with this process
+(even after ``kill -9``), and a SIGINT / SIGTERM of the caller during a collection abandons
+it (the workers stop at once, nothing is left running).
+
 Seeds: training episodes are seeded ``10**6 * (seed + 1) + k`` (``k = 0, 1, ...`` per
 worker stride), disjoint from the held-out evaluation seeds ``< 10**6`` of the docs.
 """
 
 from __future__ import annotations
 
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,6 +41,7 @@ from tqdm.auto import tqdm
 import selenv  # noqa: F401  (registers the envs, also in worker processes)
 from selenv.learned.rl.ranking import RankingData
 from selenv.learned.rl.views import view_for
+from selenv.parallel import ProcessExecutor, TaskStopped, stoppable
 
 __all__ = [
     "CL_ID",
@@ -121,7 +124,16 @@ def _labeller(job: _Job) -> tuple[Any, Any]:
     return LandmarkRolloutAgent(top_k=job.top_k, horizon=job.horizon), _landmark_label
 
 
-def _collect(job: _Job) -> RankingData:
+def _collect(job: _Job) -> RankingData | None:
+    """One worker's share of the labels (``None``: abandoned on the pool's stop request)."""
+    try:
+        with stoppable():
+            return _collect_share(job)
+    except TaskStopped:
+        return None
+
+
+def _collect_share(job: _Job) -> RankingData:
     th.set_num_threads(1)  # one worker per core
     env = gym.make(job.env_id, **job.env_kwargs)
     view = view_for(job.env_id, env, job.view)
@@ -209,9 +221,13 @@ def _collect_all(
     ]
     _labeller(jobs[0])  # validates top_k / horizon before any process starts
     if workers == 1:
-        return _collect(jobs[0])
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return RankingData.concatenate(list(pool.map(_collect, jobs)))
+        return _collect_share(jobs[0])
+    with ProcessExecutor(workers) as pool:
+        parts = pool.map(_collect, jobs, progress=False)
+    done = [p for p in parts if p is not None]
+    if len(done) < len(parts):  # a worker stopped by a Ctrl-C to the process group
+        raise KeyboardInterrupt
+    return RankingData.concatenate(done)
 
 
 def collect_cl_rollout_labels(
@@ -240,7 +256,8 @@ def collect_cl_rollout_labels(
         explore: probability of a random allowed action instead of the behaviour's.
         behaviour: checkpoint whose (deterministic) actions drive the trajectories (DAgger);
             ``None``: the labeller's own choices.
-        workers: processes (spawned; the caller needs the ``__main__`` guard if > 1).
+        workers: processes (spawned; the caller needs the ``__main__`` guard if > 1); they
+            die with the caller and are stopped when it is interrupted.
         progress: tqdm bar (first worker).
 
     Raises:

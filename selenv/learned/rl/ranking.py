@@ -20,10 +20,11 @@ top action) or as the proposal of a verified top-``k`` search
 
 from __future__ import annotations
 
-import multiprocessing
+import json
 import os
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -32,14 +33,23 @@ import torch as th
 from tqdm.auto import tqdm
 
 import selenv  # noqa: F401  (registers the envs, also in worker processes)
+from selenv.atomic import atomic_path
 from selenv.learned.rl.views import view_for
 
 __all__ = [
+    "LABELS_FORMAT",
+    "FitState",
     "RankingData",
     "clustering_edit_deltas",
     "collect_clustering_ranking",
     "fit_ranking",
+    "fit_state_path",
     "listnet_targets",
+    "load_labels",
+    "read_fit_state",
+    "read_resume",
+    "save_labels",
+    "save_resumable",
 ]
 
 CLUSTERING_ID = "selenv/ReceiverClustering-v1"
@@ -108,7 +118,18 @@ class _Job:
     behaviour_top_k: int
 
 
-def _collect_worker(job: _Job) -> RankingData:
+def _collect_worker(job: _Job) -> RankingData | None:
+    """One worker's share of the labels (``None``: abandoned on the pool's stop request)."""
+    from selenv.parallel import TaskStopped, stoppable
+
+    try:
+        with stoppable():
+            return _collect_share(job)
+    except TaskStopped:
+        return None
+
+
+def _collect_share(job: _Job) -> RankingData:
     env = gym.make(CLUSTERING_ID, **{**job.env_kwargs, "action_mode": "edit"})
     view = view_for(CLUSTERING_ID, env)
     rng = np.random.default_rng(job.seed)
@@ -176,7 +197,9 @@ def collect_clustering_ranking(
     ``SB3PolicyAgent(behaviour, verify_top_k=behaviour_top_k)``); a random allowed edit
     replaces the action with probability ``explore``. Episodes are seeded from ``seed``;
     ``workers`` processes (spawned: safe after torch has started threads; so a script calling
-    this with ``workers > 1`` needs the ``if __name__ == "__main__":`` guard) share the work.
+    this with ``workers > 1`` needs the ``if __name__ == "__main__":`` guard) share the work;
+    they die with this process, and a SIGINT / SIGTERM here stops them at once (the
+    collection is abandoned).
 
     Raises:
         ValueError: ``n_states < 1``, ``label_every < 1``, ``explore`` outside [0, 1].
@@ -203,9 +226,15 @@ def collect_clustering_ranking(
         for w in range(workers)
     ]
     if workers == 1:
-        return _collect_worker(jobs[0])
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return RankingData.concatenate(list(pool.map(_collect_worker, jobs)))
+        return _collect_share(jobs[0])
+    from selenv.parallel import ProcessExecutor
+
+    with ProcessExecutor(workers) as pool:  # workers die with this process, stop with it
+        parts = pool.map(_collect_worker, jobs, progress=False)
+    done = [p for p in parts if p is not None]
+    if len(done) < len(parts):  # a worker stopped by a Ctrl-C to the process group
+        raise KeyboardInterrupt
+    return RankingData.concatenate(done)
 
 
 def listnet_targets(deltas: np.ndarray, temperature: float) -> np.ndarray:
@@ -234,6 +263,19 @@ def listnet_targets(deltas: np.ndarray, temperature: float) -> np.ndarray:
     return w / w.sum(axis=1, keepdims=True)
 
 
+@dataclass
+class FitState:
+    """Where a ranking fit stands after a completed epoch (what a resumed fit continues from).
+
+    Attributes:
+        epochs_done: completed epochs.
+        optimizer: the Adam ``state_dict`` after that epoch.
+    """
+
+    epochs_done: int
+    optimizer: dict[str, Any]
+
+
 def fit_ranking(
     policy: Any,
     data: RankingData,
@@ -245,22 +287,35 @@ def fit_ranking(
     val_fraction: float = 0.1,
     seed: int = 0,
     progress: bool = True,
+    start: FitState | None = None,
+    after_epoch: Callable[[FitState], bool] | None = None,
 ) -> dict[str, float]:
     """Fit the policy's action logits to the ListNet targets of ``data`` (Adam, in place).
 
     Only the actor's path (the features extractor's scores) is trained; the value head is
     left for PPO. Returns metrics on the held-out ``val_fraction`` of the states: the
     cross-entropy, ``top1`` (the policy's top action is the oracle's best) and ``regret``
-    (mean ``dJ`` of the policy's top action minus the oracle's best, >= 0).
+    (mean ``dJ`` of the policy's top action minus the oracle's best, >= 0), and
+    ``epochs_done``.
+
+    Resumable: ``after_epoch`` is called with the :class:`FitState` after every completed
+    epoch; when it returns ``True`` the fit stops there and returns only ``{"epochs_done":
+    e}`` (no metrics). ``start`` (the policy holding the weights of that moment) continues
+    such a fit: the batch order is replayed from ``seed`` and Adam's state restored, so the
+    result equals the uninterrupted fit's, bit for bit.
 
     Raises:
-        ValueError: ``epochs < 1``, ``batch_size < 1`` or ``val_fraction`` outside [0, 1).
+        ValueError: ``epochs < 1``, ``batch_size < 1``, ``val_fraction`` outside [0, 1), or a
+            ``start`` beyond ``epochs``.
     """
     if epochs < 1 or batch_size < 1 or not 0.0 <= val_fraction < 1.0:
         raise ValueError(
             f"need epochs >= 1, batch_size >= 1, 0 <= val_fraction < 1; got {epochs}, "
             f"{batch_size}, {val_fraction}"
         )
+    done = 0 if start is None else start.epochs_done
+    if not 0 <= done <= epochs:
+        raise ValueError(f"start: {done} epochs done, the fit has {epochs}")
     q_all = listnet_targets(data.deltas, temperature)
     rng = np.random.default_rng(seed)
     order = rng.permutation(len(data))
@@ -270,8 +325,12 @@ def fit_ranking(
         raise ValueError(
             f"no training states left: {len(data)} states, val_fraction {val_fraction}"
         )
+    for _ in range(done):  # replay the batch orders of the epochs already done
+        rng.shuffle(train)
     extractor = policy.pi_features_extractor
     optim = th.optim.Adam(extractor.parameters(), lr=learning_rate)
+    if start is not None and done:
+        optim.load_state_dict(start.optimizer)
     n = data.deltas.shape[1]
 
     def logits(idx: np.ndarray) -> th.Tensor:
@@ -279,11 +338,17 @@ def fit_ranking(
         return th.log_softmax(extractor(obs)[:, :n], dim=1)
 
     policy.set_training_mode(True)
-    bar = tqdm(total=epochs * train.size, desc="ranking fit", unit="state", disable=not progress)
-    for _ in range(epochs):
+    bar = tqdm(
+        total=epochs * train.size,
+        initial=done * train.size,
+        desc="ranking fit",
+        unit="state",
+        disable=not progress,
+    )
+    for epoch in range(done, epochs):
         rng.shuffle(train)
-        for start in range(0, train.size, batch_size):
-            idx = train[start : start + batch_size]
+        for begin in range(0, train.size, batch_size):
+            idx = train[begin : begin + batch_size]
             q = th.as_tensor(q_all[idx], dtype=th.float32)
             loss = -(q * logits(idx)).sum(dim=1).mean()
             optim.zero_grad()
@@ -291,6 +356,11 @@ def fit_ranking(
             optim.step()
             bar.update(idx.size)
             bar.set_postfix(loss=f"{loss.item():.4f}")
+        if after_epoch is not None and after_epoch(FitState(epoch + 1, optim.state_dict())):
+            if epoch + 1 < epochs:
+                bar.close()
+                policy.set_training_mode(False)
+                return {"epochs_done": epoch + 1}
     bar.close()
     policy.set_training_mode(False)
     eval_idx = val if val.size else train
@@ -307,4 +377,216 @@ def fit_ranking(
         "cross_entropy": round(ce, 5),
         "top1": round(float(np.mean(top == np.argmin(d, axis=1))), 4),
         "regret": float(np.mean(d[np.arange(top.size), top] - best)),
+        "epochs_done": epochs,
     }
+
+
+# -- resumable runs: the labels, the fit's optimizer and the checkpoints that continue ---------
+#: format tag in the header of a labels file (:func:`save_labels`)
+LABELS_FORMAT = "selenv-ranking-labels-v1"
+#: header of a labels file: at most this many bytes
+_MAX_HEADER_BYTES = 1 << 16
+
+
+def save_labels(data: RankingData, path: str | Path) -> str:
+    """Write ``data`` as a compressed ``.npz`` atomically; return the file's SHA-256.
+
+    Members: ``deltas`` ``(S, N)``, ``obs_<key>`` ``(S, ...)`` per observation entry and a JSON
+    ``header`` (format, row count). A killed or failed write leaves a previous file intact.
+    """
+    from selenv.learned.rl.training import file_sha256
+
+    header = {"format": LABELS_FORMAT, "rows": len(data), "keys": sorted(data.obs)}
+    arrays: dict[str, Any] = {"header": np.array(json.dumps(header)), "deltas": data.deltas}
+    arrays.update({f"obs_{k}": v for k, v in data.obs.items()})
+    target = Path(path)
+    try:
+        with atomic_path(target) as temp:
+            np.savez_compressed(temp, **arrays)
+            return file_sha256(temp)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from exc
+
+
+def load_labels(
+    path: str | Path,
+    *,
+    sha256: str,
+    rows: int,
+    row_shapes: dict[str, tuple[int, ...]],
+    n_actions: int,
+) -> RankingData:
+    """Read a labels file of :func:`save_labels`, checked before anything is inflated.
+
+    The file's SHA-256 must be ``sha256`` (the checkpoint's record); its members must be
+    exactly ``header``, ``deltas`` and ``obs_<key>`` for the keys of ``row_shapes``, and each
+    ``.npy`` header (read alone, from the zip) must declare ``rows`` rows of the expected
+    shape (``deltas``: ``(rows, n_actions)``) and a numeric dtype; arrays are then loaded
+    with ``allow_pickle=False``.
+
+    Raises:
+        ValueError: a missing or mismatched file, or any declaration that differs (names the
+            file and the array).
+    """
+    import zipfile
+
+    from selenv.learned.rl.training import file_sha256
+    from selenv.learned.surrogate_data import _npy_header
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"labels file {path} is missing")
+    actual = file_sha256(path)
+    if actual != sha256:
+        raise ValueError(
+            f"labels file {path} is not the one its checkpoint records (sha256 {actual[:12]}..., "
+            f"recorded {str(sha256)[:12]}...)"
+        )
+    expected = {"header": (), "deltas": (rows, n_actions)}
+    expected.update({f"obs_{k}": (rows, *shape) for k, shape in row_shapes.items()})
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = {info.filename: info for info in zf.infolist()}
+            if set(members) != {f"{k}.npy" for k in expected}:
+                raise ValueError(
+                    f"labels file {path} holds arrays {sorted(members)}, expected "
+                    f"{sorted(f'{k}.npy' for k in expected)}"
+                )
+            for name, shape in expected.items():
+                got, dtype = _npy_header(zf, members[f"{name}.npy"])
+                if name == "header":
+                    ok = got == () and dtype.kind == "U" and dtype.itemsize <= _MAX_HEADER_BYTES
+                else:
+                    ok = got == shape and dtype.kind in "biuf"
+                if not ok:
+                    raise ValueError(
+                        f"labels file {path}: array {name!r} declares shape {got} of {dtype}, "
+                        f"expected {shape or 'a short JSON string'}"
+                    )
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z["header"]))
+            deltas = np.asarray(z["deltas"], dtype=np.float64)
+            obs = {k: z[f"obs_{k}"] for k in row_shapes}
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+        raise ValueError(f"labels file {path} is not readable: {exc}") from None
+    if not isinstance(header, dict) or header.get("format") != LABELS_FORMAT:
+        raise ValueError(f"labels file {path}: header format is not {LABELS_FORMAT!r}")
+    return RankingData(obs, deltas)
+
+
+def fit_state_path(checkpoint: str | Path) -> Path:
+    """The fit's optimizer state next to a checkpoint: ``<stem>.fit.pt``."""
+    return Path(checkpoint).with_suffix(".fit.pt")
+
+
+def save_resumable(
+    model: Any, meta: dict[str, Any], path: str | Path, fit: FitState | None
+) -> None:
+    """Write checkpoint ``path`` (+ ``.json``) and, mid-fit, the fit's Adam state, as a group.
+
+    ``meta["resume_state"]`` receives ``fit`` (``{"epochs_done", "optimizer_sha256"}``, or
+    ``None``); the optimizer goes to :func:`fit_state_path` (``torch.save`` of tensors, read
+    back with ``weights_only=True``). All files are written to temporaries first and renamed
+    together (:func:`selenv.atomic.atomic_path` around
+    :func:`~selenv.learned.rl.training.save_checkpoint`).
+    """
+    from selenv.learned.rl.training import file_sha256, save_checkpoint
+
+    state = meta["resume_state"]
+    extra = fit_state_path(path)
+    if fit is None or fit.epochs_done == 0:
+        state["fit"] = None if fit is None else {"epochs_done": 0}
+        save_checkpoint(model, meta, path)
+        extra.unlink(missing_ok=True)  # a stale state of an earlier save: not referenced
+        return
+    try:
+        with atomic_path(extra) as temp:
+            th.save(fit.optimizer, temp)
+            state["fit"] = {"epochs_done": fit.epochs_done, "optimizer_sha256": file_sha256(temp)}
+            save_checkpoint(model, meta, path)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), exc.filename or str(extra)) from exc
+
+
+def read_fit_state(path: str | Path, fit: Any) -> FitState | None:
+    """The :class:`FitState` a checkpoint's ``resume_state["fit"]`` record describes.
+
+    Raises:
+        ValueError: a malformed record, or an optimizer file that is missing, differs from
+            the recorded SHA-256, is too large, or is not plain tensors.
+    """
+    from selenv.learned.rl.training import MAX_OPTIMIZER_BYTES, file_sha256
+
+    if fit is None:
+        return None
+    done = fit.get("epochs_done") if isinstance(fit, dict) else None
+    if isinstance(done, bool) or not isinstance(done, int) or done < 0:
+        raise ValueError(f"malformed fit state {fit!r}")
+    if done == 0:
+        return FitState(0, {})
+    extra = fit_state_path(path)
+    if not extra.is_file():
+        raise ValueError(f"the fit's optimizer state {extra} is missing")
+    if file_sha256(extra) != fit.get("optimizer_sha256"):
+        raise ValueError(f"{extra} is not the optimizer state its checkpoint records")
+    if extra.stat().st_size > MAX_OPTIMIZER_BYTES:
+        raise ValueError(f"{extra} is larger than {MAX_OPTIMIZER_BYTES} bytes")
+    try:
+        optimizer = th.load(extra, map_location="cpu", weights_only=True)
+    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
+        raise ValueError(f"{extra} is not plain tensors: {exc}") from None
+    if not isinstance(optimizer, dict):
+        raise ValueError(f"{extra} does not hold an optimizer state")
+    return FitState(done, optimizer)
+
+
+def read_resume(
+    path: str | Path, *, env_id: str, block: str, ours: dict[str, Any]
+) -> dict[str, Any]:
+    """The metadata of a ``--resume`` checkpoint of a ranking run, checked against this run.
+
+    The pair must match (:func:`~selenv.learned.rl.training.verify_pair`), be of ``env_id``,
+    hold a ``resume_state``, and its ``meta[block]`` (the options it ran with) must equal
+    ``ours`` on every key (``env_kwargs`` compared as JSON).
+
+    Raises:
+        selenv.exits.UsageError: one line naming the file and the first mismatch.
+    """
+    from selenv.exits import UsageError
+    from selenv.learned.config import option_name
+    from selenv.learned.rl.training import read_checkpoint_metadata, verify_pair
+
+    path = Path(path)
+    try:
+        meta = read_checkpoint_metadata(path)
+        verify_pair(path, meta)
+    except ValueError as exc:
+        raise UsageError(f"--resume {path}: {exc}") from None
+    state = meta.get("resume_state")
+    options = meta.get(block)
+    if not isinstance(state, dict) or not isinstance(options, dict):
+        raise UsageError(
+            f"--resume {path}: no resume state in its metadata (resume from the run's "
+            "<out stem>.last.zip or one of its round checkpoints)"
+        )
+    if meta.get("env_id") != env_id:
+        raise UsageError(f"--resume {path}: it was trained on {meta.get('env_id')!r}, not {env_id}")
+
+    def norm(key: str, value: Any) -> Any:
+        if key == "env_kwargs" and isinstance(value, str):
+            try:
+                return json.loads(value)
+            except json.JSONDecodeError:
+                return value
+        return value
+
+    for key, value in ours.items():
+        theirs = options.get(key)
+        if norm(key, theirs) != norm(key, value) or isinstance(theirs, bool) != isinstance(
+            value, bool
+        ):
+            raise UsageError(
+                f"--resume {path}: it was trained with {option_name(key)} {theirs!r}, this run "
+                f"has {value!r}; resume with the options of the interrupted run"
+            )
+    return meta
