@@ -12,11 +12,17 @@ Usage::
     python scripts/reproduce_chen_kia.py [--runs 50] [--steps 600] [--workers 2] [--quick]
                                          [--executor local|process|ray] [--address ADDR]
                                          [--bearing-sigma-deg 2] [--methods dmv,pecmv,...]
+                                         [--allow-large]
 
 ``--bearing-sigma-deg``: relative range + bearing (m = 2, the exact PECMV is then an
 optimisation); the learned methods use the m = 2 checkpoints (trained at 2 deg), and
 ``lpecmv_full`` and ``lpecmv_objective`` (no m = 2 checkpoints) are left out unless named in
 ``--methods``.
+
+Sizes are checked before any work (exit 2, one line naming the option): ``--runs`` and
+``--steps`` up to 10,000 and about 4 GiB of kept errors and NEES (:data:`CEILINGS`,
+:data:`MEMORY_CEILING_MIB`); ``--allow-large`` lifts these ceilings. A learned method
+without a shipped surrogate for the chosen noise is refused up front too.
 
 Writes ``chen_kia_fig8.png`` and ``chen_kia_rmse.png`` into ``--out`` and prints Markdown
 tables; ``main(argv)`` returns the numbers. Results: ``docs/reproductions/chen_kia.md``.
@@ -40,8 +46,16 @@ from matplotlib.figure import Figure
 from scipy.stats import chi2
 
 from selenv.atomic import describe_os_error, probe_writable, save_figure
-from selenv.exits import UsageError, guarded_main
-from selenv.families.cooperative.scenario import CLConfig, CLSimulation, make_cl_problem
+from selenv.exits import UsageError, check_size, guarded_main
+from selenv.families.cooperative.scenario import (
+    MAX_STEPS,
+    RANGES,
+    CLConfig,
+    CLSimulation,
+    check_learned_fusion,
+    make_cl_problem,
+)
+from selenv.learned.config import UsageParser
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 
 METHODS = (
@@ -197,37 +211,125 @@ def _check_out(folder: Path) -> None:
         raise UsageError(f"--out: {describe_os_error(exc, folder)}") from None
 
 
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    """Run, plot, print; return the numbers."""
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--runs", type=int, default=50, help="Monte Carlo runs (paper Fig. 8: 50)")
-    ap.add_argument("--steps", type=int, default=600, help="steps of 0.1 s")
+PROG = "reproduce_chen_kia.py"
+#: ceilings on the work of one run, checked before anything runs (``--allow-large`` lifts them);
+#: far above the documented runs (50 runs of 600 steps, 200 runs on a cluster)
+CEILINGS: dict[str, int] = {"--runs": 10_000, "--steps": 10_000}
+#: ceiling on the estimated memory of the kept errors and NEES (MiB; ``--allow-large``)
+MEMORY_CEILING_MIB = 4096
+
+
+def result_mib(runs: int, steps: int, n_methods: int) -> float:
+    """Estimated memory (MiB) of the errors and NEES kept per run, step, method and agent.
+
+    Two float64 arrays per agent (two agents), stacked once more when the runs are gathered.
+    """
+    return float(runs) * steps * n_methods * 2 * 2 * 8 * 2 / 2**20
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command line (see the module docstring); usage errors are one line, exit 2."""
+    ap = UsageParser(prog=PROG, description=__doc__.split("\n")[0])
+    c = CEILINGS
+    ap.add_argument("--runs", type=int, default=50,
+                    help=f"Monte Carlo runs (paper: 50; ceiling {c['--runs']:,})")  # fmt: skip
+    ap.add_argument("--steps", type=int, default=600,
+                    help=f"steps of 0.1 s (ceiling {c['--steps']:,})")  # fmt: skip
     add_executor_arguments(ap, default="process", workers_alias=True)
     ap.add_argument("--out", type=Path, default=Path("docs/figures"))
     ap.add_argument("--quick", action="store_true", help="4 runs of 150 steps (for tests)")
+    low, high, _ = RANGES["bearing_sigma_deg"]
     ap.add_argument("--bearing-sigma-deg", type=float, default=None,
-                    help="relative bearing noise (deg): range + bearing, m = 2 (default: range "
-                         "only)")  # fmt: skip
+                    help=f"relative bearing noise (deg, in [{low:g}, {high:g}]): range + "
+                         "bearing, m = 2 (default: range only)")  # fmt: skip
     ap.add_argument("--methods", default="",
                     help="comma-separated subset of " + ",".join(METHODS) + " (default: all; "
                          "without " + ", ".join(RANGE_ONLY) + " with bearings)")  # fmt: skip
+    ap.add_argument("--allow-large", action="store_true",
+                    help="run sizes above the ceilings (--runs, --steps as above; "
+                         f"{MEMORY_CEILING_MIB:,} MiB of kept errors and NEES), which are "
+                         "there to catch typos")  # fmt: skip
     args = ap.parse_args(argv)
     if args.quick:
         args.runs, args.steps = 4, 150
-    methods = tuple(x for x in args.methods.split(",") if x) or tuple(
+    args.methods = tuple(x for x in args.methods.split(",") if x) or tuple(
         m for m in METHODS if args.bearing_sigma_deg is None or m not in RANGE_ONLY
     )
-    unknown = sorted(set(methods) - set(METHODS))
+    return args
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Every size, noise and method checked before any work (:class:`UsageError`).
+
+    Validity: ``--runs`` >= 1, ``--steps`` in ``[1, MAX_STEPS]``, ``--bearing-sigma-deg``
+    finite in the scenario's range, known ``--methods``. Work: ``--runs``, ``--steps``
+    (:data:`CEILINGS`) and the kept results (:data:`MEMORY_CEILING_MIB`), unless
+    ``--allow-large``. The learned methods' checkpoints are checked last (see
+    :func:`check_methods`).
+    """
+    lifted = args.allow_large
+    check_size("--runs", args.runs, low=1)
+    check_size("--steps", args.steps, low=1, high=MAX_STEPS)
+    if args.bearing_sigma_deg is not None:
+        low, high, _ = RANGES["bearing_sigma_deg"]
+        check_size("--bearing-sigma-deg", args.bearing_sigma_deg, low=low, high=high)
+    unknown = sorted(set(args.methods) - set(METHODS))
     if unknown:
-        raise UsageError(f"unknown --methods {unknown}")
+        raise UsageError(f"--methods: unknown {unknown}; known: {','.join(METHODS)}")
+    for option in CEILINGS:
+        value = getattr(args, option.removeprefix("--"))
+        check_size(option, value, ceiling=CEILINGS[option], lifted=lifted)
+    check_size(
+        "--runs x --steps",
+        round(result_mib(args.runs, args.steps, len(args.methods))),
+        ceiling=MEMORY_CEILING_MIB,
+        lifted=lifted,
+        unit=" MiB",
+        note=f" (estimated memory of the kept errors and NEES of {len(args.methods)} methods)",
+    )
+
+
+def check_methods(methods: Sequence[str], bearing_sigma_deg: float | None) -> None:
+    """Each learned method of ``methods`` has a shipped surrogate for the relative noise.
+
+    Loads the surrogates (what the runs would do first), so call it after the cheap checks.
+
+    Raises:
+        UsageError: naming the method, ``--bearing-sigma-deg`` and the exact alternatives.
+    """
+    cfg = CLConfig(horizon=1, bearing_sigma_deg=bearing_sigma_deg)
+    for m in methods:
+        try:
+            check_learned_fusion(cfg, m)
+        except ValueError:
+            noise = (
+                "range only (no --bearing-sigma-deg)"
+                if bearing_sigma_deg is None
+                else f"--bearing-sigma-deg {bearing_sigma_deg:g}"
+            )
+            raise UsageError(
+                f"--methods: {m} has no shipped surrogate for {noise}; "
+                "name others with --methods (exact: dead_reckoning,naive,ci,dmv,pecmv)"
+            ) from None
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Run, plot, print; return the numbers."""
+    args = parse_args(argv)
+    check_args(args)
+    methods = args.methods
+    check_methods(methods, args.bearing_sigma_deg)
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
         raise UsageError(f"{exc}") from None
     _check_out(args.out)
     t0 = time.perf_counter()
-    with pool:
-        res = run_all(args.runs, args.steps, pool, methods, args.bearing_sigma_deg)
+    try:
+        with pool:
+            res = run_all(args.runs, args.steps, pool, methods, args.bearing_sigma_deg)
+    except ExecutorError as exc:  # an unreachable --address is found when Ray starts
+        raise UsageError(" ".join(str(exc).split())) from None
     dt = CLConfig().dt
     tag = "" if args.bearing_sigma_deg is None else "_m2"
     paths = {
@@ -250,4 +352,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    sys.exit(guarded_main(main, "reproduce_chen_kia.py"))
+    sys.exit(guarded_main(main, PROG))

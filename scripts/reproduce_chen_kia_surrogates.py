@@ -28,6 +28,12 @@ Usage::
 
     python scripts/reproduce_chen_kia_surrogates.py [--samples 5000] [--seed 2022] [--quick]
                                                     [--m 1|2] [--filter-runs 30]
+                                                    [--allow-large]
+
+Sizes are checked before any work (exit 2, one line naming the option): ``--samples`` up to
+200,000, ``--calls`` up to 100,000, ``--filter-runs``, ``--filter-steps`` and
+``--best-diagonal`` up to 10,000 (:data:`CEILINGS`) and about 4 GiB of kept filter errors and
+NEES; ``--allow-large`` lifts these ceilings.
 
 Methods 1 and 2 are read from ``checkpoints/lpecmv_method1.pt`` / ``lpecmv_method2.pt``
 (trained with the same data and budget as the shipped method 3, see
@@ -48,7 +54,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -56,13 +62,21 @@ from scipy.stats import t as student_t
 
 from selenv import fusion
 from selenv.atomic import describe_os_error, probe_writable, save_figure
-from selenv.exits import UsageError, guarded_main
-from selenv.learned.surrogate_data import GenerationConfig, SurrogateDataset, generate_dataset
-from selenv.learned.surrogates import C_SCALE, Surrogate
+from selenv.exits import UsageError, check_size, guarded_main
+from selenv.learned.config import UsageParser
+from selenv.learned.surrogate_data import (
+    MAX_ROWS,
+    GenerationConfig,
+    SurrogateDataset,
+    generate_dataset,
+)
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # spawned workers inherit sys.path
 import reproduce_chen_kia as rck  # the CL simulation runs of Table III / Fig. 8
+
+if TYPE_CHECKING:  # torch loads only once the command line is checked (fast usage errors)
+    from selenv.learned.surrogates import Surrogate
 
 ROOT = Path(__file__).resolve().parents[1]
 CHECKPOINTS = {
@@ -116,6 +130,8 @@ def dmv_values(ds: SurrogateDataset, omega: np.ndarray) -> np.ndarray:
 
 def fig2(ds: SurrogateDataset, lpecmv: dict[int, Surrogate]) -> dict[str, np.ndarray]:
     """Objective values of ``C*``, each method's ``C_hat``, ``C = 0`` and ``diag(C*)``."""
+    from selenv.learned.surrogates import C_SCALE
+
     args = (ds.P_i, ds.P_j, ds.H_i, ds.H_j)
     diag = np.zeros_like(ds.C)
     n = ds.C.shape[-1]
@@ -231,6 +247,8 @@ def best_diagonal_gaps(ds: SurrogateDataset, rows: int) -> tuple[np.ndarray, np.
     """
     from scipy.optimize import minimize
 
+    from selenv.learned.surrogates import C_SCALE
+
     diag_gap, best_gap = [], []
     for k in range(min(rows, len(ds))):
         args = (ds.P_i[k], ds.P_j[k], ds.H_i[k], ds.H_j[k], ds.R)
@@ -333,12 +351,27 @@ def _check_out(folder: Path) -> None:
         raise UsageError(f"--out: {describe_os_error(exc, folder)}") from None
 
 
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    """Generate the test set, evaluate, plot, print; return the numbers."""
-    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
-    ap.add_argument("--samples", type=int, default=5000, help="test rows (paper: 5000)")
-    ap.add_argument("--seed", type=int, default=2022, help="test-set seed (training used 0)")
-    ap.add_argument("--calls", type=int, default=2000, help="timed single calls per algorithm")
+PROG = "reproduce_chen_kia_surrogates.py"
+#: ceilings on the work of one run, checked before anything runs (``--allow-large`` lifts them);
+#: far above the documented runs (5000 rows, 2000 calls, 30 filter runs of 600 steps)
+CEILINGS: dict[str, int] = {
+    "--samples": MAX_ROWS,
+    "--calls": 100_000,
+    "--filter-runs": 10_000,
+    "--filter-steps": 10_000,
+    "--best-diagonal": 10_000,
+}
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command line (see the module docstring); usage errors are one line, exit 2."""
+    ap = UsageParser(prog=PROG, description=(__doc__ or "").split("\n")[0])
+    c = CEILINGS
+    ap.add_argument("--samples", type=int, default=5000,
+                    help=f"test rows (paper: 5000; >= 2; ceiling {c['--samples']:,})")  # fmt: skip
+    ap.add_argument("--seed", type=int, default=2022, help="test-set seed (>= 0; training used 0)")
+    ap.add_argument("--calls", type=int, default=2000,
+                    help=f"timed calls per algorithm (ceiling {c['--calls']:,})")  # fmt: skip
     add_executor_arguments(ap, default="process", workers_alias=True)
     ap.add_argument("--out", type=Path, default=Path("docs/figures"))
     ap.add_argument("--quick", action="store_true",
@@ -346,16 +379,66 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--m", type=int, choices=(1, 2), default=1,
                     help="1: relative range (default); 2: range + bearing at 2 deg")  # fmt: skip
     ap.add_argument("--filter-runs", type=int, default=30,
-                    help="seeds of the exact-vs-learned filter study (0: skip it)")  # fmt: skip
-    ap.add_argument("--filter-steps", type=int, default=600, help="steps of 0.1 s per run")
+                    help="seeds of the exact-vs-learned filter study (0: skip it; ceiling "
+                         f"{c['--filter-runs']:,})")  # fmt: skip
+    ap.add_argument("--filter-steps", type=int, default=600,
+                    help=f"steps of 0.1 s per run (ceiling {c['--filter-steps']:,})")  # fmt: skip
     ap.add_argument("--best-diagonal", type=int, default=0,
-                    help="best diagonal C per row on this many test rows (0: none)")  # fmt: skip
+                    help="best diagonal C per row on this many test rows (0: none; at most "
+                         f"--samples; ceiling {c['--best-diagonal']:,})")  # fmt: skip
+    ap.add_argument("--allow-large", action="store_true",
+                    help="run sizes above the ceilings (as above; "
+                         f"{rck.MEMORY_CEILING_MIB:,} MiB of kept filter errors and NEES), "
+                         "which are there to catch typos")  # fmt: skip
     args = ap.parse_args(argv)
     if args.quick:
         args.samples, args.calls = 300, 200
         args.filter_runs, args.filter_steps = min(args.filter_runs, 3), 100
-    _check_out(args.out)
-    t0 = time.perf_counter()
+    return args
+
+
+def filter_methods(m: int) -> tuple[str, ...]:
+    """The filter study's methods: exact DMV / PECMV and the learned ones shipped for ``m``."""
+    learned = (
+        ("ldmv", "lpecmv", "lpecmv_full", "lpecmv_objective") if m == 1 else ("ldmv", "lpecmv")
+    )
+    return ("dmv", "pecmv", *learned)
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Every size and seed checked before any work (:class:`UsageError` naming the option).
+
+    Validity: ``--samples`` >= 2, ``--calls`` >= 1, ``--filter-runs`` >= 0,
+    ``--filter-steps`` in ``[1, MAX_STEPS]``, ``--best-diagonal`` in ``[0, --samples]``,
+    ``--seed`` >= 0. Work: each size's ceiling (:data:`CEILINGS`) and the filter study's
+    kept errors and NEES (``reproduce_chen_kia.MEMORY_CEILING_MIB``), unless ``--allow-large``.
+    """
+    lifted = args.allow_large
+    check_size("--samples", args.samples, low=2, note=" (the fit's correlation needs two rows)")
+    check_size("--calls", args.calls, low=1)
+    check_size("--filter-runs", args.filter_runs, low=0)
+    check_size("--filter-steps", args.filter_steps, low=1, high=rck.MAX_STEPS)
+    check_size("--best-diagonal", args.best_diagonal, low=0, high=args.samples,
+               note=" (at most --samples, the test rows)")  # fmt: skip
+    check_size("--seed", args.seed, low=0)
+    for option in CEILINGS:
+        value = getattr(args, option.removeprefix("--").replace("-", "_"))
+        check_size(option, value, ceiling=CEILINGS[option], lifted=lifted)
+    n_methods = len(filter_methods(args.m))
+    check_size(
+        "--filter-runs x --filter-steps",
+        round(rck.result_mib(args.filter_runs, args.filter_steps, n_methods)),
+        ceiling=rck.MEMORY_CEILING_MIB,
+        lifted=lifted,
+        unit=" MiB",
+        note=f" (estimated memory of the kept errors and NEES of {n_methods} methods)",
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Generate the test set, evaluate, plot, print; return the numbers."""
+    args = parse_args(argv)
+    check_args(args)
     paths_in = CHECKPOINTS if args.m == 1 else CHECKPOINTS_M2
     missing = [str(p) for p in paths_in.values() if not p.is_file()]
     if missing:
@@ -363,26 +446,28 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
             f"missing checkpoints {missing}: "
             "see docs/reproductions/chen_kia_surrogates.md for the commands"
         )
-    ldmv = Surrogate.load(paths_in["ldmv"])
-    lpecmv = {m: Surrogate.load(p) for m, p in paths_in.items() if m != "ldmv"}
-    bearing = None if args.m == 1 else BEARING_DEG
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
         raise UsageError(f"{exc}") from None
+    _check_out(args.out)
+    t0 = time.perf_counter()
+    from selenv.learned.surrogates import Surrogate
+
+    ldmv = Surrogate.load(paths_in["ldmv"])
+    lpecmv = {m: Surrogate.load(p) for m, p in paths_in.items() if m != "ldmv"}
+    bearing = None if args.m == 1 else BEARING_DEG
     study = None
-    with pool:
-        gen = GenerationConfig(bearing_sigma_deg=bearing)
-        ds = generate_dataset(args.samples, seed=args.seed, executor=pool, gen=gen)
-        if args.filter_runs > 0:
-            learned = (
-                ("ldmv", "lpecmv", "lpecmv_full", "lpecmv_objective")
-                if args.m == 1
-                else ("ldmv", "lpecmv")
-            )
-            study = filter_study(
-                args.filter_runs, args.filter_steps, pool, bearing, ("dmv", "pecmv", *learned)
-            )
+    try:
+        with pool:
+            gen = GenerationConfig(bearing_sigma_deg=bearing)
+            ds = generate_dataset(args.samples, seed=args.seed, executor=pool, gen=gen)
+            if args.filter_runs > 0:
+                study = filter_study(
+                    args.filter_runs, args.filter_steps, pool, bearing, filter_methods(args.m)
+                )
+    except ExecutorError as exc:  # an unreachable --address is found when Ray starts
+        raise UsageError(" ".join(str(exc).split())) from None
 
     values = fig2(ds, lpecmv)
     omega_hat = ldmv.predict_omega(ds.P_i, ds.P_j, ds.H_i, ds.H_j)
@@ -452,4 +537,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    sys.exit(guarded_main(main, "reproduce_chen_kia_surrogates.py"))
+    sys.exit(guarded_main(main, PROG))

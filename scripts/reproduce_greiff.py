@@ -22,7 +22,7 @@ Usage::
 
     python scripts/reproduce_greiff.py [--runs 100] [--table-runs 50] [--steps 500]
                                        [--workers 2] [--seed 2022] [--out docs/figures] [--quick]
-                                       [--ga-variant improved|literal|both]
+                                       [--ga-variant improved|literal|both] [--allow-large]
     # the paper's 1000 runs per setting, on a Ray cluster (`ray start --head` on the head node):
     python scripts/reproduce_greiff.py --runs 1000 --table-runs 1000 \
         --executor ray --address HOST:6379
@@ -32,6 +32,11 @@ process (``--executor local``) or Ray tasks (``--executor ray [--address ADDR]``
 bar; run ``i`` is seeded from ``--seed`` and ``i`` only, so the numbers do not depend on the
 executor. ``main(argv)`` returns the
 numbers as a dict and prints Markdown tables. Results: ``docs/reproductions/greiff.md``.
+
+Sizes are checked before any work (exit 2, one line naming the option): ``--runs`` and
+``--table-runs`` up to 10,000, ``--steps`` up to 10,000 (the env allows 100,000) and about
+4 GiB of kept cost curves (:data:`CEILINGS`, :data:`MEMORY_CEILING_MIB`); ``--allow-large``
+lifts these ceilings.
 """
 
 from __future__ import annotations
@@ -50,10 +55,12 @@ from matplotlib.figure import Figure
 import selenv  # noqa: F401  (registers the env and the agents)
 from selenv.agents import make as make_agent
 from selenv.atomic import describe_os_error, probe_writable, save_figure
-from selenv.exits import UsageError, guarded_main
+from selenv.exits import UsageError, check_size, guarded_main
+from selenv.families.clustering.env import MAX_STEPS
 from selenv.families.clustering.ga import align_labels
 from selenv.families.clustering.labels import random_feasible_clustering
 from selenv.families.clustering.scenario import ClusteringConfig, make_clustering_problem
+from selenv.learned.config import UsageParser
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 
 ENV_ID = "selenv/ReceiverClustering-v1"
@@ -392,14 +399,43 @@ def format_variant(results: dict[str, Any], title: str) -> list[str]:
     return lines
 
 
+PROG = "reproduce_greiff.py"
+#: ceilings on the work of one run, checked before anything runs (``--allow-large`` lifts them);
+#: far above the documented runs (the paper's 1000 runs per setting, K = 500)
+CEILINGS: dict[str, int] = {"--runs": 10_000, "--table-runs": 10_000, "--steps": 10_000}
+#: ceiling on the estimated memory of the kept cost curves (MiB; ``--allow-large`` lifts it)
+MEMORY_CEILING_MIB = 4096
+
+
+def result_mib(args: argparse.Namespace) -> float:
+    """Estimated memory (MiB) of the cost curves a run keeps: float64 per run and step.
+
+    Fig. 3 keeps 2 x ``runs`` episodes (five series each, four stacked again), Table II
+    6 x ``table_runs`` episodes per GA variant (five series, ``J`` stacked again).
+    """
+    variants = 2 if args.ga_variant == "both" else 1
+    per_step = 18 * args.runs + 36 * args.table_runs * variants + 30 * variants
+    return 8.0 * (args.steps + 1) * per_step / 2**20
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    """Command line (see the module docstring)."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--runs", type=int, default=100, help="Fig. 3 Monte Carlo runs (paper: 1000)")
-    p.add_argument("--table-runs", type=int, default=50, help="Table II runs per O (paper: 1000)")
-    p.add_argument("--steps", type=int, default=500, help="K (paper: 500)")
+    """Command line (see the module docstring); usage errors are one line, exit 2."""
+    p = UsageParser(prog=PROG, description=__doc__.split("\n")[0])
+    c = CEILINGS
+    p.add_argument(
+        "--runs", type=int, default=100,
+        help=f"Fig. 3 Monte Carlo runs (paper: 1000; ceiling {c['--runs']:,})",
+    )  # fmt: skip
+    p.add_argument(
+        "--table-runs", type=int, default=50,
+        help=f"Table II runs per O (paper: 1000; ceiling {c['--table-runs']:,})",
+    )  # fmt: skip
+    p.add_argument(
+        "--steps", type=int, default=500,
+        help=f"K (paper: 500; at most {MAX_STEPS:,}, ceiling {c['--steps']:,})",
+    )  # fmt: skip
     add_executor_arguments(p, default="process", workers_alias=True)
-    p.add_argument("--seed", type=int, default=2022)
+    p.add_argument("--seed", type=int, default=2022, help="master seed (>= 0)")
     p.add_argument("--out", type=Path, default=Path("docs/figures"))
     p.add_argument("--quick", action="store_true", help="4 runs, 3 per O, K = 120 (for tests)")
     p.add_argument(
@@ -415,12 +451,44 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="GA operators: improved (ours, default), literal (Table I as printed) or both "
         "(Table II and Fig. 4 for each)",
     )
+    p.add_argument(
+        "--allow-large",
+        action="store_true",
+        help="run sizes above the ceilings (--runs, --table-runs, --steps as above; "
+        f"{MEMORY_CEILING_MIB:,} MiB of kept cost curves), which are there to catch typos",
+    )
     args = p.parse_args(argv)
     if args.save is not None and not args.save.parent.is_dir():
         p.error(f"--save: folder {args.save.parent} does not exist")
     if args.quick:
         args.runs, args.table_runs, args.steps = 4, 3, 120
     return args
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Every size and seed checked before any work (:class:`UsageError` naming the option).
+
+    ``--runs``, ``--table-runs`` >= 1 and ``--steps`` in ``[1, MAX_STEPS]`` (the env's
+    horizon); each at most its ceiling (:data:`CEILINGS`) and the estimated memory of the
+    kept curves (:func:`result_mib`) at most :data:`MEMORY_CEILING_MIB`, unless
+    ``--allow-large``; ``--seed`` >= 0.
+    """
+    lifted = args.allow_large
+    check_size("--runs", args.runs, low=1)
+    check_size("--table-runs", args.table_runs, low=1)
+    check_size("--steps", args.steps, low=1, high=MAX_STEPS, note=" (the env's horizon)")
+    for option in CEILINGS:
+        value = getattr(args, option.removeprefix("--").replace("-", "_"))
+        check_size(option, value, ceiling=CEILINGS[option], lifted=lifted)
+    check_size(
+        "--runs x --table-runs x --steps",
+        round(result_mib(args)),
+        ceiling=MEMORY_CEILING_MIB,
+        lifted=lifted,
+        unit=" MiB",
+        note=" (estimated memory of the kept cost curves)",
+    )
+    check_size("--seed", args.seed, low=0)
 
 
 def _check_out(folder: Path) -> None:
@@ -434,6 +502,7 @@ def _check_out(folder: Path) -> None:
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run the three experiments, write the figures, print the tables; return the numbers."""
     args = parse_args(argv)
+    check_args(args)
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
@@ -442,17 +511,22 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     t0 = time.perf_counter()
     sigma = make_clustering_problem(ClusteringConfig(), np.random.default_rng(args.seed)).sigma
     variants = GA_VARIANTS if args.ga_variant == "both" else (args.ga_variant,)
-    with pool:
-        args.pool = pool
-        results: dict[str, Any] = {"fig3": fig3_experiment(args, np.asarray(sigma), variants[0])}
-        results["by_variant"] = {
-            v: {
-                "table2": table2_experiment(args, v),
-                "fig4": fig4_experiment(args, np.asarray(sigma), v),
+    try:
+        with pool:
+            args.pool = pool
+            results: dict[str, Any] = {
+                "fig3": fig3_experiment(args, np.asarray(sigma), variants[0])
             }
-            for v in variants
-        }
-        del args.pool
+            results["by_variant"] = {
+                v: {
+                    "table2": table2_experiment(args, v),
+                    "fig4": fig4_experiment(args, np.asarray(sigma), v),
+                }
+                for v in variants
+            }
+            del args.pool
+    except ExecutorError as exc:  # an unreachable --address is found when Ray starts
+        raise UsageError(" ".join(str(exc).split())) from None
     results.update(results["by_variant"][variants[0]])  # "table2", "fig4": the first variant
     results["fig3_variant"] = variants[0]
     results["executor"] = pool.describe()
@@ -481,4 +555,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    sys.exit(guarded_main(main, "reproduce_greiff.py"))
+    sys.exit(guarded_main(main, PROG))

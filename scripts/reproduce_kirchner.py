@@ -22,6 +22,10 @@ Results and the comparison with the paper: ``docs/reproductions/kirchner.md``.
 Usage::
 
     python scripts/reproduce_kirchner.py [--trials N] [--out docs/figures] [--seed S] [--quick]
+                                         [--allow-large]
+
+``--trials`` above its ceiling (:data:`CEILINGS`, 10,000) is refused before any work (exit 2)
+unless ``--allow-large`` is given.
 
 Writes ``kirchner_fig3.png``, ``kirchner_fig5.png``, ``kirchner_fig7.png``,
 ``kirchner_geometry.png`` and ``kirchner_altitude.png`` into ``--out`` and prints the result
@@ -47,7 +51,7 @@ from selenv.agents.fim_solvers import cooperative_greedy, greedy_whitened
 from selenv.atomic import describe_os_error, probe_writable, save_figure
 from selenv.core.estimation import gauss_newton_map
 from selenv.core.information import information_matrix, logdet_objective
-from selenv.exits import UsageError, guarded_main
+from selenv.exits import UsageError, check_size, guarded_main
 from selenv.families.fim import models as km
 from selenv.families.fim.scenario import (
     CAMERA,
@@ -56,6 +60,7 @@ from selenv.families.fim.scenario import (
     config_from,
     make_problem,
 )
+from selenv.learned.config import UsageParser
 
 #: budgets K of the full run (per agent in example 3)
 FULL_KS: tuple[int, ...] = (2, 3, 4, 5, 6, 8, 10, 15, 20, 30, 50)
@@ -752,19 +757,39 @@ def format_tables(results: dict[str, Any]) -> str:
 
 
 # -- entry point --------------------------------------------------------------------------------
+PROG = "reproduce_kirchner.py"
+#: ceilings on the work of one run, checked before anything runs (``--allow-large`` lifts them):
+#: 100 trials take ~200 s on 2 cores, so 10,000 take about 5-6 hours
+CEILINGS: dict[str, int] = {"--trials": 10_000}
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    """Command line (see the module docstring); usage errors are one line, exit 2."""
+    p = UsageParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("--trials", type=int, default=None, help="Monte-Carlo trials per example "
-                   f"(default {DEFAULT_TRIALS}, {QUICK_TRIALS} with --quick)")  # fmt: skip
+                   f"(default {DEFAULT_TRIALS}, {QUICK_TRIALS} with --quick; at least 2; "
+                   f"ceiling {CEILINGS['--trials']:,})")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("docs/figures"), help="figure directory")
-    p.add_argument("--seed", type=int, default=DEFAULT_SEED, help="master seed")
+    p.add_argument("--seed", type=int, default=DEFAULT_SEED, help="master seed (>= 0)")
     p.add_argument("--quick", action="store_true", help=f"{QUICK_TRIALS} trials, K in {QUICK_KS}")
+    p.add_argument("--allow-large", action="store_true",
+                   help="run sizes above the ceilings (--trials "
+                   f"{CEILINGS['--trials']:,}), which are there to catch typos")  # fmt: skip
     args = p.parse_args(argv)
     if args.trials is None:
         args.trials = QUICK_TRIALS if args.quick else DEFAULT_TRIALS
-    if args.trials < 2:
-        p.error("--trials must be >= 2 (standard errors need two trials)")
     return args
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Every size and seed checked before any work (:class:`UsageError` naming the option).
+
+    ``--trials`` must be >= 2 (standard errors need two trials) and at most its ceiling
+    (:data:`CEILINGS`) unless ``--allow-large``; ``--seed`` must be >= 0.
+    """
+    check_size("--trials", args.trials, low=2, note=" (standard errors need two trials)")
+    check_size("--trials", args.trials, ceiling=CEILINGS["--trials"], lifted=args.allow_large)
+    check_size("--seed", args.seed, low=0)
 
 
 def _check_out(folder: Path) -> None:
@@ -778,6 +803,7 @@ def _check_out(folder: Path) -> None:
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run every experiment, write the five figures, print the tables; return the numbers."""
     args = parse_args(argv)
+    check_args(args)
     ks = QUICK_KS if args.quick else FULL_KS
     out: Path = args.out
     _check_out(out)
@@ -824,4 +850,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    sys.exit(guarded_main(main, "reproduce_kirchner.py"))
+    sys.exit(guarded_main(main, PROG))

@@ -27,6 +27,12 @@ Usage::
     python scripts/reproduce_soubaras.py [--runs 100] [--horizon 300] [--workers 2]
                                          [--seed 2023] [--out docs/figures] [--quick]
                                          [--executor local|process|ray] [--address ADDR]
+                                         [--n-landmarks 30] [--k 2] [--allow-large]
+
+Sizes are checked before any work (exit 2, one line naming the option): ``--runs`` and
+``--horizon`` up to 10,000, ``C(N, K)`` brute-force subsets per step up to 100,000 and about
+4 GiB of kept records (:data:`CEILINGS`, :data:`SUBSETS_CEILING`, :data:`MEMORY_CEILING_MIB`);
+``--allow-large`` lifts these ceilings.
 
 Runs go to ``--workers`` local processes by default, to Ray tasks with ``--executor ray``
 (``--address`` joins a cluster); run ``r`` uses seed ``--seed + r`` whatever the executor.
@@ -60,13 +66,24 @@ from matplotlib.figure import Figure
 
 import selenv  # noqa: F401  (registers the env and the agents)
 from selenv.agents import make as make_agent
-from selenv.agents.fim_solvers import brute_force_whitened, greedy_whitened
+from selenv.agents.fim_solvers import (
+    MAX_BRUTE_FORCE_SUBSETS,
+    brute_force_whitened,
+    greedy_whitened,
+)
 from selenv.agents.vns import vns_whitened
 from selenv.atomic import describe_os_error, probe_writable, save_figure
 from selenv.core.information import logdet_objective
 from selenv.core.linalg import logdet_spd
-from selenv.exits import UsageError, guarded_main
-from selenv.families.landmarks.scenario import LandmarkEKF, LandmarkProblem, crlb_reference
+from selenv.exits import UsageError, check_size, guarded_main
+from selenv.families.landmarks.scenario import (
+    MAX_LANDMARKS,
+    MAX_STEPS,
+    LandmarkEKF,
+    LandmarkProblem,
+    crlb_reference,
+)
+from selenv.learned.config import UsageParser
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
 
 ENV_ID = "selenv/LandmarkSelection-v1"
@@ -607,29 +624,99 @@ def format_tables(agg: dict[str, Any]) -> str:
 
 
 # -- main ----------------------------------------------------------------------------------------
+PROG = "reproduce_soubaras.py"
+#: ceilings on the work of one run, checked before anything runs (``--allow-large`` lifts them);
+#: far above the documented run (the paper's 100 runs of 300 steps, N = 30, K = 2)
+CEILINGS: dict[str, int] = {"--runs": 10_000, "--horizon": 10_000}
+#: ceiling on the subsets C(N, K) brute force evaluates at every step (``--allow-large``)
+SUBSETS_CEILING = 100_000
+#: ceiling on the estimated memory of the kept per-step records (MiB; ``--allow-large``)
+MEMORY_CEILING_MIB = 4096
+
+
+def result_mib(args: argparse.Namespace) -> float:
+    """Estimated memory (MiB) of the per-step records a run keeps (and stacks once more).
+
+    Per run and step: each of the four played methods keeps its ``K`` picks and ~8 float64
+    records, the ``all`` baseline 6 and the timed solvers 8; the aggregation copies them.
+    """
+    per_step = 2 * 8 * (4 * (args.k + 8) + 14)
+    return float(args.runs) * (args.horizon + 1) * per_step / 2**20
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    """Command line (see the module docstring)."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--runs", type=int, default=None, help="Monte Carlo runs (paper: 100)")
-    p.add_argument("--horizon", type=int, default=None, help="filter steps at 10 Hz (300 = 30 s)")
-    p.add_argument("--n-landmarks", type=int, default=30)
-    p.add_argument("--k", type=int, default=2, help="landmarks selected per step")
+    """Command line (see the module docstring); usage errors are one line, exit 2."""
+    p = UsageParser(prog=PROG, description=__doc__.split("\n")[0])
+    c = CEILINGS
+    p.add_argument(
+        "--runs", type=int, default=None,
+        help=f"Monte Carlo runs (paper: 100; at least 2; ceiling {c['--runs']:,})",
+    )  # fmt: skip
+    p.add_argument(
+        "--horizon", type=int, default=None,
+        help=f"filter steps at 10 Hz (300 = 30 s; at least 2; ceiling {c['--horizon']:,})",
+    )  # fmt: skip
+    p.add_argument(
+        "--n-landmarks", type=int, default=30, help=f"landmarks N (1 to {MAX_LANDMARKS})"
+    )
+    p.add_argument(
+        "--k", type=int, default=2,
+        help=f"landmarks selected per step (1 to N; brute force evaluates C(N, K) subsets per "
+        f"step, ceiling {SUBSETS_CEILING:,})",
+    )  # fmt: skip
     add_executor_arguments(p, default="process", workers_alias=True)
-    p.add_argument("--seed", type=int, default=DEFAULT_SEED, help="run r uses seed + r")
+    p.add_argument("--seed", type=int, default=DEFAULT_SEED, help="run r uses seed + r (>= 0)")
     p.add_argument("--out", type=Path, default=Path("docs/figures"))
     p.add_argument(
         "--quick",
         action="store_true",
         help=f"{QUICK_RUNS} runs, {QUICK_HORIZON} steps (for the test)",
     )
+    p.add_argument(
+        "--allow-large",
+        action="store_true",
+        help="run sizes above the ceilings (--runs, --horizon, C(N, K) as above; "
+        f"{MEMORY_CEILING_MIB:,} MiB of kept records), which are there to catch typos",
+    )
     args = p.parse_args(argv)
     if args.runs is None:
         args.runs = QUICK_RUNS if args.quick else 100
     if args.horizon is None:
         args.horizon = QUICK_HORIZON if args.quick else 300
-    if args.runs < 2 or args.horizon < 2:
-        p.error("--runs and --horizon must be >= 2")
     return args
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Every size and seed checked before any work (:class:`UsageError` naming the option).
+
+    Validity: ``--runs`` >= 2, ``--horizon`` in ``[2, MAX_STEPS]``, ``--n-landmarks`` in
+    ``[1, MAX_LANDMARKS]``, ``--k`` in ``[1, N]``, ``C(N, K)`` within brute force's guard,
+    ``--seed`` >= 0. Work: ``--runs``, ``--horizon`` (:data:`CEILINGS`), ``C(N, K)``
+    (:data:`SUBSETS_CEILING`) and the kept records (:data:`MEMORY_CEILING_MIB`), unless
+    ``--allow-large``.
+    """
+    lifted = args.allow_large
+    check_size("--runs", args.runs, low=2, note=" (paired standard errors need two runs)")
+    check_size("--horizon", args.horizon, low=2, high=MAX_STEPS)
+    check_size("--n-landmarks", args.n_landmarks, low=1, high=MAX_LANDMARKS)
+    check_size("--k", args.k, low=1, high=args.n_landmarks, note=" (at most --n-landmarks)")
+    subsets = math.comb(args.n_landmarks, args.k)
+    what = f"--n-landmarks {args.n_landmarks} --k {args.k}"
+    note = f" (C({args.n_landmarks}, {args.k}), brute force evaluates them at every step)"
+    check_size(what, subsets, high=MAX_BRUTE_FORCE_SUBSETS, unit=" subsets", note=note)
+    check_size(what, subsets, ceiling=SUBSETS_CEILING, lifted=lifted, unit=" subsets", note=note)
+    for option in CEILINGS:
+        value = getattr(args, option.removeprefix("--"))
+        check_size(option, value, ceiling=CEILINGS[option], lifted=lifted)
+    check_size(
+        "--runs x --horizon",
+        round(result_mib(args)),
+        ceiling=MEMORY_CEILING_MIB,
+        lifted=lifted,
+        unit=" MiB",
+        note=" (estimated memory of the kept records)",
+    )
+    check_size("--seed", args.seed, low=0)
 
 
 def _check_out(folder: Path) -> None:
@@ -643,6 +730,7 @@ def _check_out(folder: Path) -> None:
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Run the Monte Carlo study, write the figures, print the tables; return the numbers."""
     args = parse_args(argv)
+    check_args(args)
     try:
         pool = executor_from_args(args)
     except ExecutorError as exc:
@@ -654,8 +742,11 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         {"seed": args.seed + r, "env_kwargs": env_kwargs, "keep_geometry": r == 0}
         for r in range(args.runs)
     ]
-    with pool:
-        runs = run_all(tasks, pool)
+    try:
+        with pool:
+            runs = run_all(tasks, pool)
+    except ExecutorError as exc:  # an unreachable --address is found when Ray starts
+        raise UsageError(" ".join(str(exc).split())) from None
     dt = float(gym.make(ENV_ID, **env_kwargs).unwrapped.config.dt)  # type: ignore[attr-defined]
     agg = aggregate(runs, dt, args.n_landmarks)
     paths = {name: args.out / f"{name}.png" for name in FIGURE_NAMES}
@@ -678,4 +769,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    sys.exit(guarded_main(main, "reproduce_soubaras.py"))
+    sys.exit(guarded_main(main, PROG))

@@ -15,11 +15,14 @@ SIGTERM                              143    ``prog: terminated (SIGTERM)``
 ==================================  =====  ==================================================
 
 Commands that keep partial work (an interrupted bench, a training run) do so before these
-exceptions reach :func:`guarded_main`; the line then says what was kept.
+exceptions reach :func:`guarded_main`; the line then says what was kept. :func:`check_size`
+checks a typed size against its valid range and its work ceiling before any work (the usage
+error names the option and, for a ceiling, the option that lifts it).
 """
 
 from __future__ import annotations
 
+import math
 import signal
 import sys
 from collections.abc import Callable, Iterator
@@ -29,7 +32,14 @@ from typing import Any
 
 from selenv.atomic import OutputBusyError, describe_os_error
 
-__all__ = ["DeferredSignals", "Terminated", "UsageError", "guarded_main", "sigterm_raises"]
+__all__ = [
+    "DeferredSignals",
+    "Terminated",
+    "UsageError",
+    "check_size",
+    "guarded_main",
+    "sigterm_raises",
+]
 
 
 class Terminated(BaseException):
@@ -38,6 +48,55 @@ class Terminated(BaseException):
 
 class UsageError(ValueError):
     """A usage error found before any work: exit 2 with ``prog: error: <message>``."""
+
+
+def _number(value: float) -> str:
+    """``1,000,000`` for ints, ``0.5`` / ``nan`` for floats (for messages)."""
+    return f"{value:,}" if isinstance(value, int) else f"{value:,g}"
+
+
+def check_size(
+    option: str,
+    value: float,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    ceiling: float | None = None,
+    lifted: bool = False,
+    lift: str = "--allow-large",
+    unit: str = "",
+    note: str = "",
+) -> None:
+    """Check a value the user typed before any work; a :class:`UsageError` naming ``option``.
+
+    ``low`` / ``high`` bound what can run at all (validity: never lifted; NaN and infinities
+    are refused whenever a bound is given). ``ceiling`` bounds the work or memory a size
+    multiplies: above it the message names the ceiling and ``lift``, the option that lifts it,
+    unless ``lifted``. ``unit`` follows every number (e.g. ``" MiB"``), ``note`` ends the
+    message (what the number is, why the bound).
+
+    Raises:
+        UsageError: ``"<option>: must be in [low, high], got <value>"`` or
+            ``"<option>: <value> exceeds the ceiling of <ceiling>; pass <lift> ..."``.
+    """
+    bounded = low is not None or high is not None
+    if bounded and not math.isfinite(value):
+        ok = False
+    else:
+        ok = (low is None or value >= low) and (high is None or value <= high)
+    if not ok:
+        if low is not None and high is not None:
+            where = f"in [{_number(low)}, {_number(high)}]{unit}"
+        elif low is not None:
+            where = f">= {_number(low)}{unit}"
+        else:
+            where = f"<= {_number(high)}{unit}"  # type: ignore[arg-type]
+        raise UsageError(f"{option}: must be {where}, got {_number(value)}{unit}{note}")
+    if ceiling is not None and value > ceiling and not lifted:
+        raise UsageError(
+            f"{option}: {_number(value)}{unit} exceeds the ceiling of {_number(ceiling)}{unit}"
+            f"{note}; pass {lift} to run it anyway"
+        )
 
 
 @contextmanager
