@@ -26,24 +26,39 @@ as it finishes, so a caller keeps what finished whatever happens next):
 
 * a worker that dies (killed, out of memory) ends :meth:`~Executor.map` with
   :class:`~selenv.parallel.errors.WorkerDiedError`, one line naming what died (for the pool:
-  the worker's PID and signal), instead of ``BrokenProcessPool`` / ``WorkerCrashedError``;
+  the worker's PID and signal; for Ray: the worker's PID and Ray's exit detail, or the node
+  that stopped and why, e.g. a raylet agent it fate-shares with was killed), instead of
+  ``BrokenProcessPool`` / ``WorkerCrashedError`` / ``NodeDiedError``. A Ray map never puts
+  objects into Ray's object store itself (``fn`` travels with each task), so a Ray node that
+  dies ends the map with that error instead of ending this process;
 * ``KeyboardInterrupt`` (or another ``BaseException`` such as a SIGTERM exception) in the
   caller during a pool's :meth:`~Executor.map`: the tasks not started are cancelled, the
   workers are asked to stop (SIGUSR1: a task inside :func:`stoppable` gets
   :class:`TaskStopped` and may return what it has; later tasks see :func:`stop_requested`),
   the results that arrive within ``STOP_GRACE_SECONDS`` go to ``on_result``, the workers still
-  running are killed, and the exception is re-raised. Ray tasks are cancelled;
+  running are killed, and the exception is re-raised. Ray tasks are cancelled (their workers
+  killed); a SIGTERM while Ray waits reaches the caller's SIGTERM handler (Ray itself would
+  drop the exception such a handler raises, see :class:`_RaySignals`);
 * pool workers never print a ``KeyboardInterrupt`` traceback (a Ctrl-C that reaches the whole
   process group is a stop request to them, ignored if this process ignores SIGINT), and they
   die with their parent (Linux ``PR_SET_PDEATHSIG``; elsewhere a watchdog thread), so none is
   left orphaned;
 * ``--num-workers`` of the process pool is bounded by :func:`max_pool_workers`.
+
+Test hook (for the fault-injection tests of ``--executor ray``; no effect unless both
+variables are set in the process that calls :meth:`~Executor.map`):
+``SELENV_TEST_RAY_HOLD_FROM_TASK=K`` and ``SELENV_TEST_RAY_HOLD_DIR=DIR`` make the Ray tasks
+of index ``K`` and above write their worker's PID to ``DIR/task-<index>.pid`` and then wait
+until they are killed or cancelled, so a test knows that tasks ``0 .. K-1`` were handed to
+``on_result`` (at most ``num_workers`` tasks are in flight) and which processes run the rest.
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
+import importlib
 import os
 import signal
 import sys
@@ -59,6 +74,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
+from selenv.exits import DeferredSignals
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.parallel.ray_session import ray_session
 
@@ -512,6 +528,132 @@ def _ray_call(fn: Callable[[T], R], task: T) -> R:
     return fn(task)
 
 
+#: test hook (fault-injection tests): Ray tasks from this index on never finish
+HOLD_FROM_VAR = "SELENV_TEST_RAY_HOLD_FROM_TASK"
+#: test hook: the folder where a held task writes ``task-<index>.pid`` (its worker's PID)
+HOLD_DIR_VAR = "SELENV_TEST_RAY_HOLD_DIR"
+
+
+def _held_call(fn: Callable[[T], R], index: int, folder: str, task: T) -> R:
+    """Announce ``<folder>/task-<index>.pid``, then wait until killed or cancelled."""
+    from selenv.atomic import write_text
+
+    write_text(os.path.join(folder, f"task-{index}.pid"), f"{os.getpid()}\n")
+    while True:
+        time.sleep(0.05)
+
+
+def _hold_hook() -> tuple[int, str] | None:
+    """``(first held task, folder)`` of the Ray test hook, or ``None`` (the normal case)."""
+    start, folder = os.environ.get(HOLD_FROM_VAR), os.environ.get(HOLD_DIR_VAR)
+    if not start or not folder:
+        return None
+    return int(start), folder
+
+
+#: seconds allowed for asking Ray what died (the answer is only a better message)
+RAY_DIAGNOSIS_SECONDS = 5.0
+
+
+def _first_sentences(text: str, limit: int = 160) -> str:
+    """``text`` up to Ray's list of common causes, on one line, at most ``limit`` chars."""
+    text = " ".join(text.split()).split(" Some common causes", 1)[0]
+    text = text.rstrip(". ")
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _alive_nodes(ray: Any) -> set[str] | None:
+    """IDs of the Ray nodes alive now (``None`` if Ray cannot say)."""
+    try:
+        return {str(n["NodeID"]) for n in ray.nodes() if n.get("Alive")}
+    except Exception:
+        return None
+
+
+def _ray_deaths(ray: Any, since_ms: int, nodes: set[str] | None) -> list[str]:
+    """What Ray's control store knows died: nodes with Ray's reason, crashed workers.
+
+    Reported: the ``nodes`` (alive when the map started; ``None``: any) that are dead now and
+    the workers that crashed since ``since_ms``. The worker table is read through Ray's
+    internal state accessor (as in Ray 2.60); this may raise anything, which only costs the
+    message its detail.
+    """
+    common_pb2: Any = importlib.import_module("ray.core.generated.common_pb2")
+    gcs_pb2: Any = importlib.import_module("ray.core.generated.gcs_pb2")
+    found = []
+    for node in ray.nodes():
+        if not node.get("Alive", True) and (nodes is None or str(node.get("NodeID")) in nodes):
+            why = _first_sentences(str(node.get("DeathReasonMessage") or "")) or "no reason given"
+            found.append(f"node {node.get('NodeManagerAddress', '?')} stopped: {why}")
+    crashed = {common_pb2.SYSTEM_ERROR, common_pb2.NODE_OUT_OF_MEMORY}
+    accessor = ray._private.state.state._connect_and_get_accessor()
+    for raw in accessor.get_worker_table():
+        w = gcs_pb2.WorkerTableData.FromString(raw)
+        if (
+            not w.is_alive
+            and w.worker_type == common_pb2.WORKER
+            and w.exit_type in crashed
+            and w.end_time_ms >= since_ms
+        ):
+            found.append(f"worker PID {w.pid}: {_first_sentences(w.exit_detail) or 'no detail'}")
+    return found[:3]
+
+
+def _ray_failure(
+    ray: Any, err: BaseException, index: int, since_ms: int, nodes: set[str] | None
+) -> str:
+    """One line for a Ray error that is not the task's own: what died, as far as Ray knows.
+
+    Ray's exception says only *that* something died (``WorkerCrashedError``,
+    ``LocalRayletDiedError``, ``NodeDiedError``, ...); the node table (death reason, e.g. an
+    agent the node fate-shares with) and the worker table (PID, exit detail) say what. Asked
+    in a thread for at most :data:`RAY_DIAGNOSIS_SECONDS`; Ray's own first line otherwise.
+    """
+    found: list[str] = []
+
+    def ask() -> None:
+        # Ray records a death in its tables a moment after it fails the task: look again
+        deadline = time.monotonic() + RAY_DIAGNOSIS_SECONDS / 2
+        with contextlib.suppress(Exception):
+            while not found:
+                found.extend(_ray_deaths(ray, since_ms, nodes))
+                if time.monotonic() > deadline:
+                    break
+                time.sleep(0.1)
+
+    asker = threading.Thread(target=ask, daemon=True)
+    asker.start()
+    asker.join(RAY_DIAGNOSIS_SECONDS)
+    name = type(err).__name__
+    if not asker.is_alive() and found:
+        what = "a Ray node stopped" if found[0].startswith("node ") else "a Ray worker died"
+        return f"{what} while running task {index} ({name}; {'; '.join(found)})"
+    first = _first_sentences((str(err).strip().splitlines() or [""])[0], 200)
+    return f"a Ray worker died while running task {index} ({name}" + (
+        f": {first})" if first else ")"
+    )
+
+
+class _RaySignals(DeferredSignals):
+    """SIGINT and SIGTERM during a Ray map: recorded, then raised as ``KeyboardInterrupt``.
+
+    Ray runs a signal's Python handler inside its blocking calls (``ray.wait``) and passes on
+    ``KeyboardInterrupt`` only: another exception (a SIGTERM handler's) is dropped there and
+    the signal is lost. So both become ``KeyboardInterrupt`` while the map runs; the map then
+    hands a SIGTERM to the handler that was in place before (``signal.raise_signal``). A
+    signal that was ignored stays ignored. Main thread only (elsewhere nothing changes).
+    """
+
+    def __init__(self) -> None:
+        super().__init__(second_raises=False)
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self._previous.get(signum) is signal.SIG_IGN:
+            return
+        super()._handle(signum, frame)
+        raise KeyboardInterrupt
+
+
 class RayExecutor(Executor):
     """Ray tasks of one CPU each, at most ``num_workers`` in flight.
 
@@ -565,45 +707,69 @@ class RayExecutor(Executor):
         self.start()
         ray = self._ray
         remote = ray.remote(num_cpus=1, max_retries=0)(_ray_call)
-        fn_ref = ray.put(fn)
+        hold = _hold_hook()
         out: list[Any] = [None] * len(tasks)
-        index: dict[Any, int] = {}
+        index: dict[Any, int] = {}  # tasks in flight: Ray reference -> task index
         todo = iter(enumerate(tasks))
-        limit = self.num_workers
+        since_ms = int(time.time() * 1000)  # Ray's worker table times its deaths in wall ms
+        nodes = _alive_nodes(ray)
+
+        def submit(i: int, task: T) -> None:
+            # ``fn`` travels inline with each task (a module-level function pickles as its
+            # name): an object this process put into Ray's object store would tie this process
+            # to the node's store, and a node that dies would then end it (Ray exits it).
+            call: Callable[[T], R] = fn
+            if hold is not None and i >= hold[0]:
+                call = functools.partial(_held_call, fn, i, hold[1])
+            index[remote.remote(call, task)] = i
+
+        signals = _RaySignals()
         try:
-            for i, task in todo:
-                index[remote.remote(fn_ref, task)] = i
-                if len(index) >= limit:
-                    break
-            while index:
-                (ref,), _ = ray.wait(list(index), num_returns=1)
-                i = index.pop(ref)
+            with signals:
                 try:
-                    out[i] = ray.get(ref)
-                except ray.exceptions.RayTaskError as err:
-                    cause = getattr(err, "cause", None)
-                    if isinstance(cause, BaseException):
-                        raise cause from None
+                    for i, task in todo:
+                        submit(i, task)
+                        if len(index) >= self.num_workers:
+                            break
+                    while index:
+                        (ref,), _ = ray.wait(list(index), num_returns=1)
+                        i = index.pop(ref)
+                        out[i] = self._result(ray, ref, i, since_ms, nodes)
+                        if on_result is not None:
+                            on_result(i, out[i])
+                        bar.update(weights[i])
+                        nxt = next(todo, None)
+                        if nxt is not None:
+                            submit(*nxt)
+                except BaseException:
+                    for ref in index:
+                        with contextlib.suppress(Exception):
+                            ray.cancel(ref, force=True)
                     raise
-                except ray.exceptions.RayError as err:  # a worker, node or object is gone
-                    first = (str(err).strip().splitlines() or [""])[0][:200]
-                    raise WorkerDiedError(
-                        f"a Ray worker died while running task {i} ({type(err).__name__}"
-                        + (f": {first}" if first else "")
-                        + ")"
-                    ) from None
-                if on_result is not None:
-                    on_result(i, out[i])
-                bar.update(weights[i])
-                nxt = next(todo, None)
-                if nxt is not None:
-                    index[remote.remote(fn_ref, nxt[1])] = nxt[0]
-        except BaseException:
-            for ref in index:
-                with contextlib.suppress(Exception):
-                    ray.cancel(ref, force=True)
+        except KeyboardInterrupt:
+            if signals.received and signals.received[0] != signal.SIGINT:
+                # the handler in place before the map (restored now) takes the signal in Python
+                # code, e.g. SIGTERM -> the caller's Terminated
+                signal.raise_signal(signals.received[0])
             raise
         return out
+
+    @staticmethod
+    def _result(ray: Any, ref: Any, i: int, since_ms: int, nodes: set[str] | None) -> Any:
+        """The result of task ``i`` (its own exception re-raised as itself).
+
+        Raises:
+            WorkerDiedError: the worker or node running it is gone (the message names what).
+        """
+        try:
+            return ray.get(ref)
+        except ray.exceptions.RayTaskError as err:
+            cause = getattr(err, "cause", None)
+            if isinstance(cause, BaseException):
+                raise cause from None
+            raise
+        except ray.exceptions.RayError as err:  # a worker, node or object is gone
+            raise WorkerDiedError(_ray_failure(ray, err, i, since_ms, nodes)) from None
 
     def close(self) -> None:  # noqa: D102
         if self._session is not None:

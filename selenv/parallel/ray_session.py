@@ -7,6 +7,14 @@ the running cluster at that address (started with ``ray start --head``), ``"auto
 process reuses it and leaves it running (the caller owns it). So the project never leaves a
 Ray instance it started behind, and never stops one it did not start.
 
+An embedded instance dies with the process that started it, however that process ends: Ray
+ties its GCS server, raylet and monitors to it (the kernel kills them when it dies; the workers
+follow the raylet), and a small guard process (:mod:`selenv.parallel._ray_guard`, Linux) kills
+what Ray leaves behind, the raylet's dashboard and runtime-env agents, which otherwise wait
+about a minute for the dead GCS server. No dashboard is started (``include_dashboard=False``);
+Ray still runs its minimal dashboard head and agents, and its raylet stops the node when one
+of its agents dies (the executors report that in one line).
+
 Ray's own ``ray.init(address=...)`` retries an unreachable address for minutes; the address is
 therefore checked first with a plain TCP connection (``connect_timeout`` seconds) and an
 unreachable one is an :class:`~selenv.parallel.errors.ExecutorError` at once.
@@ -22,13 +30,18 @@ import contextlib
 import importlib
 import os
 import socket
+import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 from types import ModuleType
 
 from selenv.parallel.errors import ExecutorError
 
 __all__ = ["INSTALL_HINT", "check_address", "ray_session", "require_ray"]
+
+#: seconds the guard of an embedded instance gets to finish after the session ends
+GUARD_WAIT_SECONDS = 5.0
 
 #: what to install when Ray is missing
 INSTALL_HINT = "pip install 'selenv[ray]' (or: pip install 'ray[rllib,tune]>=2.60,<3')"
@@ -129,7 +142,97 @@ def ray_session(
             ray.init(address=address, **kwargs)
     except ConnectionError as exc:
         raise ExecutorError(f"--address {address!r}: cannot join the Ray cluster: {exc}") from None
+    guard = None
     try:
+        if address is None:
+            guard = _start_guard(ray)
         yield ray
     finally:
         ray.shutdown()
+        _stop_guard(guard)
+
+
+def _descendants(roots: list[int]) -> list[int]:
+    """``roots`` and every process below them (Linux ``/proc``), parents first."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", encoding="ascii", errors="replace") as fh:
+                ppid = int(fh.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        children.setdefault(ppid, []).append(int(entry))
+    out, todo = [], list(roots)
+    while todo:
+        pid = todo.pop(0)
+        if pid not in out:
+            out.append(pid)
+            todo.extend(children.get(pid, []))
+    return out
+
+
+def _instance_processes(ray: ModuleType) -> list[int]:
+    """The processes of the embedded instance just started: Ray's own list and their children.
+
+    Raises:
+        AttributeError: Ray's internal list of the node's processes is not where it is in
+            Ray 2.60.
+    """
+    node = ray._private.worker._global_node
+    roots = [info.process.pid for infos in node.all_processes.values() for info in infos]
+    return _descendants(roots)
+
+
+def _start_guard(ray: ModuleType) -> subprocess.Popen[bytes] | None:
+    """Start :mod:`selenv.parallel._ray_guard` over the instance's processes (Linux only).
+
+    Ray's kernel fate-sharing ends the GCS server, the raylet, the monitors and (through the
+    raylet) the workers with this process, but not the raylet's agents; the guard SIGKILLs
+    whatever of the instance still runs once this process ends the session or dies.
+    """
+    if not os.path.isdir("/proc/self"):
+        return None
+    try:
+        return _spawn_guard(_instance_processes(ray))
+    except (OSError, AttributeError):  # no guard: Ray's own fate-sharing only
+        return None
+
+
+def _spawn_guard(pids: list[int]) -> subprocess.Popen[bytes]:
+    """A guard process over ``pids`` (with their start times), in a session of its own.
+
+    Its own session: a Ctrl-C or a hang-up that reaches this process's group (the guard's
+    job is to outlive this process) or a kill of that whole group does not reach it.
+
+    Raises:
+        OSError: the guard could not be started or given its list.
+    """
+    from selenv.parallel._ray_guard import start_time
+
+    lines = [f"{pid} {start}\n" for pid in pids if (start := start_time(pid)) is not None]
+    guard = subprocess.Popen(
+        [sys.executable, "-I", "-S", str(Path(__file__).with_name("_ray_guard.py"))],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    if guard.stdin is not None:  # always, with stdin=PIPE
+        guard.stdin.write("".join(lines).encode("ascii"))
+        guard.stdin.flush()
+    return guard
+
+
+def _stop_guard(guard: subprocess.Popen[bytes] | None) -> None:
+    """End the guard (it kills what of the instance Ray left running) and reap it."""
+    if guard is None:
+        return
+    with contextlib.suppress(OSError):
+        if guard.stdin is not None:
+            guard.stdin.close()
+    try:
+        guard.wait(GUARD_WAIT_SECONDS)
+    except subprocess.TimeoutExpired:
+        guard.kill()
+        guard.wait()
