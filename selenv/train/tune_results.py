@@ -72,8 +72,17 @@ def _interval(ci: list[float | None]) -> str:
     return "[n<2]" if ci[0] is None else f"[{_fmt(ci[0])}, {_fmt(ci[1])}]"
 
 
-def format_table(sweep: dict[str, Any], rows: list[dict[str, Any]], n_failed: int) -> str:
-    """Markdown: a header, one row per configuration (best first), the legend and the best."""
+def format_table(
+    sweep: dict[str, Any],
+    rows: list[dict[str, Any]],
+    n_failed: int,
+    *,
+    incomplete: str | None = None,
+) -> str:
+    """Markdown: a header, one row per configuration (best first), the legend and the best.
+
+    ``incomplete``: why some trials have no result (a stopped sweep), shown under the header.
+    """
     b = sweep["baseline"]
     head = ["config", "seeds", "mean return", "95% CI boot", "95% CI t", "min", "max"]
     if b:
@@ -82,6 +91,7 @@ def format_table(sweep: dict[str, Any], rows: list[dict[str, Any]], n_failed: in
         f"## {sweep['script']} on {sweep['env_id']}: {sweep['fixed']['total_timesteps']} steps, "
         f"seeds {sweep['seeds']}, eval seeds {sweep['eval_seeds'][0]}..{sweep['eval_seeds'][-1]}",
         "",
+        *([f"**INCOMPLETE**: {incomplete}", ""] if incomplete else []),
         "| " + " | ".join(head) + " |",
         "|" + "---|" * len(head),
     ]
