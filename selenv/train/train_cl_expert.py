@@ -68,6 +68,7 @@ from selenv.learned.rl.expert import CL_ID, collect_cl_rollout_labels
 from selenv.learned.rl.ranking import (
     FitState,
     RankingData,
+    check_ranking_sizes,
     fit_ranking,
     fit_state_path,
     load_labels,
@@ -135,6 +136,11 @@ class Config:
         "is also written after every collection and round, and on SIGINT / SIGTERM (0: only "
         "then)",
     )
+    allow_large: bool = arg(
+        False,
+        "lift the ceilings of --rounds (100), --states-per-round / --states (10^6), --epochs "
+        "(10,000) and --eval-episodes (100,000)",
+    )
     resume: str = arg(
         "",
         "continue an interrupted run (same options) from its <out stem>.last.zip or a round "
@@ -199,6 +205,7 @@ def evaluate_with_bench(
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
+    check_ranking_sizes(cfg)  # every size in range and under its ceiling, before any work
     check_expert_outputs(cfg, f"python -m {SCRIPT}")
     with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
         return run_expert_iteration(cfg, argv, CL_ID, collect_cl_rollout_labels, SCRIPT, "greedy")
@@ -253,7 +260,16 @@ def check_expert_outputs(cfg: Any, prog: str) -> None:
 
 
 #: options that may differ between an interrupted run and its --resume
-_FREE = ("out", "force", "progress", "eval_episodes", "eval_seed", "resume", "checkpoint_every")
+_FREE = (
+    "out",
+    "force",
+    "progress",
+    "eval_episodes",
+    "eval_seed",
+    "resume",
+    "checkpoint_every",
+    "allow_large",
+)
 
 
 def run_expert_iteration(

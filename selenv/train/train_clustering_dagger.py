@@ -56,6 +56,7 @@ from selenv.learned.rl.edit_policy import (
 from selenv.learned.rl.ranking import (
     FitState,
     RankingData,
+    check_ranking_sizes,
     collect_clustering_ranking,
     fit_ranking,
     fit_state_path,
@@ -133,6 +134,11 @@ class Config:
         ".fit.pt); it is also written once the labels are collected and on SIGINT / SIGTERM "
         "(0: only then)",
     )
+    allow_large: bool = arg(
+        False,
+        "lift the ceilings of --rounds (100), --states-per-round / --states (10^6), --epochs "
+        "(10,000) and --eval-episodes (100,000)",
+    )
     resume: str = arg(
         "",
         "continue an interrupted run (same options) from its <out stem>.last.zip: the labels "
@@ -202,6 +208,7 @@ def outputs(cfg: Config) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit, save, evaluate; return the new checkpoint's metadata."""
     cfg = parse_args(argv)
+    check_ranking_sizes(cfg)  # every size in range and under its ceiling, before any work
     prog = f"python -m {SCRIPT}"
     last = last_paths(cfg.out)[0]
     if cfg.resume:
@@ -238,6 +245,7 @@ _FREE = (
     "baselines",
     "resume",
     "checkpoint_every",
+    "allow_large",
 )
 
 

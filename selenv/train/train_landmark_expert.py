@@ -25,6 +25,7 @@ from typing import Any
 from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+from selenv.learned.rl.ranking import check_ranking_sizes
 from selenv.learned.rl.training import output_lock, run_cli
 from selenv.train.train_cl_expert import (
     check_expert_outputs,
@@ -74,6 +75,11 @@ class Config:
         "is also written after every collection and round, and on SIGINT / SIGTERM (0: only "
         "then)",
     )
+    allow_large: bool = arg(
+        False,
+        "lift the ceilings of --rounds (100), --states-per-round / --states (10^6), --epochs "
+        "(10,000) and --eval-episodes (100,000)",
+    )
     resume: str = arg(
         "",
         "continue an interrupted run (same options) from its <out stem>.last.zip or a round "
@@ -94,6 +100,7 @@ def outputs(cfg: Config) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
+    check_ranking_sizes(cfg)  # every size in range and under its ceiling, before any work
     check_expert_outputs(cfg, f"python -m {SCRIPT}")
     with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
         return run_expert_iteration(

@@ -590,3 +590,56 @@ def read_resume(
                 f"has {value!r}; resume with the options of the interrupted run"
             )
     return meta
+
+
+#: the ranking trainers' sizes: Config field -> (lowest valid value, ceiling lifted by
+#: ``--allow-large``; ``None``: none). Checked by :func:`check_ranking_sizes` before any work.
+RANKING_SIZES: dict[str, tuple[float, float | None]] = {
+    "rounds": (1, 100),
+    "states_per_round": (1, 1_000_000),
+    "states": (1, 1_000_000),
+    "epochs": (1, 10_000),
+    "label_every": (1, 100_000),
+    "eval_episodes": (0, 100_000),
+    "checkpoint_every": (0, None),
+    "edit_rank": (1, 4096),
+}
+#: the labeller's sizes, bounded by the ``rollout`` agent's own ceilings (``top_k`` 256,
+#: ``horizon`` 10,000) and the process pool's; ``--allow-large`` does not lift these
+RANKING_LIMITS: dict[str, int] = {"top_k": 256, "behaviour_top_k": 256, "horizon": 10_000}
+
+
+def check_ranking_sizes(cfg: Any) -> None:
+    """Every size of a ranking trainer's ``cfg`` in its range and under its ceiling.
+
+    The fields of :data:`RANKING_SIZES` that ``cfg`` has (each a ``--kebab-case`` option);
+    ``cfg.allow_large`` lifts those ceilings, never the lower bounds nor
+    :data:`RANKING_LIMITS`; ``workers`` is at most the process pool's
+    :func:`~selenv.parallel.executors.max_pool_workers`. ``explore`` must lie in [0, 1];
+    ``learning_rate`` and ``temperature`` must be finite and > 0.
+
+    Raises:
+        selenv.exits.UsageError: the option, its bound or ceiling and how to lift it (exit 2).
+    """
+    from selenv.exits import UsageError, check_size
+    from selenv.parallel.executors import max_pool_workers
+
+    def option(field: str) -> str:
+        return "--" + field.replace("_", "-")
+
+    lifted = bool(getattr(cfg, "allow_large", False))
+    for field, (low, ceiling) in RANKING_SIZES.items():
+        if hasattr(cfg, field):
+            check_size(option(field), getattr(cfg, field), low=low, ceiling=ceiling, lifted=lifted)
+    for field, high in RANKING_LIMITS.items():
+        if hasattr(cfg, field):
+            check_size(option(field), getattr(cfg, field), low=1, high=high)
+    if hasattr(cfg, "workers"):
+        check_size("--workers", cfg.workers, low=1, high=max_pool_workers(),
+                   note=" (labelling processes on this machine)")  # fmt: skip
+    if hasattr(cfg, "explore"):
+        check_size("--explore", cfg.explore, low=0.0, high=1.0)
+    for field in ("learning_rate", "temperature"):
+        value = getattr(cfg, field, None)
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise UsageError(f"{option(field)}: must be finite and > 0, got {value}")
