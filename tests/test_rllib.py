@@ -373,6 +373,11 @@ def test_bench_agent_without_export_says_how_to_train(tmp_path: Path, monkeypatc
         (["--hidden", "16,x"], "--hidden"),
         (["--env-kwargs", "[" * 100_000 + "]" * 100_000], "nested too deeply"),
         (["--vf", "64," * 20 + "64"], "--vf has 21 layers"),
+        (["--iterations", "100001"], "--iterations 100,001 is above its ceiling 100,000"),
+        (["--num-epochs", "1001"], "--num-epochs 1,001 is above its ceiling 1,000"),
+        (["--train-batch-size", str(2**21), "--minibatch-size", "64"], "--train-batch-size"),
+        (["--num-env-runners", "100000"], "--num-env-runners 100,000 exceeds the"),
+        (["--iterations", "100001", "--allow-large", "--num-epochs", "0"], "--num-epochs must be"),
     ],
 )
 def test_train_usage_errors_exit_2_on_one_line(argv, reason, tmp_path, capsys) -> None:

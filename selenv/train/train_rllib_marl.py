@@ -193,6 +193,12 @@ class Config:
         ".last.optimizer.pth, .last.metrics.json), removed when the run completes (0: none; "
         "SIGINT / SIGTERM always keep one)",
     )
+    allow_large: bool = arg(
+        False,
+        "lift the ceilings of --iterations (100,000), --num-envs-per-env-runner (1,024), "
+        "--train-batch-size and --minibatch-size (1,048,576), --num-epochs (1,000) and "
+        "--eval-episodes (100,000)",
+    )
     resume: str = arg(
         "",
         "continue from this checkpoint (OUT.last.json of an unfinished run, same options): "
@@ -205,8 +211,14 @@ class Config:
 RUN_OPTIONS = frozenset({
     "iterations", "max_minutes", "address", "num_cpus", "num_env_runners", "out", "force",
     "progress", "resume", "checkpoint_every", "eval_episodes", "eval_seed", "tensorboard_dir",
-    "torch_threads", "env_kwargs",  # env_kwargs: compared parsed, not as text
+    "torch_threads", "allow_large",
+    "env_kwargs",  # env_kwargs: compared parsed, not as text
 })  # fmt: skip
+#: ceilings of the sizes that multiply work or memory (``--allow-large`` lifts them)
+CEILINGS = {
+    "iterations": 100_000, "num_envs_per_env_runner": 1_024, "train_batch_size": 1 << 20,
+    "minibatch_size": 1 << 20, "num_epochs": 1_000, "eval_episodes": 100_000,
+}  # fmt: skip
 #: the extra files of a checkpoint (:func:`selenv.learned.rl.rllib_agent.export_module`)
 OPTIMIZER_FILE = "optimizer.pth"
 METRICS_FILE = "metrics.json"
@@ -258,6 +270,22 @@ def _check(cfg: Config) -> dict[str, Any]:
     for name, low in at_least.items():
         if getattr(cfg, name) < low:
             raise UsageError(f"--{name.replace('_', '-')} must be >= {low}")
+    if not cfg.allow_large:
+        for name, ceiling in CEILINGS.items():
+            if getattr(cfg, name) > ceiling:
+                raise UsageError(
+                    f"--{name.replace('_', '-')} {getattr(cfg, name):,} is above its ceiling "
+                    f"{ceiling:,}; pass --allow-large to run it anyway"
+                )
+    if cfg.address is None:  # env runners are processes of this machine
+        from selenv.parallel.executors import max_pool_workers
+
+        if cfg.num_env_runners > max_pool_workers():
+            raise UsageError(
+                f"--num-env-runners {cfg.num_env_runners:,} exceeds the "
+                f"{max_pool_workers()} processes this machine runs (8 per CPU); use fewer, or "
+                "a Ray cluster (--address)"
+            )
     if cfg.gain_skip_init is not None and not math.isfinite(cfg.gain_skip_init):
         raise UsageError("--gain-skip-init must be finite")
     if cfg.num_cpus is not None and cfg.num_cpus < 1:
