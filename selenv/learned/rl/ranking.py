@@ -554,14 +554,10 @@ def read_resume(
     """
     from selenv.exits import UsageError
     from selenv.learned.config import option_name
-    from selenv.learned.rl.training import read_checkpoint_metadata, verify_pair
+    from selenv.learned.rl.training import read_resume_pair
 
     path = Path(path)
-    try:
-        meta = read_checkpoint_metadata(path)
-        verify_pair(path, meta)
-    except ValueError as exc:
-        raise UsageError(f"--resume {path}: {exc}") from None
+    meta = read_resume_pair(path)
     state = meta.get("resume_state")
     options = meta.get(block)
     if not isinstance(state, dict) or not isinstance(options, dict):

@@ -872,14 +872,24 @@ def _stop_exception(name: str, what: str) -> BaseException:
 _RESUME_KEYS = ("env_id", "env_kwargs", "view", "algorithm", "hidden", "activation")
 
 
-def _read_resume(cfg: PPOConfig, env_id: str, view: str) -> dict[str, Any]:
-    """The metadata of ``cfg.resume``, checked against the run (``UsageError`` otherwise)."""
-    path = Path(cfg.resume)
+def read_resume_pair(path: Path) -> dict[str, Any]:
+    """The metadata of the ``--resume`` checkpoint ``path``, its pair verified.
+
+    Raises:
+        UsageError: ``"--resume <path>: <why>"`` for an unreadable or mismatched pair.
+    """
     try:
         meta = read_checkpoint_metadata(path)
         verify_pair(path, meta)
     except ValueError as exc:
         raise UsageError(f"--resume {path}: {exc}") from None
+    return meta
+
+
+def _read_resume(cfg: PPOConfig, env_id: str, view: str) -> dict[str, Any]:
+    """The metadata of ``cfg.resume``, checked against the run (``UsageError`` otherwise)."""
+    path = Path(cfg.resume)
+    meta = read_resume_pair(path)
     state = meta.get("resume_state")
     if not isinstance(state, dict) or not isinstance(state.get("num_timesteps"), int):
         raise UsageError(
