@@ -14,7 +14,9 @@ from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from selenv.learned.rl.expert import CL_ID, TRAIN_SEED_BASE, collect_cl_rollout_labels, train_seed
 from selenv.train import train_cl_expert
 
-SMALL = {"n_agents": 3, "horizon": 12}
+#: a small CL team: 4 labels take a few dozen rollout decisions (ties among them); with 3 agents
+#: nearly every pair is a no-op (an exact tie, not labelled) and 4 labels took ~1300 decisions
+SMALL = {"n_agents": 4, "horizon": 12}
 
 
 def test_labels_are_rollout_scores_on_its_candidates() -> None:
