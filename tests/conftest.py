@@ -51,6 +51,29 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
 
 
+# -- torch threads under pytest-xdist ------------------------------------------------------------
+
+_torch_threads_set = False
+
+
+@pytest.fixture(autouse=True)
+def _torch_threads_per_xdist_worker() -> None:
+    """Under pytest-xdist: torch's intra-op threads = this machine's CPUs / the workers.
+
+    torch starts one thread per core in every worker: with ``make test``'s 2 workers on 2 cores
+    that is 4 busy threads on 2 cores, and a torch-heavy test ran several times slower than
+    alone (its threads wait for each other). Set once, as soon as torch is imported (this never
+    imports it); a plain ``pytest`` run (no workers) keeps torch's default.
+    """
+    global _torch_threads_set
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT", "")
+    if _torch_threads_set or not workers.isdigit() or "torch" not in sys.modules:
+        return
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    sys.modules["torch"].set_num_threads(max(1, (cpus or 1) // max(1, int(workers))))
+    _torch_threads_set = True
+
+
 # -- hypothesis profiles of the fuzz suite (tests/test_fuzz_*.py) ---------------------------------
 #
 # ``fuzz-ci`` (default): derandomized (same examples on every run and machine), no example
