@@ -11,7 +11,11 @@ A script defines a :class:`PPOConfig` subclass with its env's defaults and calls
    :class:`~stable_baselines3.common.vec_env.SubprocVecEnv`);
 2. model: :func:`~selenv.learned.rl.candidate_policy.make_ppo` (candidate-scoring policy) with
    ``algo="maskable_ppo"`` (default: masks from the env's ``action_masks()``) or ``"ppo"``;
-3. training with a tqdm bar and TensorBoard logs (``runs/``);
+3. training with a tqdm bar and TensorBoard logs (``runs/``); with ``--curve-every N`` a
+   learning curve: the current policy evaluated on ``--curve-episodes`` held-out seeds at step
+   0, every ``N`` steps and at the end, the baselines once
+   (:mod:`selenv.learned.rl.curves`, ``learning_curve`` in the JSON; the trained weights are
+   the same as without it);
 4. checkpoint ``<out>.zip`` + metadata ``<out>.json`` (env id and kwargs, candidate view,
    layout, architecture, hyper-parameters, versions, the zip's ``checkpoint_sha256``), written
    as a pair by :func:`save_checkpoint` (temporary files, then both renamed: an interrupted or
@@ -117,6 +121,8 @@ LIMITS: dict[str, int] = {
     "batch_size": 1_048_576,
     "n_epochs": 1000,
     "eval_episodes": 100_000,
+    "curve_every": 10**9,
+    "curve_episodes": 10_000,
     "hidden_width": 4096,
     "hidden_layers": 16,
 }
@@ -168,6 +174,16 @@ class PPOConfig:
     baselines: str = arg(
         "greedy,random", "comma-separated registered agents evaluated next to the policy"
     )
+    # learning curve
+    curve_every: int = arg(
+        0,
+        "environment steps between learning-curve points: the current policy evaluated "
+        "deterministically on --curve-episodes held-out seeds at the next iteration boundary "
+        "(also at step 0 and at the end; recorded as learning_curve in the JSON; 0: no curve)",
+    )
+    curve_episodes: int = arg(
+        20, "held-out episodes per learning-curve point (seeds --eval-seed, +1, ...)"
+    )
     # long runs
     checkpoint_every: int = arg(
         50_000,
@@ -186,8 +202,8 @@ class PPOConfig:
     allow_large: bool = arg(
         False,
         "lift the ceilings of --total-timesteps (1e9), --n-envs (1024), --n-steps (65536), "
-        "--batch-size (1048576), --n-epochs (1000), --eval-episodes (100000) and --hidden "
-        "(16 layers of <= 4096)",
+        "--batch-size (1048576), --n-epochs (1000), --eval-episodes (100000), --curve-every "
+        "(1e9), --curve-episodes (10000) and --hidden (16 layers of <= 4096)",
     )
 
     def kwargs(self) -> dict[str, Any]:
@@ -235,6 +251,8 @@ def check_bounds(cfg: PPOConfig) -> None:
     limit("--batch-size", cfg.batch_size, "batch_size")
     limit("--n-epochs", cfg.n_epochs, "n_epochs")
     limit("--eval-episodes", cfg.eval_episodes, "eval_episodes", 0)
+    limit("--curve-every", cfg.curve_every, "curve_every", 0)
+    limit("--curve-episodes", cfg.curve_episodes, "curve_episodes")
     hidden = parse_hidden(cfg.hidden)
     limit("--hidden (number of layers)", len(hidden), "hidden_layers")
     for width in hidden:
@@ -617,6 +635,10 @@ def train(
 ) -> dict[str, Any]:
     """Train, save ``cfg.out`` (+ JSON), evaluate against ``cfg.baselines``; return the metadata.
 
+    With ``cfg.curve_every`` the metadata holds a ``learning_curve``
+    (:mod:`selenv.learned.rl.curves`), also in the ``.last`` checkpoints; ``cfg.resume``
+    continues it.
+
     Args:
         cfg: the run's configuration.
         env_id: id written into the metadata (the env the ``ppo`` agent will accept).
@@ -654,8 +676,20 @@ def train(
             f"--vec-env native: {env_id} is trained through a wrapper without a native vector "
             "env; use --vec-env dummy or subproc"
         )
+    if cfg.curve_every and env_id not in gym.registry:
+        raise UsageError(
+            f"--curve-every: the learning curve plays the policy through the ppo agent on a "
+            f"Gymnasium env, and {env_id} is not one (its script evaluates on its own)"
+        )
     check_run_outputs(cfg, "selenv.learned.rl.training.train")  # the scripts check first
+    from selenv.learned.rl.curves import (  # the curve evaluates through the ppo agent
+        CurveCallback,
+        CurveRecorder,
+        resumed_curve,
+    )
+
     resumed = _read_resume(cfg, env_id, view) if cfg.resume else None
+    resumed_points = resumed_curve(cfg, resumed) if resumed is not None else None
     out.parent.mkdir(parents=True, exist_ok=True)
     hidden = parse_hidden(cfg.hidden)
 
@@ -776,6 +810,17 @@ def train(
         pretraining = pretrain(model) if pretrain is not None else None
     last_zip = last_paths(out)[0]
     flag = DeferredSignals()
+    curve = None
+    if cfg.curve_every:
+        curve = CurveRecorder(
+            cfg,
+            env_id=env_id,
+            make_eval_env=make_eval_env,
+            metadata=lambda: metadata(0.0, None, complete=False),
+            clock=lambda: wall_before + time.perf_counter() - start,
+            flag=flag,
+            resumed=resumed_points,
+        )
 
     def save_last(interrupted: str | None) -> None:
         boundary = cb.boundary
@@ -788,6 +833,8 @@ def train(
             meta["training_log"] = [
                 e for e in training_log if e["timesteps"] <= boundary["num_timesteps"]
             ]
+            if curve is not None:
+                meta["learning_curve"] = curve.record(upto=boundary["num_timesteps"])
             if interrupted is not None:
                 meta["interrupted"] = interrupted
             save_checkpoint(model, meta, last_zip, exclude=_NOT_SAVED)
@@ -796,15 +843,19 @@ def train(
 
     cb = _CheckpointCallback(cfg.checkpoint_every, save_last, flag, training_log)
     callbacks: list[BaseCallback] = [TqdmCallback()] if cfg.progress else []
+    if curve is not None:  # before cb: a .last written at a boundary carries its point
+        callbacks.append(CurveCallback(curve))
     remaining = cfg.total_timesteps - int(model.num_timesteps)
-    if remaining > 0:  # 0: keep the pre-trained (or resumed) policy as it is
-        with flag:
+    with flag:
+        if remaining > 0:  # 0: keep the pre-trained (or resumed) policy as it is
             model.learn(
                 remaining,
                 callback=[*callbacks, cb],
                 tb_log_name=tb_name,
                 reset_num_timesteps=resumed is None,
             )
+        if curve is not None and flag.signal is None and curve.due(model.num_timesteps, final=True):
+            curve.add_point(model)  # the end of the run
     wall = time.perf_counter() - start
     venv.close()
     stopped = flag.signal
@@ -825,6 +876,8 @@ def train(
         "rng": _rng_state(),
     }
     meta["training_log"] = training_log
+    if curve is not None:
+        meta["learning_curve"] = curve.record()
     json_path = out.with_suffix(".json")
     save_checkpoint(model, meta, out, exclude=_NOT_SAVED)
     for stale in last_paths(out):  # superseded by the complete checkpoint

@@ -1,0 +1,120 @@
+r"""Plot the learning curves recorded by the PPO training scripts (``--curve-every``).
+
+One panel per checkpoint: the policy's normalised held-out score
+``(R - R_random) / (R_greedy - R_random)`` against environment steps, with the ``greedy``
+baseline at 1 and ``random`` at 0 (both evaluated on the same held-out seeds), titled with the
+env id and its keyword arguments. Usage::
+
+    .venv/bin/python scripts/plot_learning_curves.py runs/train_fim_ppo/policy.json \
+        [more checkpoints (.json or .zip) ...] --out learning_curves.png
+
+The figure is written atomically (the format from the suffix of ``--out``). A checkpoint
+without a ``learning_curve`` (trained without ``--curve-every``), or whose curve lacks the
+``greedy`` and ``random`` baselines, is refused with one line naming the file (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from selenv.atomic import save_figure
+from selenv.exits import UsageError, guarded_main
+from selenv.learned.resources import read_metadata
+from selenv.learned.rl.curves import CURVE_KEY, check_curve, normalized_score
+
+PROG = "scripts/plot_learning_curves.py"
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The command line: checkpoints (their ``.json`` or ``.zip``) and ``--out``."""
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "checkpoints", nargs="+", type=Path, help="checkpoint metadata (.json, or the .zip)"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="figure path (e.g. curves.png)")
+    return parser.parse_args(argv)
+
+
+def read_curve(path: Path) -> tuple[str, dict[str, Any]]:
+    """The panel title and the checked ``learning_curve`` of checkpoint ``path``.
+
+    Raises:
+        UsageError: one line naming the file (missing, unreadable, no curve, no baselines).
+    """
+    json_path = path.with_suffix(".json")
+    try:
+        meta = read_metadata(json_path, "checkpoint metadata")
+    except (OSError, ValueError) as exc:
+        raise UsageError(str(exc)) from None  # names the file
+    if not isinstance(meta, dict) or CURVE_KEY not in meta:
+        raise UsageError(
+            f"{json_path}: no learning_curve in it (train with --curve-every N to record one)"
+        )
+    try:
+        curve = check_curve(meta[CURVE_KEY], str(json_path))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if normalized_score(0.0, curve["baselines"]) is None:
+        raise UsageError(
+            f"{json_path}: its learning curve has no distinct greedy and random baselines to "
+            "normalise with (train with --baselines greedy,random)"
+        )
+    if not curve["points"]:
+        raise UsageError(f"{json_path}: its learning curve has no points")
+    kwargs = meta.get("env_kwargs") or {}
+    title = f"{meta.get('env_id', '?')} {json.dumps(kwargs, sort_keys=True)}"
+    return title, curve
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Read every checkpoint's curve (all checked before drawing), draw, write ``--out``."""
+    args = parse_args(argv)
+    if not args.out.suffix:
+        raise UsageError(f"--out {args.out}: give a file name with a suffix (.png, .pdf, .svg)")
+    curves = [read_curve(path) for path in args.checkpoints]
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n = len(curves)
+    cols = min(n, 2)
+    rows = math.ceil(n / cols)
+    fig = Figure(figsize=(6.0 * cols, 3.8 * rows), layout="constrained")
+    FigureCanvasAgg(fig)
+    for i, (title, curve) in enumerate(curves):
+        ax = fig.add_subplot(rows, cols, i + 1)
+        steps = [p["timesteps"] for p in curve["points"]]
+        scores = [  # none is None: read_curve checked the baselines
+            s
+            for p in curve["points"]
+            if (s := normalized_score(p["mean_return"], curve["baselines"])) is not None
+        ]
+        ax.axhline(1.0, color="tab:green", linestyle="--", label="greedy")
+        ax.axhline(0.0, color="tab:gray", linestyle=":", label="random")
+        ax.plot(steps, scores, marker="o", color="tab:blue", label="policy")
+        ax.set_title(title, fontsize=8, wrap=True)
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel("normalised score")
+        ax.legend(fontsize=7, loc="best")
+        seeds = curve["seeds"]
+        ax.text(
+            0.99,
+            0.02,
+            f"{curve['episodes']} held-out episodes, seeds {seeds[0]}..{seeds[1]}",
+            transform=ax.transAxes,
+            ha="right",
+            fontsize=7,
+        )
+    save_figure(fig, args.out, dpi=120)
+    print(f"{args.out}: {n} learning curve{'s' if n > 1 else ''}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(guarded_main(main, PROG))
