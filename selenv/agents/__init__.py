@@ -51,6 +51,17 @@ for _family in FAMILIES:
                 all_versions=False,  # the shipped checkpoint was trained on this version
             )
         )
+    for _name, _file, _text in _family.more_policies:
+        register_agent(
+            AgentSpec(
+                _name,
+                (_family.current_id,),
+                "selenv.learned.rl.agent:make_ppo_agent",
+                f"{_text} (checkpoints/{_file})",
+                kwargs={"env_id": _family.current_id, "shipped": _file},
+                all_versions=False,
+            )
+        )
 # an RLlib-trained shared module (selenv.learned.rl.rllib_agent, lazy: selenv never imports ray)
 for _family in FAMILIES:
     if _family.multiagent_module is not None:

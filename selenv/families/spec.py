@@ -50,6 +50,8 @@ class FamilySpec:
             first is the default (the learned policies read the env through it).
         checkpoint: file name of the shipped ``ppo`` policy in ``checkpoints/`` (``None``: none).
         ppo_description: ``selenv list`` text of that policy.
+        more_policies: further shipped policies of the current version, each ``(agent name,
+            file name in checkpoints/, selenv list text)``; registered like ``ppo``.
         agent_modules: modules whose import registers the family's agents.
         multiagent_module: the public PettingZoo module of the family (its current version),
             if any.
@@ -71,6 +73,7 @@ class FamilySpec:
     views: str = "selenv.envs.views:IDENTITY_VIEWS"
     checkpoint: str | None = None
     ppo_description: str = ""
+    more_policies: tuple[tuple[str, str, str], ...] = ()
     agent_modules: tuple[str, ...] = ()
     multiagent_module: str | None = None
     multiagent_v0: str | None = None

@@ -8,6 +8,14 @@ evaluation of the saved checkpoint against ``greedy`` and ``random`` on held-out
     python -m selenv.train.train_fim_ppo --config configs/fim_selection_ppo.toml \
         --out checkpoints/fim_selection_ppo.zip --force    # the shipped checkpoint, again
     tensorboard --logdir runs
+
+One checkpoint for every preset and budget: ``--view invariant`` (``d``-independent statistics
+of the whitened rows, :class:`selenv.families.fim.view.FIMInvariantView`) with
+``--mixture kirchner_presets`` (each training episode one of the six presets at 200 candidates
+and budget 5, 10, 15 or 20, :class:`selenv.learned.rl.mixture.EnvMixture`)::
+
+    python -m selenv.train.train_fim_ppo --config configs/fim_selection_ppo_general.toml \
+        --out checkpoints/fim_selection_ppo_general.zip --force
 """
 
 from __future__ import annotations
@@ -19,7 +27,10 @@ from typing import Any
 
 import gymnasium as gym
 
-from selenv.learned.config import parse_config
+from selenv.exits import UsageError
+from selenv.families.fim.view import WIDTH as INVARIANT_WIDTH
+from selenv.learned.config import arg, parse_config
+from selenv.learned.rl.mixture import MIXTURES, EnvMixture, parse_mixture
 from selenv.learned.rl.training import (
     PPOConfig,
     check_run_outputs,
@@ -28,8 +39,11 @@ from selenv.learned.rl.training import (
     run_cli,
     train,
 )
+from selenv.learned.rl.views import CandidateViewWrapper, view_for
 
 ENV_ID = "selenv/FIMSelection-v1"
+#: the candidate views this script trains with
+VIEW_NAMES = ("identity", "invariant")
 SCRIPT = "selenv.train.train_fim_ppo"
 
 
@@ -41,6 +55,19 @@ class Config(PPOConfig):
     total_timesteps: int = 140_000
     out: str = "runs/train_fim_ppo/policy.zip"
     eval_episodes: int = 100
+    view: str = arg(
+        "identity",
+        "candidate view: identity (the whitened rows, tied to the preset's parameter "
+        "dimension d; the shipped fim_selection_ppo) or invariant (d-independent statistics: "
+        "one checkpoint for every preset and budget; fim_selection_ppo_general)",
+    )
+    mixture: str = arg(
+        "",
+        "train on several configurations, one drawn per episode: "
+        f"{' or '.join(sorted(MIXTURES))} (the six presets at 200 candidates x budgets "
+        "5/10/15/20) or a JSON list of env keyword objects; needs --view invariant and "
+        "--vec-env dummy or subproc; --env-kwargs stays the evaluation env",
+    )
 
 
 def parse_args(argv: list[str] | None = None) -> Config:
@@ -58,27 +85,57 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     cfg = parse_args(argv)
     prog = f"python -m {SCRIPT}"
     check_run_outputs(cfg, prog)
+    if cfg.view not in VIEW_NAMES:
+        raise UsageError(f"--view must be one of {list(VIEW_NAMES)}, got {cfg.view!r}")
+    mixture = None
+    if cfg.mixture:
+        try:
+            mixture = parse_mixture(cfg.mixture)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if cfg.view != "invariant":
+            raise UsageError(
+                f"--mixture needs --view invariant (the {cfg.view!r} view's width depends on "
+                "the preset)"
+            )
+        if cfg.vec_env == "native":
+            raise UsageError(
+                "--mixture: one native vector env holds one configuration; add --vec-env dummy "
+                "(or subproc)"
+            )
     with output_lock(cfg.out, prog):  # one run per --out
         kwargs = cfg.kwargs()
         probe = gym.make(ENV_ID, **kwargs).unwrapped
         m, d, n = int(probe.m), int(probe.d), int(probe.n)  # type: ignore[attr-defined]
+        if cfg.view == "identity":
+            layout = {"m": m, "d": d, "whitened_dim": m * d}
+            view_key: str | None = None
+        else:
+            layout = {"whitened_dim": INVARIANT_WIDTH}
+            view_key = cfg.view
+        extra: dict[str, Any] = {
+            "obs_layout": {**layout, "n_features": 4, "n_candidates_trained": n}
+        }
+        if mixture is not None:
+            extra["mixture"] = mixture
+
+        def make_env() -> gym.Env[Any, Any]:
+            if mixture is not None:
+                return EnvMixture(ENV_ID, mixture, cfg.view)
+            env = gym.make(ENV_ID, **kwargs)
+            if view_key is None:
+                return env
+            return CandidateViewWrapper(env, view_for(ENV_ID, env, view_key))
+
         return train(
             cfg,
             env_id=ENV_ID,
-            make_env=lambda: gym.make(ENV_ID, **kwargs),
+            make_env=make_env,
             make_eval_env=lambda: gym.make(ENV_ID, **kwargs),
-            view="identity",
-            tb_name="fim_ppo",
-            native={"env_id": ENV_ID, "env_kwargs": kwargs, "view": None},
-            extra_meta={
-                "obs_layout": {
-                    "m": m,
-                    "d": d,
-                    "whitened_dim": m * d,
-                    "n_features": 4,
-                    "n_candidates_trained": n,
-                }
-            },
+            view=cfg.view,
+            tb_name="fim_ppo" if cfg.view == "identity" else f"fim_ppo_{cfg.view}",
+            native={"env_id": ENV_ID, "env_kwargs": kwargs, "view": view_key},
+            extra_meta=extra,
         )
 
 

@@ -17,9 +17,16 @@ SPEC = FamilySpec(
     title="heterogeneous measurement selection by Fisher information (Kirchner et al. 2020)",
     env_class="selenv.families.fim.env:FIMSelectionEnv",
     v0_presets={"example2": "example2_moving", "example3": "example3_moving"},
-    views="selenv.envs.views:IDENTITY_VIEWS",
+    views="selenv.families.fim.view:VIEWS",
     checkpoint="fim_selection_ppo.zip",
     ppo_description="MaskablePPO candidate-scoring policy",
+    more_policies=(
+        (
+            "ppo_general",
+            "fim_selection_ppo_general.zip",
+            "one MaskablePPO policy for every preset and budget (d-independent invariant view)",
+        ),
+    ),
     agent_modules=(
         "selenv.families.fim.agents",
         "selenv.families.fim.multiagent_agents",

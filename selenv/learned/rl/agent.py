@@ -308,6 +308,21 @@ class SB3PolicyAgent(Agent):
         return int(self.view.verify(self.env, obs, top))  # type: ignore[union-attr]
 
 
-def make_ppo_agent(**kwargs: Any) -> SB3PolicyAgent:
-    """Registry factory of the ``ppo`` agent (``env_id=``, ``checkpoint=``, ``deterministic=``)."""
+def make_ppo_agent(shipped: str | None = None, **kwargs: Any) -> SB3PolicyAgent:
+    """Registry factory of the ``ppo`` agents (``env_id=``, ``checkpoint=``, ``deterministic=``).
+
+    Args:
+        shipped: file name of a shipped checkpoint in ``checkpoints/`` (the ``ppo_general``
+            agent); ``checkpoint=`` then must not be given.
+        **kwargs: keyword arguments of :class:`SB3PolicyAgent`.
+
+    Raises:
+        ValueError: ``shipped`` is not a plain file name, or both are given.
+    """
+    if shipped is not None:
+        if not isinstance(shipped, str) or Path(shipped).name != shipped or not shipped:
+            raise ValueError(f"shipped must be a file name in checkpoints/, got {shipped!r}")
+        if kwargs.get("checkpoint") is not None:
+            raise ValueError("give checkpoint= or shipped=, not both")
+        kwargs["checkpoint"] = CHECKPOINT_DIR / shipped
     return SB3PolicyAgent(**kwargs)
