@@ -43,12 +43,15 @@ def _gain(Z: np.ndarray, k: int, F: np.ndarray) -> float:
     return _logdet(F + Z[k].T @ Z[k]) - _logdet(F)
 
 
+@pytest.mark.parametrize("closed_form", [True, False])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("steps_left", [0, 1, 6])
-def test_statistics_match_explicit_information_matrices(seed: int, steps_left: int) -> None:
+def test_statistics_match_explicit_information_matrices(
+    seed: int, steps_left: int, closed_form: bool
+) -> None:
     Z, unselected = _pool(seed)
     d = Z.shape[2]
-    got = invariant_features(Z, unselected, steps_left)
+    got = invariant_features(Z, unselected, steps_left, closed_form=closed_form)
     idx = np.flatnonzero(unselected)
     eye = np.eye(d)
     gains = {k: _gain(Z, k, eye) for k in idx}
@@ -72,6 +75,23 @@ def test_statistics_match_explicit_information_matrices(seed: int, steps_left: i
         assert_allclose(got[k], want, rtol=1e-9, atol=1e-12)
     assert not got[~unselected].any()  # selected candidates: zero rows
     assert got[t, 2] < gains[t] and got[t, 3] < 1.0  # t's gain survives s only in part
+
+
+def test_closed_form_and_stacked_paths_agree_on_random_pools() -> None:
+    rng = np.random.default_rng(1)
+    for _ in range(40):
+        n, d = int(rng.integers(2, 60)), int(rng.integers(2, 9))
+        Z = rng.normal(size=(n, 2, d)) * rng.uniform(0.01, 3.0, size=(n, 1, 1))
+        Z[rng.random(n) < 0.3, 1] = 0.0  # one-row candidates: a zero eigenvalue
+        unselected = rng.random(n) < 0.8
+        unselected[0] = True
+        r = int(rng.integers(0, 20))
+        assert_allclose(
+            invariant_features(Z, unselected, r),
+            invariant_features(Z, unselected, r, closed_form=False),
+            rtol=1e-9,
+            atol=1e-12,
+        )
 
 
 def test_statistics_are_invariant_to_rotations_and_zero_padding() -> None:

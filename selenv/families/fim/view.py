@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
+from scipy.linalg import solve_triangular
 
 from selenv.envs.views import CandidateView, IdentityView, candidate_space
 
@@ -53,13 +54,18 @@ def _logdet_spd_small(A: np.ndarray) -> np.ndarray:
     return np.where(sign > 0, logdet, 0.0)
 
 
-def invariant_features(Z: np.ndarray, unselected: np.ndarray, steps_left: int) -> np.ndarray:
+def invariant_features(
+    Z: np.ndarray, unselected: np.ndarray, steps_left: int, *, closed_form: bool = True
+) -> np.ndarray:
     """The ``(N, 7)`` statistics of :class:`FIMInvariantView` (module docstring, rows 0-6).
 
     Args:
         Z: ``(N, m, d)`` candidates whitened in the current information (float64).
         unselected: ``(N,)`` bool, the candidates still available.
         steps_left: picks left in the episode, ``r >= 0``.
+        closed_form: with ``m = 2`` (every Kirchner preset), the 2x2 algebra written out
+            entry by entry over the candidate axis (about 10x faster at ``N = 1000``); ``False``
+            takes the stacked-matrix path (any ``m``). Both agree to rounding (tested).
 
     Returns:
         ``(N, 7)`` float64; zero rows for selected candidates.
@@ -68,6 +74,9 @@ def invariant_features(Z: np.ndarray, unselected: np.ndarray, steps_left: int) -
     out = np.zeros((N, WIDTH))
     idx = np.flatnonzero(unselected)
     if idx.size == 0:
+        return out
+    if closed_form and m == 2:
+        out[idx] = _features_m2(Z[idx], steps_left)
         return out
     Zu = Z[idx]  # (n_u, m, d)
     eye_m = np.eye(m)
@@ -84,7 +93,7 @@ def invariant_features(Z: np.ndarray, unselected: np.ndarray, steps_left: int) -
     def gain_after(p: int) -> np.ndarray:
         """``g_{k|p}`` for every unselected ``k`` (Woodbury; ``C = Z_k Z_p^T``)."""
         C = Zu @ Zu[p].T  # (n_u, m, m)
-        # (I + G_p)^-1 C_pk by a solve: C_kp (I + G_p)^-1 C_pk, with C_pk = C_kp^T
+        # C_kp (I + G_p)^-1 C_pk, with C_pk = C_kp^T
         X = np.linalg.solve(eye_m + G[p], C.transpose(0, 2, 1))  # (n_u, m, m)
         return _logdet_spd_small(eye_m + G - C @ X)
 
@@ -107,6 +116,62 @@ def invariant_features(Z: np.ndarray, unselected: np.ndarray, steps_left: int) -
         np.sum(C_t * C_t, axis=(1, 2)), denom, out=np.zeros_like(denom), where=denom > 0
     )
     out[idx, 6] = np.log1p(steps_left)
+    return out
+
+
+def _det2(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``log det [[1 + a, b], [b, 1 + c]]`` (``>= 0`` for the PSD ``[[a, b], [b, c]]`` here)."""
+    return np.log((1.0 + a) * (1.0 + c) - b * b)
+
+
+def _features_m2(Zu: np.ndarray, steps_left: int) -> np.ndarray:
+    """:func:`invariant_features` of the unselected candidates ``Zu (n_u, 2, d)``, entry-wise.
+
+    A candidate's gram ``[[a, b], [b, c]]`` and the Woodbury term ``C M C^T`` are written out
+    per entry; the products over ``d`` are single GEMMs over the stacked rows.
+    """
+    n_u, _, d = Zu.shape
+    z0, z1 = Zu[:, 0], Zu[:, 1]
+    a = np.einsum("ij,ij->i", z0, z0)
+    b = np.einsum("ij,ij->i", z0, z1)
+    c = np.einsum("ij,ij->i", z1, z1)
+    out = np.empty((n_u, WIDTH))
+    mid, rad = 0.5 * (a + c), np.hypot(0.5 * (a - c), b)
+    out[:, 0] = np.log1p(np.maximum(mid + rad, 0.0))
+    out[:, 1] = np.log1p(np.maximum(mid - rad, 0.0))
+    gain = _det2(a, b, c)
+    order = np.argsort(-gain, kind="stable")
+    t = order[0]
+    rows = Zu.reshape(2 * n_u, d)
+
+    def after(p: int) -> tuple[np.ndarray, np.ndarray]:
+        """``g_{k|p}`` and ``C_kp`` ``(n_u, 2, 2)`` for every unselected ``k``."""
+        C = (rows @ Zu[p].T).reshape(n_u, 2, 2)  # C[k, i, j] = z_i(k) . z_j(p)
+        det = (1.0 + a[p]) * (1.0 + c[p]) - b[p] * b[p]
+        M = np.array([[1.0 + c[p], -b[p]], [-b[p], 1.0 + a[p]]]) / det  # (I + G_p)^-1
+        CM = (C.reshape(2 * n_u, 2) @ M).reshape(n_u, 2, 2)
+        q00 = np.einsum("ij,ij->i", CM[:, 0], C[:, 0])
+        q01 = np.einsum("ij,ij->i", CM[:, 0], C[:, 1])
+        q11 = np.einsum("ij,ij->i", CM[:, 1], C[:, 1])
+        return _det2(a - q00, b - q01, c - q11), C
+
+    g_t, C_t = after(t)
+    g_t[t] = after(order[1])[0][t] if n_u > 1 else gain[t]
+    out[:, 2] = g_t
+    out[:, 3] = np.divide(g_t, gain, out=np.zeros_like(gain), where=gain > 0)
+
+    S = rows.T @ rows  # (d, d) pool information
+    Lc = np.linalg.cholesky(np.eye(d) + (steps_left / n_u) * S)
+    W = solve_triangular(Lc, rows.T, lower=True).T.reshape(n_u, 2, d)  # Z_k Lc^-T
+    w0, w1 = W[:, 0], W[:, 1]
+    out[:, 4] = _det2(
+        np.einsum("ij,ij->i", w0, w0), np.einsum("ij,ij->i", w0, w1), np.einsum("ij,ij->i", w1, w1)
+    )
+    tr = a + c
+    denom = tr * tr[t]
+    num = np.einsum("kij,kij->k", C_t, C_t)
+    out[:, 5] = np.divide(num, denom, out=np.zeros_like(denom), where=denom > 0)
+    out[:, 6] = np.log1p(steps_left)
     return out
 
 
