@@ -98,8 +98,11 @@ class Config:
     )
     force: bool = arg(False, "overwrite an existing --out (.zip or .json)")
     env_kwargs: str = arg(
-        json.dumps({"preset": "paper", "n_agents": 30, "horizon": 500}),
-        "JSON object of gymnasium.make keyword arguments of the labelling episodes",
+        "{}",
+        "JSON object of gymnasium.make keyword arguments of the labelling episodes ({}: "
+        "ReceiverClustering-v1's defaults, the env the bench plays; the shipped checkpoint: "
+        '{"preset": "paper", "n_agents": 30, "horizon": 500}, see '
+        "configs/receiver_clustering_ppo.toml)",
     )
     states: int = arg(3000, "labelled states (visited by the policy)")
     behaviour_top_k: int = arg(

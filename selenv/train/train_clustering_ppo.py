@@ -38,7 +38,6 @@ followed by one DAgger round (:mod:`selenv.train.train_clustering_dagger`,
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -64,9 +63,15 @@ SCRIPT = "selenv.train.train_clustering_ppo"
 
 @dataclass
 class Config(PPOConfig):
-    """Defaults of the shipped run's ranking stage, written under ``runs/``."""
+    """Defaults: the env the bench plays, the shipped ranking stage's settings; under ``runs/``."""
 
-    env_kwargs: str = json.dumps({"preset": "paper", "n_agents": 30, "horizon": 200})
+    env_kwargs: str = arg(
+        "{}",
+        "JSON object of gymnasium.make keyword arguments ({}: ReceiverClustering-v1's defaults, "
+        "the env the bench plays; the shipped checkpoint's ranking stage used "
+        '{"preset": "paper", "n_agents": 30, "horizon": 200}, see '
+        "configs/receiver_clustering_ppo_ranking.toml)",
+    )
     eval_horizon: int = arg(
         500, "episode length of the evaluation episodes (the env's default length)"
     )

@@ -52,7 +52,11 @@ class Config(PPOConfig):
     """Defaults of the shipped run (140k steps, ~6 min on 2 cores), written under ``runs/``."""
 
     env_kwargs: str = json.dumps({"preset": "example2_moving", "n_candidates": 100, "budget": 10})
-    total_timesteps: int = 140_000
+    total_timesteps: int = arg(
+        140_000,
+        "PPO environment steps in total (the shipped fim_selection_ppo: 140,288 steps, ~6 min "
+        "on 2 cores; fim_selection_ppo_general: 400,384 steps, ~29 min)",
+    )
     out: str = "runs/train_fim_ppo/policy.zip"
     eval_episodes: int = 100
     view: str = arg(
