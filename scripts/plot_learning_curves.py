@@ -2,8 +2,9 @@ r"""Plot the learning curves recorded by the PPO training scripts (``--curve-eve
 
 One panel per checkpoint: the policy's normalised held-out score
 ``(R - R_random) / (R_greedy - R_random)`` against environment steps, with the ``greedy``
-baseline at 1 and ``random`` at 0 (both evaluated on the same held-out seeds), titled with the
-env id and its keyword arguments. Usage::
+baseline at 1 and ``random`` at 0 (both evaluated on the same held-out seeds) and every other
+recorded baseline (``brute_force``, ``rollout``, ...) as a line at its own normalised level,
+titled with the env id and its keyword arguments. Usage::
 
     .venv/bin/python scripts/plot_learning_curves.py runs/train_fim_ppo/policy.json \
         [more checkpoints (.json or .zip) ...] --out learning_curves.png
@@ -97,6 +98,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         ]
         ax.axhline(1.0, color="tab:green", linestyle="--", label="greedy")
         ax.axhline(0.0, color="tab:gray", linestyle=":", label="random")
+        others = [k for k in curve["baselines"] if k not in ("greedy", "random")]
+        for j, name in enumerate(others):  # e.g. brute_force, rollout: dashed lines too
+            level = normalized_score(curve["baselines"][name], curve["baselines"])
+            if level is not None:
+                ax.axhline(level, color=f"C{3 + j}", linestyle="-.", label=name)
         ax.plot(steps, scores, marker="o", color="tab:blue", label="policy")
         ax.set_title(title, fontsize=8, wrap=True)
         ax.set_xlabel("environment steps")

@@ -84,6 +84,7 @@ from selenv.exits import DeferredSignals, Terminated, UsageError, guarded_main
 from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.resources import read_metadata
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
+from selenv.learned.rl.finetune import CriticWarmup, init_from_checkpoint
 from selenv.learned.rl.vec_env import make_native_vec_env
 
 #: the ``--vec-env`` choices
@@ -184,6 +185,20 @@ class PPOConfig:
     curve_episodes: int = arg(
         20, "held-out episodes per learning-curve point (seeds --eval-seed, +1, ...)"
     )
+    # fine-tuning a trained policy
+    init_from: str = arg(
+        "",
+        "start from this checkpoint's weights (same env id, candidate view and architecture, "
+        "e.g. a distilled policy to fine-tune with PPO); the optimizer starts afresh",
+    )
+    critic_warmup: int = arg(
+        0,
+        "environment steps at the start whose PPO updates train only the value head (the "
+        "policy is frozen while the critic of an --init-from policy learns)",
+    )
+    target_kl: float = arg(
+        0.0, "stop a PPO update's epochs once the approximate KL exceeds this (0: off)"
+    )
     # long runs
     checkpoint_every: int = arg(
         50_000,
@@ -253,6 +268,11 @@ def check_bounds(cfg: PPOConfig) -> None:
     limit("--eval-episodes", cfg.eval_episodes, "eval_episodes", 0)
     limit("--curve-every", cfg.curve_every, "curve_every", 0)
     limit("--curve-episodes", cfg.curve_episodes, "curve_episodes")
+    limit("--critic-warmup", cfg.critic_warmup, "total_timesteps", 0)
+    if not (cfg.target_kl >= 0 and np.isfinite(cfg.target_kl)):
+        raise UsageError(f"--target-kl must be a finite number >= 0, got {cfg.target_kl}")
+    if cfg.init_from and not Path(cfg.init_from).with_suffix(".zip").is_file():
+        raise UsageError(f"--init-from {cfg.init_from}: no such checkpoint")
     hidden = parse_hidden(cfg.hidden)
     limit("--hidden (number of layers)", len(hidden), "hidden_layers")
     for width in hidden:
@@ -737,6 +757,7 @@ def train(
         n_epochs=cfg.n_epochs,
         ent_coef=cfg.ent_coef,
         gamma=cfg.gamma,
+        target_kl=cfg.target_kl or None,
         tensorboard_log=cfg.tensorboard_dir or None,
         policy_kwargs={
             "features_extractor_class": features_extractor,
@@ -748,6 +769,15 @@ def train(
             },
         },
     )
+    init_from = None
+    if cfg.init_from and resumed is None:  # a resumed run holds its own weights
+        try:
+            init_from = init_from_checkpoint(model, cfg.init_from, env_id, view)
+        except ValueError as exc:
+            venv.close()
+            raise UsageError(f"--init-from: {exc}") from None
+    elif resumed is not None:
+        init_from = resumed.get("init_from")
     training_log: list[dict[str, Any]] = []
     wall_before = 0.0
     if resumed is not None:
@@ -792,6 +822,7 @@ def train(
                 "wall_seconds": round(wall_before + wall, 1),
             },
             "pretraining": pretraining,
+            "init_from": init_from,
             "metrics": None,
             "complete": complete,
             "num_timesteps": int(model.num_timesteps),
@@ -845,6 +876,8 @@ def train(
     callbacks: list[BaseCallback] = [TqdmCallback()] if cfg.progress else []
     if curve is not None:  # before cb: a .last written at a boundary carries its point
         callbacks.append(CurveCallback(curve))
+    if cfg.critic_warmup:
+        callbacks.append(CriticWarmup(cfg.critic_warmup))
     remaining = cfg.total_timesteps - int(model.num_timesteps)
     with flag:
         if remaining > 0:  # 0: keep the pre-trained (or resumed) policy as it is

@@ -1,0 +1,99 @@
+"""Fine-tuning from a checkpoint: --init-from loads the weights exactly, --critic-warmup freezes
+the actor, mismatches and bad values are usage errors before any training."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from selenv.exits import UsageError
+from selenv.learned.rl.finetune import CRITIC_PREFIXES
+from selenv.learned.rl.safe_load import read_weights
+from selenv.train import train_fim_ppo
+
+TINY = [
+    "--env-kwargs", json.dumps({"n_candidates": 10, "budget": 3}),
+    "--n-envs", "2", "--n-steps", "64", "--batch-size", "64", "--n-epochs", "2",
+    "--eval-episodes", "0", "--tensorboard-dir", "", "--no-progress", "--checkpoint-every", "0",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("base") / "a.zip"
+    train_fim_ppo.main([*TINY, "--total-timesteps", "128", "--out", str(out)])
+    return out
+
+
+def _run(tmp_path: Path, name: str, *extra: str) -> tuple[Path, dict]:
+    out = tmp_path / f"{name}.zip"
+    meta = train_fim_ppo.main([*TINY, "--out", str(out), "--seed", "7", *extra])
+    return out, meta
+
+
+def _split(weights: dict[str, torch.Tensor]) -> tuple[dict, dict]:
+    critic = {k: v for k, v in weights.items() if k.startswith(CRITIC_PREFIXES)}
+    actor = {k: v for k, v in weights.items() if not k.startswith(CRITIC_PREFIXES)}
+    assert critic and actor
+    return actor, critic
+
+
+def _same(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_init_from_loads_the_weights_exactly(base: Path, tmp_path: Path) -> None:
+    out, meta = _run(tmp_path, "b", "--init-from", str(base), "--total-timesteps", "0")
+    assert _same(read_weights(out), read_weights(base))
+    base_meta = json.loads(base.with_suffix(".json").read_text())
+    assert meta["init_from"]["checkpoint_sha256"] == base_meta["checkpoint_sha256"]
+    assert meta["init_from"]["view"] == "identity"
+
+
+def test_critic_warmup_trains_the_value_head_only(base: Path, tmp_path: Path) -> None:
+    warm, _ = _run(
+        tmp_path, "warm", "--init-from", str(base), "--total-timesteps", "128",
+        "--critic-warmup", "128",
+    )  # fmt: skip
+    actor0, critic0 = _split(read_weights(base))
+    actor, critic = _split(read_weights(warm))
+    assert _same(actor, actor0)  # the one update of the run was the critic's
+    assert not _same(critic, critic0)
+    free, _ = _run(tmp_path, "free", "--init-from", str(base), "--total-timesteps", "128")
+    assert not _same(_split(read_weights(free))[0], actor0)  # without warm-up the actor moves
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (["--hidden", "32,32"], "do not fit this run's policy"),
+        (["--view", "invariant"], "was trained on"),
+    ],
+)
+def test_init_from_refuses_another_architecture_or_view(
+    base: Path, tmp_path: Path, extra: list[str], match: str
+) -> None:
+    with pytest.raises(UsageError, match=match):
+        _run(tmp_path, "x", "--init-from", str(base), "--total-timesteps", "64", *extra)
+    assert not (tmp_path / "x.zip").exists()
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (["--init-from", "nowhere/policy.zip"], "--init-from nowhere/policy.zip: no such"),
+        (["--critic-warmup", "-1"], "--critic-warmup must be >= 0"),
+        (["--target-kl", "-0.1"], "--target-kl must be a finite number >= 0"),
+        (["--target-kl", "nan"], "--target-kl must be a finite number >= 0"),
+    ],
+)
+def test_bad_fine_tuning_options_are_usage_errors(tmp_path: Path, capsys, extra, match) -> None:
+    with pytest.raises(SystemExit) as exc:  # checked with the command line: exit 2, one line
+        _run(tmp_path, "y", "--total-timesteps", "64", *extra)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and len(err.splitlines()) == 1
+    assert not list(tmp_path.iterdir())
