@@ -14,10 +14,13 @@ from selenv.multiagent import fim_selection_v0
 MODULE = "selenv.multiagent.fim_selection_v0"
 
 
+@pytest.mark.parametrize("name", ["ppo", "ppo_independent"])
 @pytest.mark.parametrize("mode", ["cooperative", "independent"])
-def test_shared_ppo_acts_like_predict_for_acting_agents_and_passes_otherwise(mode: str) -> None:
+def test_shared_ppo_acts_like_predict_for_acting_agents_and_passes_otherwise(
+    mode: str, name: str
+) -> None:
     env = fim_selection_v0.parallel_env(mode=mode)
-    agent = make("ppo", MODULE)
+    agent = make(name, MODULE)
     assert isinstance(agent, SharedPPOPolicy)
     policy = load_policy(agent.checkpoint, agent.metadata)
     observations, infos = env.reset(seed=4)
@@ -53,3 +56,15 @@ def test_shared_ppo_rejects_an_env_of_another_width() -> None:
         pytest.skip("example1 has the trained width")
     with pytest.raises(ValueError, match="whitened width"):
         agent.reset(env, seed=0)
+
+
+def test_shipped_marl_checkpoints_are_distinct_and_named_by_file_only() -> None:
+    from selenv.learned.rl.marl import make_shared_ppo
+
+    assert make("ppo_independent", MODULE).checkpoint.endswith("fim_marl_ppo_independent.zip")
+    assert make("ppo", MODULE).checkpoint.endswith("fim_marl_ppo.zip")
+    for bad in ("../fim_marl_ppo.zip", "", 3):
+        with pytest.raises(ValueError, match="shipped must be a file name"):
+            make_shared_ppo(shipped=bad)
+    with pytest.raises(ValueError, match="not both"):
+        make_shared_ppo(shipped="fim_marl_ppo.zip", checkpoint="x.zip")

@@ -114,6 +114,17 @@ def checkpoint_path(name: str) -> Path:
     return checkpoint_dir() / name
 
 
+def shipped_checkpoint(name: object) -> Path:
+    """Path of the shipped checkpoint ``name``, a plain file name in ``checkpoints/``.
+
+    Raises:
+        ValueError: ``name`` is not a non-empty file name without a folder.
+    """
+    if not isinstance(name, str) or not name or Path(name).name != name:
+        raise ValueError(f"shipped must be a file name in checkpoints/, got {name!r}")
+    return checkpoint_path(name)
+
+
 def limit_hint(key: str) -> str:
     """``"the ceiling N (selenv.learned.resources.CHECKPOINT_LIMITS['key'])"`` for messages."""
     return f"the ceiling {CHECKPOINT_LIMITS[key]:,} ({__name__}.CHECKPOINT_LIMITS[{key!r}])"

@@ -137,3 +137,13 @@ register_agent(
         "(checkpoints/fim_marl_ppo.zip)",
     )
 )
+register_agent(
+    AgentSpec(
+        "ppo_independent",
+        _FIM,
+        "selenv.learned.rl.marl:make_shared_ppo",
+        "shared policy trained in independent mode, each agent on its own observation "
+        "(checkpoints/fim_marl_ppo_independent.zip)",
+        kwargs={"shipped": "fim_marl_ppo_independent.zip"},
+    )
+)

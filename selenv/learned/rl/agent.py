@@ -34,7 +34,7 @@ from gymnasium import spaces
 
 from selenv.agents.base import Agent
 from selenv.families import FAMILIES
-from selenv.learned.resources import checkpoint_dir, read_metadata
+from selenv.learned.resources import checkpoint_dir, read_metadata, shipped_checkpoint
 from selenv.learned.rl.candidate_policy import (
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
@@ -320,9 +320,8 @@ def make_ppo_agent(shipped: str | None = None, **kwargs: Any) -> SB3PolicyAgent:
         ValueError: ``shipped`` is not a plain file name, or both are given.
     """
     if shipped is not None:
-        if not isinstance(shipped, str) or Path(shipped).name != shipped or not shipped:
-            raise ValueError(f"shipped must be a file name in checkpoints/, got {shipped!r}")
+        path = shipped_checkpoint(shipped)
         if kwargs.get("checkpoint") is not None:
             raise ValueError("give checkpoint= or shipped=, not both")
-        kwargs["checkpoint"] = CHECKPOINT_DIR / shipped
+        kwargs["checkpoint"] = path
     return SB3PolicyAgent(**kwargs)

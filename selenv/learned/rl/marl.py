@@ -188,6 +188,22 @@ class SharedPPOPolicy:
         return out
 
 
-def make_shared_ppo(**kwargs: Any) -> SharedPPOPolicy:
-    """Registry factory of the multi-agent ``ppo`` agent (``checkpoint=``)."""
+def make_shared_ppo(shipped: str | None = None, **kwargs: Any) -> SharedPPOPolicy:
+    """Registry factory of the multi-agent ``ppo`` agents (``checkpoint=``).
+
+    Args:
+        shipped: file name of a shipped checkpoint in ``checkpoints/`` (``ppo_independent``);
+            ``checkpoint=`` then must not be given.
+        **kwargs: keyword arguments of :class:`SharedPPOPolicy`.
+
+    Raises:
+        ValueError: ``shipped`` is not a plain file name, or both are given.
+    """
+    if shipped is not None:
+        from selenv.learned.resources import shipped_checkpoint
+
+        path = shipped_checkpoint(shipped)
+        if kwargs.get("checkpoint") is not None:
+            raise ValueError("give checkpoint= or shipped=, not both")
+        kwargs["checkpoint"] = str(path)
     return SharedPPOPolicy(**kwargs)
