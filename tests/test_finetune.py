@@ -81,19 +81,4 @@ def test_init_from_refuses_another_architecture_or_view(
     assert not (tmp_path / "x.zip").exists()
 
 
-@pytest.mark.parametrize(
-    ("extra", "match"),
-    [
-        (["--init-from", "nowhere/policy.zip"], "--init-from nowhere/policy.zip: no such"),
-        (["--critic-warmup", "-1"], "--critic-warmup must be >= 0"),
-        (["--target-kl", "-0.1"], "--target-kl must be a finite number >= 0"),
-        (["--target-kl", "nan"], "--target-kl must be a finite number >= 0"),
-    ],
-)
-def test_bad_fine_tuning_options_are_usage_errors(tmp_path: Path, capsys, extra, match) -> None:
-    with pytest.raises(SystemExit) as exc:  # checked with the command line: exit 2, one line
-        _run(tmp_path, "y", "--total-timesteps", "64", *extra)
-    assert exc.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert match in err and len(err.splitlines()) == 1
-    assert not list(tmp_path.iterdir())
+# the bounds of --critic-warmup, --target-kl and --init-from: tests/test_training_faults.py

@@ -129,24 +129,7 @@ def test_a_stopped_run_keeps_its_points_and_resume_continues_them(
     assert not last.exists()
 
 
-@pytest.mark.parametrize(
-    ("argv", "needle"),
-    [
-        (["--curve-every=-1"], "--curve-every must be >= 0"),
-        (["--curve-episodes=0"], "--curve-episodes must be >= 1"),
-        (["--curve-episodes=10001"], "--curve-episodes 10001 is above its ceiling"),
-        (["--curve-every=2000000000"], "--curve-every 2000000000 is above its ceiling"),
-    ],
-)
-def test_bad_curve_options_exit_2_naming_the_option(
-    argv: list[str], needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    with pytest.raises(SystemExit) as exc:
-        train_fim_ppo.main([*TINY, *argv, f"--out={tmp_path / 'p.zip'}"])
-    assert exc.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and needle in err, err
-    assert list(tmp_path.iterdir()) == []
+# the curve options' bounds: tests/test_training_faults.py (one table of every option's limits)
 
 
 def test_a_script_that_evaluates_on_its_own_refuses_the_curve(

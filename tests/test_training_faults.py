@@ -309,6 +309,14 @@ def test_second_run_on_the_same_out_is_refused(
         (["--n-steps=0"], "--n-steps must be >= 1"),
         (["--batch-size=10000000"], "--batch-size 10000000 is above"),
         (["--checkpoint-every=-1"], "--checkpoint-every must be >= 0"),
+        (["--curve-every=-1"], "--curve-every must be >= 0"),
+        (["--curve-episodes=0"], "--curve-episodes must be >= 1"),
+        (["--curve-episodes=10001"], "--curve-episodes 10001 is above its ceiling"),
+        (["--curve-every=2000000000"], "--curve-every 2000000000 is above its ceiling"),
+        (["--critic-warmup=-1"], "--critic-warmup must be >= 0"),
+        (["--target-kl=-0.1"], "--target-kl must be a finite number >= 0"),
+        (["--target-kl=nan"], "--target-kl must be a finite number >= 0"),
+        (["--init-from=nowhere/policy.zip"], "--init-from nowhere/policy.zip: no such"),
     ],
 )
 def test_sizes_beyond_their_ceilings_exit_2_naming_the_option(

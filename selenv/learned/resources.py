@@ -125,6 +125,20 @@ def shipped_checkpoint(name: object) -> Path:
     return checkpoint_path(name)
 
 
+def with_shipped(shipped: object, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``kwargs`` of a learned agent with ``checkpoint`` set from ``shipped`` (if given).
+
+    Raises:
+        ValueError: ``shipped`` is not a plain file name, or ``checkpoint`` is given too.
+    """
+    if shipped is None:
+        return kwargs
+    path = shipped_checkpoint(shipped)
+    if kwargs.get("checkpoint") is not None:
+        raise ValueError("give checkpoint= or shipped=, not both")
+    return {**kwargs, "checkpoint": path}
+
+
 def limit_hint(key: str) -> str:
     """``"the ceiling N (selenv.learned.resources.CHECKPOINT_LIMITS['key'])"`` for messages."""
     return f"the ceiling {CHECKPOINT_LIMITS[key]:,} ({__name__}.CHECKPOINT_LIMITS[{key!r}])"

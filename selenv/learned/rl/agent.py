@@ -34,7 +34,7 @@ from gymnasium import spaces
 
 from selenv.agents.base import Agent
 from selenv.families import FAMILIES
-from selenv.learned.resources import checkpoint_dir, read_metadata, shipped_checkpoint
+from selenv.learned.resources import checkpoint_dir, read_metadata, with_shipped
 from selenv.learned.rl.candidate_policy import (
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
@@ -319,9 +319,4 @@ def make_ppo_agent(shipped: str | None = None, **kwargs: Any) -> SB3PolicyAgent:
     Raises:
         ValueError: ``shipped`` is not a plain file name, or both are given.
     """
-    if shipped is not None:
-        path = shipped_checkpoint(shipped)
-        if kwargs.get("checkpoint") is not None:
-            raise ValueError("give checkpoint= or shipped=, not both")
-        kwargs["checkpoint"] = path
-    return SB3PolicyAgent(**kwargs)
+    return SB3PolicyAgent(**with_shipped(shipped, kwargs))

@@ -24,6 +24,7 @@ names it. :meth:`SharedPolicyEnv.action_masks` serves MaskablePPO.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -148,7 +149,7 @@ class SharedPPOPolicy:
 
     name = "ppo"
 
-    def __init__(self, checkpoint: str | None = None) -> None:
+    def __init__(self, checkpoint: str | Path | None = None) -> None:
         from selenv.learned.rl.agent import CHECKPOINT_DIR, load_metadata
         from selenv.learned.rl.lean import LeanScorer
         from selenv.learned.rl.safe_load import load_policy
@@ -199,11 +200,6 @@ def make_shared_ppo(shipped: str | None = None, **kwargs: Any) -> SharedPPOPolic
     Raises:
         ValueError: ``shipped`` is not a plain file name, or both are given.
     """
-    if shipped is not None:
-        from selenv.learned.resources import shipped_checkpoint
+    from selenv.learned.resources import with_shipped
 
-        path = shipped_checkpoint(shipped)
-        if kwargs.get("checkpoint") is not None:
-            raise ValueError("give checkpoint= or shipped=, not both")
-        kwargs["checkpoint"] = str(path)
-    return SharedPPOPolicy(**kwargs)
+    return SharedPPOPolicy(**with_shipped(shipped, kwargs))
