@@ -4,7 +4,9 @@ One panel per checkpoint: the policy's normalised held-out score
 ``(R - R_random) / (R_greedy - R_random)`` against environment steps, with the ``greedy``
 baseline at 1 and ``random`` at 0 (both evaluated on the same held-out seeds) and every other
 recorded baseline (``brute_force``, ``rollout``, ...) as a line at its own normalised level,
-titled with the env id and its keyword arguments. Usage::
+titled with the env id and its keyword arguments; below it, the same curve as the difference to
+greedy's mean return (in the env's return units, the first point left out of the scale), where
+the small differences between near-greedy policies and the references show. Usage::
 
     .venv/bin/python scripts/plot_learning_curves.py runs/train_fim_ppo/policy.json \
         [more checkpoints (.json or .zip) ...] --out learning_curves.png
@@ -86,34 +88,52 @@ def main(argv: Sequence[str] | None = None) -> int:
     n = len(curves)
     cols = min(n, 2)
     rows = math.ceil(n / cols)
-    fig = Figure(figsize=(6.0 * cols, 3.8 * rows), layout="constrained")
+    fig = Figure(figsize=(6.0 * cols, 6.4 * rows), layout="constrained")
     FigureCanvasAgg(fig)
     for i, (title, curve) in enumerate(curves):
-        ax = fig.add_subplot(rows, cols, i + 1)
+        r, c = divmod(i, cols)
+        top = fig.add_subplot(2 * rows, cols, 2 * r * cols + c + 1)
+        low = fig.add_subplot(2 * rows, cols, (2 * r + 1) * cols + c + 1, sharex=top)
         steps = [p["timesteps"] for p in curve["points"]]
+        base = curve["baselines"]
         scores = [  # none is None: read_curve checked the baselines
             s
             for p in curve["points"]
-            if (s := normalized_score(p["mean_return"], curve["baselines"])) is not None
+            if (s := normalized_score(p["mean_return"], base)) is not None
         ]
-        ax.axhline(1.0, color="tab:green", linestyle="--", label="greedy")
-        ax.axhline(0.0, color="tab:gray", linestyle=":", label="random")
-        others = [k for k in curve["baselines"] if k not in ("greedy", "random")]
-        for j, name in enumerate(others):  # e.g. brute_force, rollout: dashed lines too
-            level = normalized_score(curve["baselines"][name], curve["baselines"])
+        top.axhline(1.0, color="tab:green", linestyle="--", label="greedy")
+        top.axhline(0.0, color="tab:gray", linestyle=":", label="random")
+        low.axhline(0.0, color="tab:green", linestyle="--", label="greedy")
+        others = [k for k in base if k not in ("greedy", "random")]
+        for j, name in enumerate(others):  # e.g. brute_force, rollout: dash-dotted lines too
+            level = normalized_score(base[name], base)
             if level is not None:
-                ax.axhline(level, color=f"C{3 + j}", linestyle="-.", label=name)
-        ax.plot(steps, scores, marker="o", color="tab:blue", label="policy")
-        ax.set_title(title, fontsize=8, wrap=True)
-        ax.set_xlabel("environment steps")
-        ax.set_ylabel("normalised score")
-        ax.legend(fontsize=7, loc="best")
+                top.axhline(level, color=f"C{3 + j}", linestyle="-.", label=name)
+            low.axhline(base[name] - base["greedy"], color=f"C{3 + j}", linestyle="-.", label=name)
+        top.plot(steps, scores, marker="o", color="tab:blue", label="policy")
+        low.plot(
+            steps,
+            [p["mean_return"] - base["greedy"] for p in curve["points"]],
+            marker="o",
+            color="tab:blue",
+            label="policy",
+        )
+        top.set_title(title, fontsize=8, wrap=True)
+        top.set_ylabel("normalised score")
+        low.set_ylabel("return - greedy's")
+        low.set_xlabel("environment steps")
+        top.legend(fontsize=7, loc="best")
+        # near greedy the differences matter: the lower panel zooms on them
+        diffs = [p["mean_return"] - base["greedy"] for p in curve["points"][1:]] or [0.0]
+        marks = [0.0, *diffs, *(base[k] - base["greedy"] for k in others)]
+        span = max(abs(min(marks)), abs(max(marks))) * 1.2 or 1.0
+        low.set_ylim(-span, span)
         seeds = curve["seeds"]
-        ax.text(
+        low.text(
             0.99,
             0.02,
             f"{curve['episodes']} held-out episodes, seeds {seeds[0]}..{seeds[1]}",
-            transform=ax.transAxes,
+            transform=low.transAxes,
             ha="right",
             fontsize=7,
         )
