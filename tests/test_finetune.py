@@ -82,3 +82,14 @@ def test_init_from_refuses_another_architecture_or_view(
 
 
 # the bounds of --critic-warmup, --target-kl and --init-from: tests/test_training_faults.py
+
+
+def test_normalize_reward_changes_the_training_signal_only(base: Path, tmp_path: Path) -> None:
+    plain, _ = _run(tmp_path, "plain", "--init-from", str(base), "--total-timesteps", "128")
+    scaled, meta = _run(
+        tmp_path, "scaled", "--init-from", str(base), "--total-timesteps", "128",
+        "--normalize-reward",
+    )  # fmt: skip
+    assert meta["training"]["normalize_reward"] is True
+    assert not _same(read_weights(scaled), read_weights(plain))  # the option is not ignored
+    assert read_weights(scaled).keys() == read_weights(plain).keys()  # same policy, no wrapper

@@ -72,7 +72,7 @@ import stable_baselines3
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 from tqdm.auto import tqdm
 
 import selenv
@@ -198,6 +198,13 @@ class PPOConfig:
     )
     target_kl: float = arg(
         0.0, "stop a PPO update's epochs once the approximate KL exceeds this (0: off)"
+    )
+    normalize_reward: bool = arg(
+        False,
+        "scale the training rewards by a running estimate of the discounted return's standard "
+        "deviation (SB3's VecNormalize, rewards only): for envs whose returns are large, where "
+        "the value head cannot fit the raw scale; evaluation and the checkpoint are unchanged; "
+        "the statistics restart on --resume",
     )
     # long runs
     checkpoint_every: int = arg(
@@ -730,6 +737,8 @@ def train(
             else DummyVecEnv(factories)
         )
         venv.seed(cfg.seed)
+    if cfg.normalize_reward:  # training statistics only: the policy acts on raw observations
+        venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
     layout = obs_layout(venv.observation_space)
     obs_floats = sum(
         int(np.prod(sp.shape or (1,)))
