@@ -135,7 +135,8 @@ def test_version_table_registration_and_agents() -> None:
     assert family_of("selenv.multiagent.fim_selection_v0") == "selenv.multiagent.fim_selection_v0"
     for new in ENV_IDS:  # heuristics apply to every version; the shipped policies to theirs
         old = new.replace("-v1", "-v0")
-        assert set(agents_for(old)) == set(agents_for(new)) - {"ppo", "ppo_top4", "ppo_top8"}
+        learned = {"ppo", "ppo_top4", "ppo_top8", "ppo_general"}
+        assert set(agents_for(old)) == set(agents_for(new)) - learned
         assert "greedy" in agents_for(old) or "ga" in agents_for(old)
     assert selenv.ENV_IDS == ENV_IDS
 
