@@ -61,6 +61,7 @@ ROLLOUT_CEILINGS = {
     "samples": 1_000,
     "every": 1_000_000,
     "max_subsets": 10_000_000,
+    "shortlist": 200,
 }
 
 

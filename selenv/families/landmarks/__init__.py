@@ -22,6 +22,7 @@ SPEC = FamilySpec(
     agent_modules=(
         "selenv.families.landmarks.agents",
         "selenv.families.landmarks.rollout",
+        "selenv.families.landmarks.fast_rollout",
     ),
     vector_class="selenv.families.landmarks.vector:LandmarkSelectionVectorEnv",
 )

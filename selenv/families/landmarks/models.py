@@ -78,6 +78,7 @@ __all__ = [
     "paper_jacobian",
     "process_noise",
     "propagate",
+    "propagate_steps",
     "propagate_with_jacobians",
     "propagation_jacobians",
     "skew",
@@ -271,6 +272,20 @@ def _propagate(
     out[0:3] = p + v * h + 0.5 * a * h * h  # p+ = p + v dt + a dt^2 / 2
     out[3:6] = v + a * h  # v+ = v + a dt
     out[6:9] = th + E @ ua[3:6] * h  # theta+ = theta + E w_b dt
+    return out
+
+
+def propagate_steps(x: ArrayLike, u: ArrayLike, dt: float, steps: int) -> FloatArray:
+    """``x_0 = x, x_{t+1} = f(x_t, u)`` with one input held: (steps + 1, 9).
+
+    :func:`propagate` repeated (the same values bit for bit), with the inputs checked once.
+    """
+    xa, ua, h = _state(x), _input(u), _dt(dt)
+    out = np.empty((int(steps) + 1, STATE_DIM))
+    out[0] = xa
+    for t in range(int(steps)):
+        tr = _trig(out[t, 6:9])
+        out[t + 1] = _propagate(out[t], ua, h, _dcm(tr), _rate_matrix(tr))
     return out
 
 
