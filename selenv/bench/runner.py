@@ -154,11 +154,10 @@ def _after_episode() -> None:
         os.kill(os.getppid() if in_pool_worker() else os.getpid(), signal.Signals[f"SIG{name}"])
     pause = os.environ.get("SELENV_TEST_PAUSE_AFTER_EPISODES")
     if pause and _test_episodes == int(pause):
-        print(
-            f"selenv: test hook: paused after {pause} episodes (PID {os.getpid()})",
-            file=sys.stderr,
-            flush=True,
-        )
+        # one write of the whole line (atomic on a pipe): print() writes the text and the
+        # newline separately, so two workers pausing together could interleave their lines
+        sys.stderr.write(f"selenv: test hook: paused after {pause} episodes (PID {os.getpid()})\n")
+        sys.stderr.flush()
         while True:
             time.sleep(0.05)
 
