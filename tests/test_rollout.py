@@ -216,7 +216,8 @@ def test_cl_rollout_does_not_peek_at_the_future() -> None:
     assert rc.scores()[1] != scores_a
 
 
-def test_landmark_rollout_does_not_peek_at_the_future() -> None:
+@pytest.mark.parametrize("name", ["rollout", "fast_rollout"])
+def test_landmark_rollout_does_not_peek_at_the_future(name: str) -> None:
     a, b = gym.make(LM, **LM_KW), gym.make(LM, **LM_KW)
     _play(a, make("brute_force", LM), 14, seed=6)
     _play(b, make("brute_force", LM), 14, seed=6)
@@ -233,7 +234,7 @@ def test_landmark_rollout_does_not_peek_at_the_future() -> None:
         measurements=_scramble(prob.measurements, k - 1, rng),
     )
     base.problem = base.ekf.problem = new
-    ra, rb = make("rollout", LM), make("rollout", LM)
+    ra, rb = make(name, LM), make(name, LM)
     ra.reset(a, seed=0)
     rb.reset(b, seed=0)
     choice_a, scores_a = ra.scores()
@@ -275,16 +276,20 @@ def _same(s: tuple[Any, ...], t: tuple[Any, ...]) -> None:
 
 
 @pytest.mark.parametrize(
-    ("env_id", "kw", "warm", "snapshot"),
-    [(CL, CL_KW, "greedy", _cl_snapshot), (LM, LM_KW, "brute_force", _lm_snapshot)],
+    ("name", "env_id", "kw", "warm", "snapshot"),
+    [
+        ("rollout", CL, CL_KW, "greedy", _cl_snapshot),
+        ("rollout", LM, LM_KW, "brute_force", _lm_snapshot),
+        ("fast_rollout", LM, LM_KW, "brute_force", _lm_snapshot),
+    ],
 )
 def test_deterministic_and_leaves_the_env_alone(
-    env_id: str, kw: dict[str, Any], warm: str, snapshot: Any
+    name: str, env_id: str, kw: dict[str, Any], warm: str, snapshot: Any
 ) -> None:
     env = gym.make(env_id, **kw)
     obs, info = _play(env, make(warm, env_id), 8, seed=9)
     before = snapshot(env)
-    first, second = make("rollout", env_id), make("rollout", env_id)
+    first, second = make(name, env_id), make(name, env_id)
     first.reset(env, seed=0)
     second.reset(env, seed=1)
     a1 = first.act(obs, info)
@@ -369,3 +374,76 @@ def test_rollout_work_ceilings_refuse_before_any_work(env_id: str, options: dict
     assert value > ROLLOUT_CEILINGS[name]
     agent = make_agent("rollout", env_id, allow_large=True, **options)
     assert getattr(agent, name) == value
+
+
+# -- fast_rollout: the landmark rollout on a shortlist, candidates batched ---------------------
+def _bound(name: str, env: gym.Env[Any, Any], **kw: Any) -> Any:
+    agent = make(name, LM, **kw)
+    agent.reset(env, seed=0)
+    return agent
+
+
+@pytest.mark.parametrize(("seed", "warm"), [(3, 4), (5, 10), (11, 16), (2, 40)])
+@pytest.mark.parametrize("horizon", [0, 1, 6])
+def test_fast_rollout_with_every_landmark_gives_the_rollout_scores(
+    seed: int, warm: int, horizon: int
+) -> None:
+    """A second formulation: Joseph-form updates and brute force over all subsets per step."""
+    kw = dict(LM_KW, horizon=50)
+    env = gym.make(LM, **kw)
+    _play(env, make("brute_force", LM), warm, seed=seed)
+    fast = _bound("fast_rollout", env, top_k=4, horizon=horizon, shortlist=kw["n_landmarks"])
+    ref = _bound("rollout", env, top_k=4, horizon=horizon)
+    choice, scores = fast.scores()
+    ref_choice, ref_scores = ref.scores()
+    assert choice == ref_choice
+    assert list(scores) == list(ref_scores)  # the same candidates, best one-step gain first
+    ours, theirs = np.array(list(scores.values())), np.array(list(ref_scores.values()))
+    if horizon == 0:  # gain log det(I + W P W^T) vs -log det P+: the same up to log det P
+        np.testing.assert_allclose(np.diff(ours), np.diff(theirs), rtol=1e-9, atol=1e-12)
+        return
+    np.testing.assert_allclose(ours, theirs, rtol=1e-9)
+
+
+def test_fast_rollout_stays_on_its_shortlist() -> None:
+    env = gym.make(LM, **LM_KW)
+    _play(env, make("brute_force", LM), 6, seed=8)
+    gains = env.unwrapped.state.masked_gains()
+    shortlist = set(np.argsort(-gains, kind="stable")[:4].tolist())
+    choice, scores = _bound("fast_rollout", env, top_k=6, horizon=3, shortlist=4).scores()
+    assert len(scores) == 6  # C(4, 2) subsets of the shortlist
+    assert all(set(s) <= shortlist for s in scores)
+    assert choice in scores
+    # horizon 0: the best one-step subset within the shortlist
+    best, _ = _bound("fast_rollout", env, horizon=0, shortlist=4).scores()
+    full = _bound("fast_rollout", env, horizon=0, shortlist=LM_KW["n_landmarks"])
+    assert best == next(s for s in full.scores()[1] if set(s) <= shortlist)
+
+
+def test_fast_rollout_plays_whole_episodes_including_the_last_steps() -> None:
+    env = gym.make(LM, **dict(LM_KW, horizon=12))
+    obs, info = _play(env, make("fast_rollout", LM, horizon=4), 0, seed=4)
+    agent = make("fast_rollout", LM, horizon=4)
+    agent.reset(env, seed=4)
+    done, steps = False, 0
+    while not done:
+        obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
+        done, steps = terminated or truncated, steps + 1
+    assert steps == 12 * LM_KW["k"]
+
+
+@pytest.mark.parametrize(
+    "options",
+    [{"top_k": 0}, {"horizon": -1}, {"shortlist": 0}, {"shortlist": 500}, {"top_k": 1.5}],
+)
+def test_fast_rollout_bad_options_raise(options: dict[str, Any]) -> None:
+    with pytest.raises((TypeError, ValueError), match=next(iter(options))):
+        make("fast_rollout", LM, **options)
+
+
+def test_fast_rollout_refuses_another_objective_and_another_env() -> None:
+    agent = make("fast_rollout", LM)
+    with pytest.raises(ValueError, match="objective"):
+        agent.reset(gym.make(LM, **LM_KW, objective="det"), seed=0)
+    with pytest.raises(ValueError, match="LandmarkSelection"):
+        agent.reset(gym.make("CartPole-v1"), seed=0)

@@ -23,6 +23,7 @@ from selenv.families.landmarks.models import (
     paper_jacobian,
     process_noise,
     propagate,
+    propagate_steps,
     propagation_jacobians,
     skew,
     state_difference,
@@ -365,3 +366,17 @@ def test_ekf_update_paths_agree_and_protect_state():
         a.update([0])  # one update per step
     with pytest.raises(ValueError, match="k"):
         a.predict(5)
+
+
+def test_propagate_steps_repeats_propagate():
+    rng = np.random.default_rng(0)
+    x = np.r_[rng.normal(size=6) * 10.0, rng.normal(size=3) * 0.3]
+    u = np.r_[rng.normal(size=2), -9.8, rng.normal(size=3) * 0.05]
+    xs = propagate_steps(x, u, 0.1, 7)
+    assert xs.shape == (8, 9)
+    y = x
+    for t in range(7):
+        y = propagate(y, u, 0.1)
+        np.testing.assert_array_equal(xs[t + 1], y)  # the same arithmetic, same machine
+    with pytest.raises(ValueError, match="x"):
+        propagate_steps(np.zeros(3), u, 0.1, 2)
