@@ -53,6 +53,7 @@ __all__ = [
     "landmark_features",
     "landmark_interest",
     "open_selection",
+    "process_noise_batch",
     "whiten_landmarks",
     "write_observation",
 ]
@@ -124,10 +125,18 @@ def ekf_predict(
         The predicted ``(x, P)``, (B, 9) and (B, 9, 9) (symmetrized), new arrays.
     """
     xp, F, G = strapdown_batch(x, u, dt)
+    Pp = F @ P @ np.swapaxes(F, -1, -2) + process_noise_batch(G, accel_sigma, gyro_sigma)
+    return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))  # P' = F P F^T + Q, symmetrized
+
+
+def process_noise_batch(G: FloatArray, accel_sigma: float, gyro_sigma: float) -> FloatArray:
+    """``Q = G diag(sa^2 I3, sg^2 I3) G^T`` (B, 9, 9) of ``G = dx+/du`` (B, 9, 6), as computed.
+
+    :func:`~selenv.families.landmarks.models.process_noise` batched, without its final
+    symmetrization (the callers symmetrize what they build from it).
+    """
     Gs = G * _noise_scale(float(accel_sigma), float(gyro_sigma))  # G diag(sa I3, sg I3)
-    Gt, Ft = np.swapaxes(Gs, -1, -2), np.swapaxes(F, -1, -2)
-    Pp = F @ P @ Ft + Gs @ Gt  # P' = F P F^T + Q
-    return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
+    return Gs @ np.swapaxes(Gs, -1, -2)
 
 
 @functools.lru_cache(maxsize=8)

@@ -42,14 +42,12 @@ import numpy as np
 from selenv.agents.base import AgentSpec, PlanAgent, register_agent
 from selenv.agents.rollout import best_index, ceiling_option
 from selenv.core.linalg import FloatArray, cholesky_spd
-from selenv.families.landmarks.batched import aoa_candidates
-from selenv.families.landmarks.env import LandmarkSelectionEnv
+from selenv.families.landmarks.batched import aoa_candidates, process_noise_batch
 from selenv.families.landmarks.forecast import LandmarkForecast
 from selenv.families.landmarks.models import STATE_DIM, propagate_steps, strapdown_batch
+from selenv.families.landmarks.rollout import LANDMARK_ENV_ID, landmark_env
 
 __all__ = ["LandmarkFastRolloutAgent"]
-
-LANDMARK_ENV_ID = "selenv/LandmarkSelection-v1"
 
 
 def _subset_rows(M: int, K: int, m: int = 2) -> np.ndarray:
@@ -95,11 +93,7 @@ class LandmarkFastRolloutAgent(PlanAgent):
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
         """Bind to the env; ``ValueError`` unless it is ``LandmarkSelection`` with log det cost."""
         super().reset(env, seed)
-        base = env.unwrapped
-        if not isinstance(base, LandmarkSelectionEnv):
-            raise ValueError(
-                f"agent 'fast_rollout' needs {LANDMARK_ENV_ID} here, got {type(base).__name__}"
-            )
+        base = landmark_env(env, self.name)
         if base.objective != "logdet" or base.solver_objective != "logdet":
             raise ValueError(
                 "agent 'fast_rollout' supports objective='logdet' only, got "
@@ -158,9 +152,8 @@ class LandmarkFastRolloutAgent(PlanAgent):
         u = root.u_hold
         xs = propagate_steps(root.x, u, root.dt, steps)
         _, F, G = strapdown_batch(xs[:-1], np.broadcast_to(u, (steps, u.size)), root.dt)
-        Gs = G * np.repeat(root.sigmas, 3)  # G diag(sa, sa, sa, sg, sg, sg)
-        Q = Gs @ np.swapaxes(Gs, 1, 2)
-        Q = 0.5 * (Q + np.swapaxes(Q, 1, 2))
+        Q = process_noise_batch(G, *root.sigmas)
+        Q = 0.5 * (Q + Q.mT)
         H, _ = aoa_candidates(xs[1:], np.broadcast_to(root.landmarks[sl], (steps, M, 3)))
         W = (self._whitener(root.R_landmark) @ H).reshape(steps, 2 * M, STATE_DIM)
         Wt, FT = W.mT, F.mT

@@ -21,10 +21,18 @@ from selenv.core.objectives import make_gain_state, subset_criteria
 from selenv.families.landmarks.env import LandmarkSelectionEnv
 from selenv.families.landmarks.forecast import LandmarkForecast
 
-__all__ = ["LandmarkRolloutAgent"]
+__all__ = ["LandmarkRolloutAgent", "landmark_env"]
 
 LANDMARK_ENV_ID = "selenv/LandmarkSelection-v1"
 LANDMARK_BASES = ("brute_force", "greedy")
+
+
+def landmark_env(env: gym.Env[Any, Any], name: str) -> LandmarkSelectionEnv:
+    """``env.unwrapped`` if it is ``LandmarkSelection``, else ``ValueError`` naming ``name``."""
+    base = env.unwrapped
+    if not isinstance(base, LandmarkSelectionEnv):
+        raise ValueError(f"agent {name!r} needs {LANDMARK_ENV_ID} here, got {type(base).__name__}")
+    return base
 
 
 def _combinations(n: int, k: int) -> np.ndarray:
@@ -102,11 +110,7 @@ class LandmarkRolloutAgent(PlanAgent):
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
         """Bind to the env; refuse (``ValueError``) a brute-force base over too many subsets."""
         super().reset(env, seed)
-        base = env.unwrapped
-        if not isinstance(base, LandmarkSelectionEnv):
-            raise ValueError(
-                f"agent 'rollout' needs {LANDMARK_ENV_ID} here, got {type(base).__name__}"
-            )
+        base = landmark_env(env, self.name)
         n_sub = math.comb(base.n, base.k)
         if self.base_policy == "brute_force" and n_sub > self.max_subsets:
             raise ValueError(
