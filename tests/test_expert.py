@@ -149,3 +149,53 @@ def test_landmark_labels_and_training_entry_point(tmp_path: Path) -> None:
     assert meta["expert_iteration"]["command"].startswith(
         "python -m selenv.train.train_landmark_expert"
     )
+    # the starting checkpoint's results describe it, not the new weights
+    start = json.loads(DEFAULT_CHECKPOINTS[LANDMARK_ID].with_suffix(".json").read_text())
+    assert "held_out_bench" in start
+    assert "held_out_bench" not in meta and meta["metrics"] is None
+    assert meta["initialised_from"]["checkpoint"] == str(DEFAULT_CHECKPOINTS[LANDMARK_ID])
+    assert meta["initialised_from"]["held_out_bench"] == start["held_out_bench"]
+    assert meta["initialised_from"]["expert_iteration"] == start["expert_iteration"]
+    saved = json.loads(out.with_suffix(".json").read_text())
+    assert saved["initialised_from"] == meta["initialised_from"]
+
+
+def test_fast_rollout_labels_are_its_scores_on_its_candidates() -> None:
+    from selenv.families.landmarks.fast_rollout import LandmarkFastRolloutAgent
+    from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+
+    data = collect_landmark_rollout_labels(
+        {}, 5, seed=0, horizon=2, explore=0.0, labeller="fast_rollout", progress=False
+    )
+    assert len(data) == 5
+    # replay: the same seeds and the labeller's own picks give the same rows
+    env = gym.make(LANDMARK_ID)
+    ref = LandmarkFastRolloutAgent(top_k=4, horizon=2)
+    obs, info = env.reset(seed=train_seed(0, 0, 1, 0))
+    ref.reset(env)
+    k = 0
+    while k < len(data):
+        best, scores = ref.scores()
+        row = np.full(data.deltas.shape[1], np.inf)
+        for subset, value in scores.items():
+            for lm in subset:
+                row[lm] = min(row[lm], -value)
+        finite = np.isfinite(row)
+        if finite.sum() > 1 and np.ptp(row[finite]) > 0:  # ties are skipped by the collector
+            np.testing.assert_array_equal(data.deltas[k], row)
+            assert len(set(np.flatnonzero(finite))) <= 6  # the labeller's shortlist
+            k += 1
+        obs, _, term, trunc, info = env.step(best[0])
+        assert not (term or trunc)
+
+
+def test_an_unknown_labeller_is_refused_before_any_work(capsys: pytest.CaptureFixture) -> None:
+    from selenv.learned.rl.expert import collect_landmark_rollout_labels
+    from selenv.train import train_landmark_expert
+
+    with pytest.raises(ValueError, match="labeller"):
+        collect_landmark_rollout_labels({}, 2, seed=0, labeller="greedy", progress=False)
+    with pytest.raises(SystemExit) as exc:
+        train_landmark_expert.main(["--labeller", "greedy"])
+    assert exc.value.code == 2
+    assert "--labeller" in capsys.readouterr().err

@@ -272,6 +272,19 @@ _FREE = (
 )
 
 
+#: keys of the starting checkpoint's metadata that describe it rather than the new weights
+#: (its results and its own expert iteration): kept under ``initialised_from``
+_NOT_INHERITED = (
+    "checkpoint_sha256",
+    "expert_iteration",
+    "held_out_bench",
+    "held_out_vs_rollout",
+    "initialised_from",
+    "metrics",
+    "resume_state",
+)
+
+
 def run_expert_iteration(
     cfg: Any,
     argv: list[str] | None,
@@ -323,7 +336,12 @@ def run_expert_iteration(
     space = cast(spaces.Dict, wrapped.observation_space)
     n = int(np.prod(space["action_mask"].shape or (0,)))
     meta: dict[str, Any] = {
-        **src,
+        **{k: v for k, v in src.items() if k not in _NOT_INHERITED},
+        # the starting weights' own results and iteration describe them, not this run's
+        "initialised_from": {
+            "checkpoint": str(cfg.checkpoint),
+            **{k: src[k] for k in _NOT_INHERITED if k in src},
+        },
         "view": view,
         "env_kwargs": kwargs,
         "env_config": resolved_env_config(env),

@@ -19,12 +19,17 @@ The shipped ``checkpoints/landmark_selection_ppo.zip``: ``configs/landmark_selec
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
-from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+from selenv.learned.rl.expert import (
+    LANDMARK_ID,
+    LANDMARK_LABELLERS,
+    collect_landmark_rollout_labels,
+)
 from selenv.learned.rl.ranking import check_ranking_sizes
 from selenv.learned.rl.training import output_lock, run_cli
 from selenv.train.train_cl_expert import (
@@ -50,6 +55,12 @@ class Config:
     env_kwargs: str = arg("{}", "JSON object of gymnasium.make keyword arguments")
     rounds: int = arg(3, "DAgger rounds (round 0 follows the labeller, later ones the policy)")
     states_per_round: int = arg(3000, "labelled picks collected per round")
+    labeller: str = arg(
+        "rollout",
+        "the labelling reference: 'rollout', or 'fast_rollout' (the same forecast on a "
+        "shortlist of the 6 landmarks with the largest single gain, about 20x cheaper)",
+        choices=LANDMARK_LABELLERS,
+    )
     top_k: int = arg(
         4,
         "the labeller (landmark rollout) scores the top-k subsets by one-step gain "
@@ -104,7 +115,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     check_expert_outputs(cfg, f"python -m {SCRIPT}")
     with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
         return run_expert_iteration(
-            cfg, argv, LANDMARK_ID, collect_landmark_rollout_labels, SCRIPT, "brute_force"
+            cfg,
+            argv,
+            LANDMARK_ID,
+            partial(collect_landmark_rollout_labels, labeller=cfg.labeller),
+            SCRIPT,
+            "brute_force",
         )
 
 

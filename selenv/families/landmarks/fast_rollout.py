@@ -118,17 +118,40 @@ class LandmarkFastRolloutAgent(PlanAgent):
 
     def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
         """The best candidate subset for the picks left in this filter step."""
-        best, self.last_scores = self.scores()
+        best, self.last_scores = self.scores(obs, info)
         return list(best)
 
-    def scores(self) -> tuple[tuple[int, ...], dict[tuple[int, ...], float]]:
-        """The chosen subset (landmark indices, ascending) and every candidate's score."""
+    def select_shortlist(
+        self, obs: Any, info: dict[str, Any] | None, gains: FloatArray, M: int
+    ) -> np.ndarray:
+        """The ``M`` landmarks the lookahead considers, ``(M,)`` indices into the pool.
+
+        Args:
+            obs: the env's observation at the decision (``None`` when called without one).
+            info: its info dict (or ``None``).
+            gains: ``(N,)`` single-landmark gains now, ``-inf`` where a landmark is not open.
+            M: shortlist length (at most the number of open landmarks).
+
+        Here: the ``M`` open landmarks of largest single gain (ties: lowest index first).
+        Subclasses may rank them otherwise (``ppo_search``: a learned policy's scores); the
+        result must be ``M`` distinct open landmarks.
+        """
+        return np.argsort(-gains, kind="stable")[:M]
+
+    def scores(
+        self, obs: Any = None, info: dict[str, Any] | None = None
+    ) -> tuple[tuple[int, ...], dict[tuple[int, ...], float]]:
+        """The chosen subset (landmark indices, ascending) and every candidate's score.
+
+        ``obs`` / ``info``: the env's observation and info at the decision, passed to
+        :meth:`select_shortlist` (this class ranks by the env's gains and does not read them).
+        """
         env = self.lm
         st, K = env.state, env.budget_left
         g = st.masked_gains()
         n_open = int(np.count_nonzero(np.isfinite(g)))
         M = min(max(self.shortlist, K), n_open)
-        sl = np.argsort(-g, kind="stable")[:M]  # open landmarks, best single gain first
+        sl = np.asarray(self.select_shortlist(obs, info, g, M), dtype=np.intp)
         rows = self._subsets(M, K)
         W0 = st.G[sl].reshape(2 * M, STATE_DIM)  # whitened rows R^-1/2 H of the shortlist
         P0 = st.P
@@ -183,5 +206,16 @@ register_agent(
         LandmarkFastRolloutAgent,
         "rollout on a shortlist of 6 landmarks, 4 candidates batched, 10 steps ahead "
         "(no future noise)",
+    )
+)
+# the learned-prior version lives above this layer (it loads a policy): registered lazily
+register_agent(
+    AgentSpec(
+        "ppo_search",
+        (LANDMARK_ENV_ID,),
+        "selenv.learned.rl.search:make_landmark_ppo_search",
+        "fast_rollout on the shortlist the shipped ppo policy ranks first "
+        "(ppo_search:checkpoint=...)",
+        all_versions=False,  # the shipped checkpoint was trained on this version
     )
 )

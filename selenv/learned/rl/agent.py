@@ -256,9 +256,48 @@ class SB3PolicyAgent(Agent):
 
     def act(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> Any:
         """The policy's action on the candidate view, with the env's mask applied."""
-        if self.view is None:
-            raise ValueError("call reset(env) before act()")
-        cand = self.view(obs)
+        view, cand, mask = self._candidates(obs, info, "act")
+        if self.verify_top_k:
+            return view.env_action(obs, self._verified(obs, cand, mask))
+        if self.top_m:
+            key = id(self._policy)
+            if key not in self._top:
+                self._top[key] = TopMScorer(self._policy, self.top_m)
+            return view.env_action(obs, self._top[key].action(cand, mask))
+        if self.deterministic and self.lean:
+            return view.env_action(obs, self._lean[id(self._policy)].action(cand, mask))
+        if self.masked:
+            action, _ = self._policy.predict(  # type: ignore[call-arg]
+                cand, action_masks=mask, deterministic=self.deterministic
+            )
+        else:  # plain PPO: the policy masks its logits from the observation's mask
+            cand = {**cand, "action_mask": mask.astype(cand["action_mask"].dtype)}
+            action, _ = self._policy.predict(cand, deterministic=self.deterministic)
+        return view.env_action(obs, int(action))
+
+    def logits(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> np.ndarray:
+        """The policy's logits ``(N,)`` of the env's observation (lean forward, float32).
+
+        The candidates are the view's (the env's actions for the identity views); masked
+        candidates (the view's and the env's mask) get the masked logit
+        :data:`~selenv.learned.rl.candidate_policy.MASKED_LOGIT`, so ``argmax`` is the action
+        :meth:`act` plays.
+
+        Raises:
+            ValueError: called before :meth:`reset`, or the observation does not fit the
+                checkpoint.
+        """
+        _, cand, mask = self._candidates(obs, info, "logits")
+        return self._lean[id(self._policy)].scores(cand, mask)
+
+    def _candidates(
+        self, obs: dict[str, np.ndarray], info: dict[str, Any], caller: str
+    ) -> tuple[CandidateView, dict[str, np.ndarray], np.ndarray]:
+        """The bound view, its candidates of ``obs`` and their mask (the view's and the env's)."""
+        view = self.view
+        if view is None:
+            raise ValueError(f"call reset(env) before {caller}()")
+        cand = view(obs)
         width = np.shape(cand["whitened"])[1]
         if width != self.whitened_dim:
             raise ValueError(
@@ -268,23 +307,7 @@ class SB3PolicyAgent(Agent):
         mask = np.asarray(cand["action_mask"], dtype=bool)
         if "action_mask" in info and np.shape(info["action_mask"]) == mask.shape:  # env's own
             mask = mask & np.asarray(info["action_mask"], dtype=bool)  # a view may restrict
-        if self.verify_top_k:
-            return self.view.env_action(obs, self._verified(obs, cand, mask))
-        if self.top_m:
-            key = id(self._policy)
-            if key not in self._top:
-                self._top[key] = TopMScorer(self._policy, self.top_m)
-            return self.view.env_action(obs, self._top[key].action(cand, mask))
-        if self.deterministic and self.lean:
-            return self.view.env_action(obs, self._lean[id(self._policy)].action(cand, mask))
-        if self.masked:
-            action, _ = self._policy.predict(  # type: ignore[call-arg]
-                cand, action_masks=mask, deterministic=self.deterministic
-            )
-        else:  # plain PPO: the policy masks its logits from the observation's mask
-            cand = {**cand, "action_mask": mask.astype(cand["action_mask"].dtype)}
-            action, _ = self._policy.predict(cand, deterministic=self.deterministic)
-        return self.view.env_action(obs, int(action))
+        return view, cand, mask
 
     def scores(self, cand: dict[str, np.ndarray]) -> np.ndarray:
         """The policy's per-candidate scores (action logits before masking), ``(N,)``."""
