@@ -69,7 +69,10 @@ def test_the_shortlist_is_the_policys_best_scored_open_landmarks(seed: int, warm
     logits = ref.scores(ref.view(obs))
     open_ = np.isfinite(env.unwrapped.state.masked_gains())
     top = np.argsort(-np.where(open_, logits, -np.inf), kind="stable")[:4]
-    np.testing.assert_allclose(search.policy.logits(obs, info)[open_], logits[open_], rtol=1e-5)
+    for backend in ("torch", "numpy"):
+        ours = search.policy.logits(obs, info, backend=backend)
+        np.testing.assert_allclose(ours[open_], logits[open_], rtol=1e-5, atol=1e-5)
+        assert (ours[~open_] == MASKED_LOGIT).all()
     assert set(search.select_shortlist(obs, info, env.unwrapped.state.masked_gains(), 4)) == set(
         top.tolist()
     )
@@ -148,6 +151,8 @@ def test_needs_the_observation_and_a_bound_policy() -> None:
         _bound("ppo_search", env).scores()
     with pytest.raises(ValueError, match="reset"):
         SB3PolicyAgent(env_id=LM).logits({}, {})
+    with pytest.raises(ValueError, match="backend"):
+        _bound("ppo_search", env).policy.logits({}, {}, backend="jax")
 
 
 @pytest.mark.parametrize("options", [{"top_k": 0}, {"horizon": -1}, {"shortlist": 0}])

@@ -164,3 +164,32 @@ def test_clustering_script_ranks_then_verifies(tmp_path: Path) -> None:
         fim.reset(gym.make("selenv/FIMSelection-v1"), seed=0)
     with pytest.raises(ValueError, match="verify_top_k must be an int >= 0"):
         SB3PolicyAgent(out, env_id=CLU_ID, verify_top_k=-1)
+
+
+def test_fit_metrics_with_unlabelled_actions_are_finite_json() -> None:
+    """Labellers that score only their candidates (dJ = +inf elsewhere): no infinite regret."""
+    import json
+
+    import torch as th
+
+    from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+
+    data = collect_landmark_rollout_labels(
+        {}, 16, seed=0, horizon=1, labeller="fast_rollout", progress=False
+    )
+    assert (~np.isfinite(data.deltas)).any()
+    env = gym.make(LANDMARK_ID)
+    model = make_maskable_ppo(CandidateViewWrapper(env, view_for(LANDMARK_ID, env)), seed=0)
+    metrics = fit_ranking(model.policy, data, epochs=1, val_fraction=0.0, progress=False)
+    json.dumps(metrics, allow_nan=False)  # strict JSON: no Infinity
+    obs = {k: th.as_tensor(v, dtype=th.float32) for k, v in data.obs.items()}
+    with th.no_grad():
+        top = model.policy.pi_features_extractor(obs)[:, : data.deltas.shape[1]].argmax(1)
+    picked = data.deltas[np.arange(len(data)), top.numpy()]
+    labelled = np.isfinite(picked)
+    assert metrics["top_unlabelled"] == round(float(np.mean(~labelled)), 4)
+    if labelled.any():
+        best = data.deltas.min(axis=1)
+        assert metrics["regret"] == pytest.approx(float(np.mean((picked - best)[labelled])))
+    else:
+        assert metrics["regret"] is None

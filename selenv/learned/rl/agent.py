@@ -36,6 +36,7 @@ from selenv.agents.base import Agent
 from selenv.families import FAMILIES
 from selenv.learned.resources import checkpoint_dir, read_metadata, with_shipped
 from selenv.learned.rl.candidate_policy import (
+    MASKED_LOGIT,
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
     obs_layout,
@@ -142,6 +143,7 @@ class SB3PolicyAgent(Agent):
             raise ValueError("top_m needs deterministic=True (it takes the top scorer's argmax)")
         self.top_m = top_m
         self._top: dict[int, TopMScorer] = {}
+        self._numpy: dict[tuple[int, int], TopMScorer] = {}  # logits(backend="numpy")
         if checkpoint is None:
             if env_id not in DEFAULT_CHECKPOINTS:
                 raise ValueError(f"no shipped checkpoint for {env_id!r}; pass checkpoint=")
@@ -275,20 +277,41 @@ class SB3PolicyAgent(Agent):
             action, _ = self._policy.predict(cand, deterministic=self.deterministic)
         return view.env_action(obs, int(action))
 
-    def logits(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> np.ndarray:
-        """The policy's logits ``(N,)`` of the env's observation (lean forward, float32).
+    def logits(
+        self, obs: dict[str, np.ndarray], info: dict[str, Any], backend: str = "torch"
+    ) -> np.ndarray:
+        """The policy's logits ``(N,)`` of the env's observation (float32).
 
         The candidates are the view's (the env's actions for the identity views); masked
         candidates (the view's and the env's mask) get the masked logit
         :data:`~selenv.learned.rl.candidate_policy.MASKED_LOGIT`, so ``argmax`` is the action
         :meth:`act` plays.
 
+        Args:
+            obs: the env's observation.
+            info: its info dict (its ``action_mask``, if any, is applied).
+            backend: ``"torch"``: the scorer's own forward (:class:`LeanScorer`);
+                ``"numpy"``: the same network evaluated in numpy float32 on the allowed
+                candidates (:class:`~selenv.learned.rl.lean.TopMScorer` with ``m = N``),
+                several times cheaper on small pools; equal up to float32 rounding.
+
         Raises:
-            ValueError: called before :meth:`reset`, or the observation does not fit the
-                checkpoint.
+            ValueError: called before :meth:`reset`, an unknown ``backend``, or the
+                observation does not fit the checkpoint.
         """
+        if backend not in ("torch", "numpy"):
+            raise ValueError(f"backend must be 'torch' or 'numpy', got {backend!r}")
         _, cand, mask = self._candidates(obs, info, "logits")
-        return self._lean[id(self._policy)].scores(cand, mask)
+        if backend == "torch":
+            return self._lean[id(self._policy)].scores(cand, mask)
+        key = (id(self._policy), mask.shape[0])
+        if key not in self._numpy:
+            self._numpy[key] = TopMScorer(self._policy, mask.shape[0])
+        allowed = np.flatnonzero(mask)
+        out = np.full(mask.shape[0], MASKED_LOGIT, dtype=np.float32)
+        if allowed.size:
+            out[allowed] = self._numpy[key].scores(cand, allowed)
+        return out
 
     def _candidates(
         self, obs: dict[str, np.ndarray], info: dict[str, Any], caller: str

@@ -294,9 +294,11 @@ def fit_ranking(
 
     Only the actor's path (the features extractor's scores) is trained; the value head is
     left for PPO. Returns metrics on the held-out ``val_fraction`` of the states: the
-    cross-entropy, ``top1`` (the policy's top action is the oracle's best) and ``regret``
-    (mean ``dJ`` of the policy's top action minus the oracle's best, >= 0), and
-    ``epochs_done``.
+    cross-entropy, ``top1`` (the policy's top action is the oracle's best), ``regret``
+    (mean ``dJ`` of the policy's top action minus the oracle's best, >= 0, over the states
+    where the oracle scored that action; ``None`` if it scored none of them),
+    ``top_unlabelled`` (the fraction of states where the policy's top action has no score,
+    ``dJ = +inf``: a labeller that scores only its own candidates) and ``epochs_done``.
 
     Resumable: ``after_epoch`` is called with the :class:`FitState` after every completed
     epoch; when it returns ``True`` the fit stops there and returns only ``{"epochs_done":
@@ -371,12 +373,15 @@ def fit_ranking(
     top = logp.argmax(dim=1).numpy()
     d = data.deltas[eval_idx]
     best = np.min(d, axis=1)
+    picked = d[np.arange(top.size), top]
+    labelled = np.isfinite(picked)  # the oracle scored the policy's top action
     return {
         "states_train": int(train.size),
         "states_eval": int(eval_idx.size),
         "cross_entropy": round(ce, 5),
         "top1": round(float(np.mean(top == np.argmin(d, axis=1))), 4),
-        "regret": float(np.mean(d[np.arange(top.size), top] - best)),
+        "regret": float(np.mean(picked[labelled] - best[labelled])) if labelled.any() else None,
+        "top_unlabelled": round(float(np.mean(~labelled)), 4),
         "epochs_done": epochs,
     }
 

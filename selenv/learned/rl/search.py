@@ -4,7 +4,8 @@ A policy alone recovers about half of the landmark ``rollout``'s edge over brute
 lookahead itself, restricted to a shortlist, recovers nearly all of it at brute force's cost
 (``fast_rollout``, :mod:`selenv.families.landmarks.fast_rollout`). This agent joins the two the
 way a search with a learned prior does: the policy (a candidate-scoring checkpoint, by default
-the shipped ``ppo``) ranks the open landmarks once per filter step -- one forward pass -- and
+the shipped ``ppo``) ranks the open landmarks once per filter step -- one forward pass, in
+numpy (:meth:`~selenv.learned.rl.agent.SB3PolicyAgent.logits`) -- and
 its ``shortlist`` best-scored landmarks are the only ones the lookahead considers (its
 candidates and its simulated brute-force base). Everything else is ``fast_rollout``'s: the
 ``top_k`` K-subsets of the shortlist by one-step gain, each scored by minus the env's cost
@@ -79,7 +80,7 @@ class LandmarkPolicySearchAgent(LandmarkFastRolloutAgent):
             raise ValueError(
                 "agent 'ppo_search' ranks the shortlist from the observation: pass obs"
             )
-        logits = np.asarray(self.policy.logits(obs, info or {}), dtype=np.float64)
+        logits = np.asarray(self.policy.logits(obs, info or {}, backend="numpy"), np.float64)
         open_ = np.isfinite(gains)
         # lexsort: last key first -> logit descending, then gain descending, then index
         order = np.lexsort((-np.where(open_, gains, 0.0), -np.where(open_, logits, -np.inf)))
