@@ -289,7 +289,7 @@ def fit_ranking(
     progress: bool = True,
     start: FitState | None = None,
     after_epoch: Callable[[FitState], bool] | None = None,
-) -> dict[str, float]:
+) -> dict[str, Any]:
     """Fit the policy's action logits to the ListNet targets of ``data`` (Adam, in place).
 
     Only the actor's path (the features extractor's scores) is trained; the value head is
