@@ -358,6 +358,18 @@ def _same(key: str, a: Any, b: Any) -> bool:
     return bool(a == b) and isinstance(a, bool) == isinstance(b, bool)
 
 
+def _no_constant(name: str) -> None:
+    raise ValueError(f"non-standard JSON constant {name}")
+
+
+def test_shipped_metadata_and_bench_results_are_strict_json() -> None:
+    """No NaN / Infinity: other JSON readers (jq, browsers) refuse them."""
+    files = [*(ROOT / "checkpoints").glob("*.json"), *(ROOT / "docs" / "bench").glob("*.json")]
+    assert len(files) > 20
+    for path in files:
+        json.loads(path.read_text(), parse_constant=_no_constant)
+
+
 def test_every_shipped_checkpoint_has_a_config() -> None:
     shipped = {p.stem for p in (ROOT / "checkpoints").glob("*.json")}
     described = {Path(tomllib.loads(p.read_text())["out"]).stem for p in CONFIGS}
