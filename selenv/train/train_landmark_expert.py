@@ -13,7 +13,14 @@ checkpoint and keeps its view; the result is benchmarked against ``brute_force``
 Stops and resumes as :mod:`selenv.train.train_cl_expert` does (``--checkpoint-every``,
 ``--resume``, ``<out stem>.last.zip``).
 
-The shipped ``checkpoints/landmark_selection_ppo.zip``: ``configs/landmark_selection_ppo.toml``.
+``--labeller fast_rollout`` labels with the same lookahead on a shortlist of 6 landmarks
+(:mod:`selenv.families.landmarks.fast_rollout`), about 14x cheaper per label.
+
+The shipped ``checkpoints/landmark_selection_ppo.zip`` (``ppo``):
+``configs/landmark_selection_ppo.toml`` (3 rounds x 3000 rollout labels, ~6 min).
+``checkpoints/landmark_selection_ppo_distilled.zip`` (``ppo_distilled``): two runs with
+``--labeller fast_rollout``, 4 x 30,000 then 4 x 50,000 labels (~33 min),
+``configs/landmark_selection_ppo_distilled.toml``.
 """
 
 from __future__ import annotations
@@ -54,7 +61,11 @@ class Config:
     force: bool = arg(False, "overwrite existing outputs of --out")
     env_kwargs: str = arg("{}", "JSON object of gymnasium.make keyword arguments")
     rounds: int = arg(3, "DAgger rounds (round 0 follows the labeller, later ones the policy)")
-    states_per_round: int = arg(3000, "labelled picks collected per round")
+    states_per_round: int = arg(
+        3000,
+        "labelled picks collected per round (the shipped ppo: 3 rounds x 3000 rollout labels, "
+        "~6 min; ppo_distilled: 4 x 30,000 then 4 x 50,000 fast_rollout labels, ~33 min)",
+    )
     labeller: str = arg(
         "rollout",
         "the labelling reference: 'rollout', or 'fast_rollout' (the same forecast on a "
