@@ -69,7 +69,8 @@ class Config:
     labeller: str = arg(
         "rollout",
         "the labelling reference: 'rollout', or 'fast_rollout' (the same forecast on a "
-        "shortlist of the 6 landmarks with the largest single gain, about 20x cheaper)",
+        "shortlist of the 6 landmarks with the largest single gain, about 14x cheaper per "
+        "label)",
         choices=LANDMARK_LABELLERS,
     )
     top_k: int = arg(

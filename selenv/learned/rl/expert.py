@@ -311,7 +311,8 @@ def collect_landmark_rollout_labels(
     :func:`collect_cl_rollout_labels`, plus ``labeller``: ``"rollout"``
     (:class:`~selenv.families.landmarks.rollout.LandmarkRolloutAgent`) or ``"fast_rollout"``
     (:class:`~selenv.families.landmarks.fast_rollout.LandmarkFastRolloutAgent`: the same
-    forecast on a shortlist of the 6 landmarks with the largest single gain, about 20x cheaper).
+    forecast on a shortlist of the 6 landmarks with the largest single gain, about 14x cheaper
+    per label).
 
     Raises:
         ValueError: as :func:`collect_cl_rollout_labels`; ``labeller`` not one of the two.
