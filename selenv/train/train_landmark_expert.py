@@ -14,7 +14,7 @@ Stops and resumes as :mod:`selenv.train.train_cl_expert` does (``--checkpoint-ev
 ``--resume``, ``<out stem>.last.zip``).
 
 ``--labeller fast_rollout`` labels with the same lookahead on a shortlist of 6 landmarks
-(:mod:`selenv.families.landmarks.fast_rollout`), about 14x cheaper per label.
+(:mod:`selenv.families.landmarks.fast_rollout`), 11-15x cheaper per label.
 
 The shipped ``checkpoints/landmark_selection_ppo.zip`` (``ppo``):
 ``configs/landmark_selection_ppo.toml`` (3 rounds x 3000 rollout labels, ~6 min).
@@ -69,7 +69,7 @@ class Config:
     labeller: str = arg(
         "rollout",
         "the labelling reference: 'rollout', or 'fast_rollout' (the same forecast on a "
-        "shortlist of the 6 landmarks with the largest single gain, about 14x cheaper per "
+        "shortlist of the 6 landmarks with the largest single gain, 11-15x cheaper per "
         "label)",
         choices=LANDMARK_LABELLERS,
     )

@@ -311,7 +311,7 @@ def collect_landmark_rollout_labels(
     :func:`collect_cl_rollout_labels`, plus ``labeller``: ``"rollout"``
     (:class:`~selenv.families.landmarks.rollout.LandmarkRolloutAgent`) or ``"fast_rollout"``
     (:class:`~selenv.families.landmarks.fast_rollout.LandmarkFastRolloutAgent`: the same
-    forecast on a shortlist of the 6 landmarks with the largest single gain, about 14x cheaper
+    forecast on a shortlist of the 6 landmarks with the largest single gain, 11-15x cheaper
     per label).
 
     Raises:
