@@ -23,6 +23,7 @@ SPEC = FamilySpec(
     agent_modules=(
         "selenv.families.cooperative.agents",
         "selenv.families.cooperative.rollout",
+        "selenv.families.cooperative.fast_rollout",
     ),
     vector_class="selenv.families.cooperative.vector:CLSchedulingVectorEnv",
 )
