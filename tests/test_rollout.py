@@ -56,6 +56,8 @@ def _scramble(a: np.ndarray, start: int, rng: np.random.Generator) -> np.ndarray
 def test_registered_for_both_envs() -> None:
     assert "rollout" in agents_for(CL)
     assert "rollout" in agents_for(LM)
+    assert "fast_rollout" in agents_for(CL)
+    assert "fast_rollout" in agents_for(LM)
 
 
 @pytest.mark.parametrize("env_id", [CL, LM])
@@ -75,11 +77,15 @@ def test_bad_options_raise_naming_the_option(
 ) -> None:
     with pytest.raises(ValueError, match=option):
         make("rollout", env_id, **kwargs)
+    if env_id == CL:  # the batched version takes the same options
+        with pytest.raises(ValueError, match=option):
+            make("fast_rollout", env_id, **kwargs)
 
 
 def test_refuses_the_wrong_env_and_a_brute_force_base_over_too_many_subsets() -> None:
-    with pytest.raises(ValueError, match="CLScheduling"):
-        make("rollout", CL).reset(gym.make(LM, **LM_KW), seed=0)
+    for name in ("rollout", "fast_rollout"):
+        with pytest.raises(ValueError, match="CLScheduling"):
+            make(name, CL).reset(gym.make(LM, **LM_KW), seed=0)
     env = gym.make(LM, **LM_KW)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="base='greedy'"):
@@ -193,9 +199,19 @@ def _cl_pair(seed: int, steps: int) -> tuple[gym.Env[Any, Any], gym.Env[Any, Any
     return a, b
 
 
-def test_cl_rollout_does_not_peek_at_the_future() -> None:
+def _cl_agent(name: str) -> Any:
+    """A CL lookahead agent; ``cem`` with fixed nonzero weights (no checkpoint: any team)."""
+    if name == "cem":
+        from selenv.learned.rl.cl_scorer import CLLearnedScorerAgent
+
+        return CLLearnedScorerAgent(np.linspace(-2e-3, 2e-3, 12), horizon=2)
+    return make(name, CL)
+
+
+@pytest.mark.parametrize("name", ["rollout", "fast_rollout", "cem"])
+def test_cl_rollout_does_not_peek_at_the_future(name: str) -> None:
     a, b = _cl_pair(seed=7, steps=11)
-    ra, rb = make("rollout", CL), make("rollout", CL)
+    ra, rb = _cl_agent(name), _cl_agent(name)
     ra.reset(a, seed=0)
     rb.reset(b, seed=0)
     choice_a, scores_a = ra.scores()
@@ -211,7 +227,7 @@ def test_cl_rollout_does_not_peek_at_the_future() -> None:
     sim.problem = c.unwrapped.problem = dataclasses.replace(
         sim.problem, inputs=_scramble(sim.problem.inputs, sim.k - 1, np.random.default_rng(1))
     )
-    rc = make("rollout", CL)
+    rc = _cl_agent(name)
     rc.reset(c, seed=0)
     assert rc.scores()[1] != scores_a
 
@@ -283,6 +299,7 @@ def _same(s: tuple[Any, ...], t: tuple[Any, ...]) -> None:
     ("name", "env_id", "kw", "warm", "snapshot"),
     [
         ("rollout", CL, CL_KW, "greedy", _cl_snapshot),
+        ("fast_rollout", CL, CL_KW, "greedy", _cl_snapshot),
         ("rollout", LM, LM_KW, "brute_force", _lm_snapshot),
         ("fast_rollout", LM, LM_KW, "brute_force", _lm_snapshot),
     ],

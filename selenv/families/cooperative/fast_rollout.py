@@ -70,12 +70,16 @@ class Decision:
         actions: ``[P (stop), pairs...]`` (C,) candidates.
         gains: (C,) their one-step gains (0 for stop).
         pair_gains: (P,) every pair's previewed gain now (``-inf`` where not open).
+        open_pairs: (K,) the open pairs; posteriors: (K, n, n) agent ``i``'s previewed
+            posterior of each (what the gains were computed from).
     """
 
     root: CLForecast
     actions: list[int]
     gains: FloatArray
     pair_gains: FloatArray
+    open_pairs: np.ndarray
+    posteriors: FloatArray
 
 
 class CLFastRolloutAgent(Agent):
@@ -133,13 +137,19 @@ class CLFastRolloutAgent(Agent):
         open_ = np.flatnonzero(env.action_masks()[:-1])
         stack = ForecastStack(root.x[None].copy(), root.P[None].copy(), root.k)
         H_i, H_j = self._jacobians(stack.x[0])
-        gains, _ = self._previews(stack, np.zeros(open_.size, np.intp), open_, H_i, H_j)
+        gains, posteriors = self._previews(stack, np.zeros(open_.size, np.intp), open_, H_i, H_j)
         order = np.argsort(-gains, kind="stable")[: self.top_k]
         ranked = [int(p) for p in open_[order]]
         pair_gains = np.full(env.n_pairs, -np.inf)
         pair_gains[open_] = gains
-        return Decision(root, [env.n_pairs, *ranked], np.concatenate([[0.0], gains[order]]),
-                        pair_gains)  # fmt: skip
+        return Decision(
+            root,
+            [env.n_pairs, *ranked],
+            np.concatenate([[0.0], gains[order]]),
+            pair_gains,
+            open_,
+            posteriors,
+        )
 
     def simulate(self, decision: Decision, steps: int) -> ForecastStack:
         """Play each candidate, finish its filter step and ``steps`` more with the base policy.
@@ -201,10 +211,10 @@ class CLFastRolloutAgent(Agent):
         stack.k += 1
         k = stack.k
         if cfg.model == "ins" and cfg.zupt_every is not None and k % cfg.zupt_every == 0:
-            zero = np.zeros(stack.x.shape[:2] + (3,))
+            zero = np.zeros((*stack.x.shape[:2], 3))
             batched.zupt_updates(stack.x, stack.P, stack.x[..., 3:6].copy(), zero, cfg.zupt_sigma)
         if self.cl.fusion != "dead_reckoning" and k % cfg.beacon_every == 0 and cfg.beacon_agents:
-            zero = np.zeros(stack.x.shape[:2] + (self._beacons.shape[0],))
+            zero = np.zeros((*stack.x.shape[:2], self._beacons.shape[0]))
             batched.beacon_updates(
                 model,
                 stack.x,
@@ -263,9 +273,15 @@ class CLFastRolloutAgent(Agent):
         P_i = stack.P[r, i]
         residual = np.zeros((r.size, H_i.shape[1]))
         _, P_new = batched.fuse(
-            self.cl.fusion, stack.x[r, i], P_i, stack.P[r, j], H_i[p], H_j[p], self.cl.sim.R_rel,
+            self.cl.fusion,
+            stack.x[r, i],
+            P_i,
+            stack.P[r, j],
+            H_i[p],
+            H_j[p],
+            self.cl.sim.R_rel,
             residual,
-        )  # fmt: skip
+        )
         objective = self.cl.objective
         return agent_objective(P_i, objective) - agent_objective(P_new, objective), P_new
 
@@ -295,7 +311,7 @@ class CLFastRolloutAgent(Agent):
         agent just updated, as ``rollout`` does). Greedy stops a row when no gain is positive.
         """
         pending = pending.copy()
-        live = pending.any(axis=1)
+        live = np.asarray(pending.any(axis=1), dtype=bool)
         for _ in range(max(slots, 0)):
             rows = np.flatnonzero(live)
             if rows.size == 0:
@@ -326,5 +342,16 @@ register_agent(
         CLFastRolloutAgent,
         "rollout's lookahead (top-3 pairs + stop, 5 filter steps of greedy) with the "
         "candidates batched: rollout's scores at a fraction of its time (no future noise)",
+    )
+)
+# the learned scorer lives above this layer (it reads a checkpoint): registered lazily
+register_agent(
+    AgentSpec(
+        "cem",
+        (CL_ENV_ID,),
+        "selenv.learned.rl.cl_scorer:make_cl_cem",
+        "a one-filter-step lookahead of greedy plus a learned correction from 12 pair features, "
+        "trained by the cross-entropy method on episode returns (cem:checkpoint=...)",
+        all_versions=False,  # the shipped weights were trained on this version
     )
 )
