@@ -127,6 +127,8 @@ def pytest_configure(config: pytest.Config) -> None:
 #: docs/guide/testing.md
 NUMERICS_FILES = frozenset(
     {
+        "test_cl_fast_rollout.py",
+        "test_cl_scorer.py",
         "test_cl_vector.py",
         "test_cl_vector_previews.py",
         "test_clustering_ga.py",

@@ -65,7 +65,11 @@ class Config:
     )
     horizon: int = arg(1, "lookahead filter steps of greedy behind each score (0: one-step gain)")
     top_k: int = arg(3, "pairs scored besides stop when --horizon >= 1")
-    generations: int = arg(12, "cross-entropy generations")
+    generations: int = arg(
+        12,
+        "cross-entropy generations (the shipped cl_scheduling_cem.json: these defaults, 6,912 "
+        "episodes, 11 min on 2 cores)",
+    )
     population: int = arg(24, "parameter vectors per generation (the first is the mean)")
     elite: int = arg(6, "best vectors the next distribution is fitted to")
     init_std: float = arg(2.0, "initial standard deviation of every search coordinate")
