@@ -114,3 +114,26 @@ def test_an_interrupted_search_resumes_to_the_uninterrupted_result(
     assert "seed" in capsys.readouterr().err
     assert _run(["--out", str(out), *TINY, "--resume", str(state)]) == 0
     assert read_scorer(out)["theta"].tolist() == read_scorer(whole)["theta"].tolist()
+
+
+def test_the_plot_script_draws_a_trained_checkpoint_and_refuses_others(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from conftest import load_script
+
+    from selenv.exits import guarded_main
+    from selenv.learned.resources import checkpoint_path
+
+    script = load_script("plot_cem_training")
+    shipped = checkpoint_path("cl_scheduling_cem.json")
+    fig = tmp_path / "cem.png"
+    argv = [str(shipped), "--out", str(fig), "--no-references"]
+    assert guarded_main(script.main, script.PROG, argv) == 0
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["cem.png"]  # no temporary left
+    capsys.readouterr()
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"format": "something else"}))
+    assert guarded_main(script.main, script.PROG, [str(other), "--out", str(fig)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(other) in err

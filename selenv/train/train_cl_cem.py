@@ -40,8 +40,9 @@ import numpy as np
 from selenv.atomic import write_json
 from selenv.exits import Terminated, UsageError
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
+from selenv.learned.resources import read_metadata
 from selenv.learned.rl.cem import CEMSettings, cem_generation, new_state, state_from_json
-from selenv.learned.rl.training import _stop_exception, run_cli
+from selenv.learned.rl.training import _stop_exception, output_lock, run_cli
 
 SCRIPT = "selenv.train.train_cl_cem"
 ENV_ID = "selenv/CLScheduling-v1"
@@ -245,22 +246,32 @@ def _bench(cfg: Config, out: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Search, save, evaluate; return the checkpoint's contents."""
+    """Search, save, evaluate; return the checkpoint's contents (one run per ``--out``)."""
+    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+    prog = f"python -m {SCRIPT}"
+    _check(cfg, prog)
+    with output_lock(cfg.out, prog):
+        return _run(cfg, argv)
+
+
+def _run(cfg: Config, argv: list[str] | None) -> dict[str, Any]:
+    """The search of :func:`main` with its options checked."""
     import gymnasium as gym
 
     import selenv  # noqa: F401
     from selenv.families.cooperative.features import FEATURE_NAMES
     from selenv.learned.rl.cl_scorer import CHECKPOINT_FORMAT, env_config
 
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
-    prog = f"python -m {SCRIPT}"
-    kwargs = _check(cfg, prog)
+    kwargs = _check(cfg, f"python -m {SCRIPT}")
     out = Path(cfg.out)
     options = {k: v for k, v in asdict(cfg).items() if k not in _FREE}
     settings = CEMSettings(cfg.population, cfg.elite, cfg.init_std, cfg.min_std)
     dim = len(FEATURE_NAMES)
     if cfg.resume:
-        saved = json.loads(Path(cfg.resume).read_text())
+        try:
+            saved = read_metadata(cfg.resume, "CEM state")
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"--resume {cfg.resume}: {exc}") from None
         if not isinstance(saved, dict) or saved.get("options") != options:
             theirs = saved.get("options", {}) if isinstance(saved, dict) else {}
             diff = sorted(k for k in options if theirs.get(k) != options[k])
