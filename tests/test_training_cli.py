@@ -59,6 +59,8 @@ SCRIPTS: dict[str, tuple[list[str], list[str]]] = {
                               ["run_expert_iteration"]),
     "train_surrogate": (["runs/surrogates/ldmv.pt", "runs/surrogates/ldmv.json"],
                         ["generate_dataset", "load_dataset", "make_executor"]),
+    "train_cl_cem": (["runs/train_cl_cem/scorer.json", "runs/train_cl_cem/scorer.bench.json"],
+                     ["_run"]),
     "train_rllib_marl": (["runs/rllib_fim_selection_v0/policy.json",
                           "runs/rllib_fim_selection_v0/policy.pth",
                           "runs/rllib_fim_selection_v0/policy.metrics.json"], ["build_config"]),
@@ -75,6 +77,7 @@ SHIPPED = {
     "train_landmark_expert": "landmark_selection_ppo.zip",
     "train_surrogate": "ldmv.pt",
     "train_rllib_marl": "rllib_fim_selection_v0",
+    "train_cl_cem": "cl_scheduling_cem.json",
 }
 #: config keys the checkpoint's JSON does not record (the TOML gives the script's default)
 NOT_RECORDED = {"fim_selection_ppo": {"vec_env", "tensorboard_dir", "torch_threads"}}
@@ -319,6 +322,8 @@ def _recorded(module: ModuleType, meta: dict[str, Any]) -> dict[str, Any]:
     elif name == "train_rllib_marl":
         block = dict(meta["training"])
         command = meta["trained_with"]
+    elif name == "train_cl_cem":  # every option that shapes the search, as given
+        block = dict(meta["training"]["options"])
     else:  # the SB3 PPO scripts: the training block, then what older JSONs kept elsewhere
         block = dict(meta["training"])
         arch, metrics = meta["architecture"], meta.get("metrics") or {}

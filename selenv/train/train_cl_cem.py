@@ -116,6 +116,16 @@ def bench_path(out: str | Path) -> Path:
     return path.with_name(f"{path.stem}.bench.json")
 
 
+def parse_args(argv: list[str] | None = None) -> Config:
+    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
+    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+
+
+def outputs(cfg: Config) -> list[Path]:
+    """The files the run writes: the checkpoint and, with ``--eval-episodes``, its bench JSON."""
+    return [Path(cfg.out)] + ([bench_path(cfg.out)] if cfg.eval_episodes else [])
+
+
 def _check(cfg: Config, prog: str) -> dict[str, Any]:
     """Validate the options before any work (exit 2, one line); the env keyword arguments."""
     if Path(cfg.out).suffix != ".json":
@@ -157,7 +167,7 @@ def _check(cfg: Config, prog: str) -> dict[str, Any]:
         usage_error(prog, f"--env-kwargs must be a JSON object: {exc}")
     if not isinstance(kwargs, dict):
         usage_error(prog, f"--env-kwargs must be a JSON object, got {cfg.env_kwargs!r}")
-    final = [Path(cfg.out)] + ([bench_path(cfg.out)] if cfg.eval_episodes else [])
+    final = outputs(cfg)
     if cfg.resume:
         if not Path(cfg.resume).is_file():
             usage_error(prog, f"--resume {cfg.resume}: no such file")
@@ -247,7 +257,7 @@ def _bench(cfg: Config, out: Path) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Search, save, evaluate; return the checkpoint's contents (one run per ``--out``)."""
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+    cfg = parse_args(argv)
     prog = f"python -m {SCRIPT}"
     _check(cfg, prog)
     with output_lock(cfg.out, prog):
