@@ -407,17 +407,22 @@ class ProcessExecutor(Executor):
         self._procs.update(getattr(pool, "_processes", None) or {})
 
     def _who_died(self, exc: BaseException) -> str:
-        """One line naming the dead worker(s) of a broken pool."""
-        deadline = time.monotonic() + 1.0
+        """One line naming the dead worker(s) of a broken pool.
+
+        A broken pool terminates its surviving workers (SIGTERM), and their exit codes may be
+        collected before the one that broke it: the workers are polled until every one has
+        exited (or 2 s passed), and the deaths other than those SIGTERMs are named (all of
+        them when there are no others).
+        """
+        deadline = time.monotonic() + 2.0
         while True:
-            dead = {
-                pid: proc.exitcode
-                for pid, proc in self._procs.items()
-                if proc.exitcode is not None and proc.exitcode != 0
-            }
-            if dead or time.monotonic() > deadline:
+            codes = {pid: proc.exitcode for pid, proc in self._procs.items()}
+            dead = {pid: code for pid, code in codes.items() if code is not None and code != 0}
+            settled = all(code is not None for code in codes.values())
+            if (dead and settled) or time.monotonic() > deadline:
                 break
             time.sleep(0.05)
+        dead = {pid: c for pid, c in dead.items() if c != -signal.SIGTERM} or dead
         parts = []
         for pid, code in sorted(dead.items()):
             if code < 0:
