@@ -47,12 +47,17 @@ def _bound(name: str, env: gym.Env[Any, Any], **kw: Any) -> Any:
 def test_fast_rollout_gives_rollouts_scores_and_choices_over_an_episode(
     config: str, horizon: int, base: str
 ) -> None:
-    """Every decision of a whole episode (rollout plays it): candidates, scores, choice."""
+    """Every decision of a whole episode (rollout plays it): candidates, scores, choice.
+
+    Two candidates can tie exactly in the math (two fusions into different agents with the same
+    partner commute), and then rounding picks one; such a choice must be a tied maximum of
+    ``rollout``'s own scores, and it must stay rare.
+    """
     env = gym.make(CL, **CONFIGS[config])
     obs, info = env.reset(seed=3)
     fast = _bound("fast_rollout", env, horizon=horizon, base=base)
     ref = _bound("rollout", env, horizon=horizon, base=base)
-    done, decisions, simulated = False, 0, 0
+    done, decisions, simulated, ties = False, 0, 0, 0
     while not done:
         choice, scores = fast.scores()
         ref_choice, ref_scores = ref.scores()
@@ -60,12 +65,16 @@ def test_fast_rollout_gives_rollouts_scores_and_choices_over_an_episode(
         np.testing.assert_allclose(
             list(scores.values()), list(ref_scores.values()), rtol=1e-9, atol=1e-12
         )
-        assert choice == ref_choice
+        if choice != ref_choice:  # only an exact tie in the math, broken by rounding
+            top = max(ref_scores.values())
+            assert abs(ref_scores[choice] - top) <= 1e-9 * max(1.0, abs(top)), (choice, ref_scores)
+            ties += 1
         decisions += 1
         simulated += len(scores) > 1
         obs, _, terminated, truncated, info = env.step(ref_choice)
         done = terminated or truncated
     assert decisions >= CONFIGS[config]["horizon"] and simulated > 0
+    assert ties <= 1
 
 
 def test_fast_rollout_acts_with_its_scores_and_keeps_them() -> None:
