@@ -47,8 +47,12 @@ def _run(argv: list[str]) -> int:
 
 def test_a_tiny_search_writes_a_loadable_checkpoint(tmp_path: Path) -> None:
     out = tmp_path / "s.json"
-    assert _run(["--out", str(out), *TINY]) == 0
+    assert _run(["--out", str(out), *TINY, "--eval-episodes", "1"]) == 0
     data = read_scorer(out)
+    held_out = json.loads(out.read_text())["held_out_bench"]
+    assert set(held_out["agents"]) == {"greedy", "rollout", "fast_rollout", f"cem:checkpoint={out}"}
+    assert held_out["command"].startswith("selenv bench selenv/CLScheduling-v1")
+    assert train_cl_cem.bench_path(out).is_file()
     assert data["env_config"]["n_agents"] == 6 and data["lookahead"] == {"horizon": 0, "top_k": 3}
     training = json.loads(out.read_text())["training"]
     assert training["generations"] == 2 and len(training["history"]) == 2

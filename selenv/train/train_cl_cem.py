@@ -225,36 +225,6 @@ def _evaluate(vector: np.ndarray) -> float:
     return float(np.mean([episode_return(agent, w["env"], s) for s in w["seeds"]]))
 
 
-def _bench(cfg: Config, out: Path) -> dict[str, Any]:
-    """``selenv bench`` of ``cem:checkpoint=<out>`` vs greedy, rollout, fast_rollout."""
-    from selenv.cli import main as selenv_main
-
-    path = bench_path(out)
-    argv = [
-        "bench",
-        ENV_ID,
-        "--agents",
-        f"greedy,rollout,fast_rollout,cem:checkpoint={out}",
-        "--episodes",
-        str(cfg.eval_episodes),
-        "--seed",
-        str(cfg.eval_seed),
-        "--baseline",
-        "greedy",
-        "--no-progress",
-        "--json",
-        str(path),
-    ]
-    if cfg.env_kwargs.strip() not in ("", "{}"):
-        argv += ["--env-kwargs", cfg.env_kwargs]
-    code = selenv_main(argv)
-    if code != 0:
-        raise RuntimeError(f"selenv {shlex.join(argv)} exited with {code}")
-    result: dict[str, Any] = json.loads(path.read_text())
-    result["command"] = "selenv " + shlex.join(argv)
-    return result
-
-
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Search, save, evaluate; return the checkpoint's contents (one run per ``--out``)."""
     cfg = parse_args(argv)
@@ -352,7 +322,10 @@ def _run(cfg: Config, argv: list[str] | None) -> dict[str, Any]:
     write_json(out, data)
     last.unlink(missing_ok=True)
     if cfg.eval_episodes:
-        bench = _bench(cfg, out)
+        from selenv.train.train_cl_expert import evaluate_with_bench
+
+        agents = f"greedy,rollout,fast_rollout,cem:checkpoint={out}"
+        bench = evaluate_with_bench(out, cfg, ENV_ID, "greedy", agents)
         agents = bench["results"][0]["agents"]
         data["held_out_bench"] = {
             "command": bench["command"],

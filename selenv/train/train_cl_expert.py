@@ -170,9 +170,17 @@ def outputs(cfg: Config) -> list[Path]:
 
 
 def evaluate_with_bench(
-    checkpoint: Path, cfg: Any, env_id: str = CL_ID, baseline: str = "greedy"
+    checkpoint: Path,
+    cfg: Any,
+    env_id: str = CL_ID,
+    baseline: str = "greedy",
+    agents: str | None = None,
 ) -> dict[str, Any]:
-    """``selenv bench`` of ``ppo:checkpoint`` vs ``baseline`` and rollout; returns its JSON."""
+    """``selenv bench`` on the held-out seeds of ``cfg``; returns its JSON.
+
+    ``agents`` (default ``baseline,rollout,ppo:checkpoint``) against ``baseline``, written to
+    ``<checkpoint>.bench.json`` with the command under ``"command"``.
+    """
     from selenv.cli import main as selenv_main
 
     out = checkpoint.with_suffix(".bench.json")
@@ -180,7 +188,7 @@ def evaluate_with_bench(
         "bench",
         env_id,
         "--agents",
-        f"{baseline},rollout,ppo:{checkpoint}",
+        agents or f"{baseline},rollout,ppo:{checkpoint}",
         "--episodes",
         str(cfg.eval_episodes),
         "--seed",

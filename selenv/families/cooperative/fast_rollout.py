@@ -35,12 +35,12 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.agents.base import Agent, AgentSpec, register_agent
-from selenv.agents.rollout import best_index, ceiling_option, choice_option
+from selenv.agents.rollout import best_index
 from selenv.core.linalg import FloatArray
 from selenv.families.cooperative import batched
 from selenv.families.cooperative.env import CLSchedulingEnv, agent_objective
 from selenv.families.cooperative.forecast import CLForecast
-from selenv.families.cooperative.rollout import CL_BASES, CL_ENV_ID
+from selenv.families.cooperative.rollout import CL_ENV_ID, rollout_options
 from selenv.families.cooperative.scenario import input_sigmas
 
 __all__ = ["CLFastRolloutAgent", "Decision", "ForecastStack"]
@@ -101,9 +101,9 @@ class CLFastRolloutAgent(Agent):
     def __init__(
         self, top_k: int = 3, horizon: int = 5, base: str = "greedy", allow_large: bool = False
     ) -> None:
-        self.top_k = ceiling_option(top_k, "top_k", 1, allow_large)
-        self.horizon = ceiling_option(horizon, "horizon", 0, allow_large)
-        self.base_policy = choice_option(base, "base", CL_BASES)
+        self.top_k, self.horizon, self.base_policy = rollout_options(
+            top_k, horizon, base, allow_large
+        )
         self.last_scores: dict[int, float] = {}
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102

@@ -12,10 +12,22 @@ from selenv.agents.rollout import best_index, ceiling_option, choice_option
 from selenv.families.cooperative.env import CLSchedulingEnv
 from selenv.families.cooperative.forecast import CLForecast
 
-__all__ = ["CLRolloutAgent"]
+__all__ = ["CLRolloutAgent", "rollout_options"]
 
 CL_ENV_ID = "selenv/CLScheduling-v1"
 CL_BASES = ("greedy", "all")
+
+
+def rollout_options(top_k: Any, horizon: Any, base: Any, allow_large: bool) -> tuple[int, int, str]:
+    """``(top_k, horizon, base)`` checked, for ``rollout`` and the agents sharing its lookahead.
+
+    A bad value is a ``ValueError`` naming the option; the ceilings apply unless ``allow_large``.
+    """
+    return (
+        ceiling_option(top_k, "top_k", 1, allow_large),
+        ceiling_option(horizon, "horizon", 0, allow_large),
+        choice_option(base, "base", CL_BASES),
+    )
 
 
 class CLRolloutAgent(Agent):
@@ -44,9 +56,9 @@ class CLRolloutAgent(Agent):
     def __init__(
         self, top_k: int = 3, horizon: int = 5, base: str = "greedy", allow_large: bool = False
     ) -> None:
-        self.top_k = ceiling_option(top_k, "top_k", 1, allow_large)
-        self.horizon = ceiling_option(horizon, "horizon", 0, allow_large)
-        self.base_policy = choice_option(base, "base", CL_BASES)
+        self.top_k, self.horizon, self.base_policy = rollout_options(
+            top_k, horizon, base, allow_large
+        )
 
     def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:  # noqa: D102
         super().reset(env, seed)
