@@ -205,15 +205,11 @@ def _init_worker(
 
 
 def episode_return(agent: Any, env: Any, seed: int) -> float:
-    """The return of one episode of ``agent`` on ``env`` reset with ``seed``."""
-    obs, info = env.reset(seed=seed)
-    agent.reset(env, seed=seed)
-    total, done = 0.0, False
-    while not done:
-        obs, reward, terminated, truncated, info = env.step(agent.act(obs, info))
-        total += float(reward)
-        done = terminated or truncated
-    return total
+    """The return of one episode of ``agent`` on ``env`` reset with ``seed`` (the bench's loop)."""
+    from selenv.bench.results import AgentResult
+    from selenv.bench.runner import run_episode
+
+    return run_episode(env, agent, seed, AgentResult(agent.name))[0]
 
 
 def _evaluate(vector: np.ndarray) -> float:

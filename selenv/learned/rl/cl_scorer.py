@@ -13,8 +13,8 @@ candidate); ``h >= 1``, ``fast_rollout``'s simulation of ``h`` more filter steps
 largest gain, stop scored by its own simulation, ``h`` capped at its ceiling). ``theta``
 (12 numbers) is fitted by the cross-entropy method on whole-episode returns
 (:mod:`selenv.learned.rl.cem`, ``python -m selenv.train.train_cl_cem``), not on labels:
-imitating ``rollout``'s per-decision scores gave policies that agree with it on most
-decisions yet lose to greedy, because their errors compound (the learned-selectors page).
+the policies fitted to ``rollout``'s per-decision labels stayed level with greedy (the
+learned-selectors page).
 
 The checkpoint is a JSON file of numbers (no code, no pickle): read with
 :func:`~selenv.learned.resources.read_metadata` (size and depth bounded) and every field
