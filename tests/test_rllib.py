@@ -449,6 +449,33 @@ def test_shipped_modules_load_and_beat_random(env_id: str) -> None:
     assert res.agents["rllib"].mean_return > res.agents["random"].mean_return
 
 
+def test_sb3_shared_policy_weights_play_the_same_through_rllib(tmp_path: Path) -> None:
+    """The two training routes face the same decision problem: the SB3 shared policy's
+    weights, moved into the RLlib module, take the SB3 policy's decisions through the RLlib
+    adapter's view (same returns on every seed)."""
+    from selenv.learned.rl.safe_load import load_policy
+
+    root = Path(__file__).resolve().parents[1] / "checkpoints"
+    meta = json.loads((root / "fim_marl_ppo.json").read_text())
+    sb3 = load_policy(root / "fim_marl_ppo.zip", meta).state_dict()
+    arch = meta["architecture"]
+    module = build_module(100, 16, {"hidden": arch["hidden"], "vf": arch["net_arch"]["vf"]})
+    prefixes = {"scorer.": "features_extractor.", "heads.": "mlp_extractor.",
+                "value_out.": "value_net."}  # fmt: skip
+    state = {}
+    for key in module.state_dict():
+        ours = next(p for p in prefixes if key.startswith(p))
+        state[key] = sb3[prefixes[ours] + key[len(ours) :]]
+    module.load_state_dict(state, strict=True)
+    json_path, _ = export_module(module, tmp_path / "sb3" / "policy",
+                                 {"env_id": FIM_MODULE, "env_kwargs": {}})  # fmt: skip
+    spec = f"rllib:path={json_path}"
+    res = run_bench(FIM_MODULE, ["ppo", spec, "greedy"], episodes=4, seed=1000, progress=False)
+    ppo, moved = res.agents["ppo"].returns, res.agents[spec].returns
+    np.testing.assert_allclose(moved, ppo, rtol=1e-12)
+    assert not np.allclose(ppo, res.agents["greedy"].returns)  # the check can tell agents apart
+
+
 # -- (d) outputs that survive failures and interruptions ---------------------------------------
 def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path, tmpfs_of_size) -> None:
     """ENOSPC while exporting: an OSError naming the output, the old pair byte-identical."""

@@ -80,7 +80,10 @@ SHIPPED = {
     "train_cl_cem": "cl_scheduling_cem.json",
 }
 #: config keys the checkpoint's JSON does not record (the TOML gives the script's default)
-NOT_RECORDED = {"fim_selection_ppo": {"vec_env", "tensorboard_dir", "torch_threads"}}
+NOT_RECORDED = {
+    "fim_selection_ppo": {"vec_env", "tensorboard_dir", "torch_threads"},
+    "rllib_receiver_clustering_v1": {"advantage_norm"},  # trained before the option existed
+}
 #: recorded keys that differ on purpose, with the reason
 DIFFERS = {
     "receiver_clustering_ppo": {

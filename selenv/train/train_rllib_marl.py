@@ -127,7 +127,9 @@ class Config:
     env: str = arg("fim_selection_v0", "PettingZoo module of selenv.multiagent to train on",
                    choices=ENVS)  # fmt: skip
     iterations: int = arg(
-        20, "PPO iterations (each samples --train-batch-size env steps, then learns)"
+        200,
+        "PPO iterations (each samples --train-batch-size env steps, then learns); the shipped "
+        "fim_selection_v0 module: 200 iterations of 1,024 steps (204,800 env steps)",
     )
     max_minutes: float = arg(
         0.0,
@@ -139,7 +141,9 @@ class Config:
         "{}", "JSON object of the env constructor's keywords ({}: the env's defaults)"
     )
     num_env_runners: int = arg(
-        0, "remote RLlib env runners (Ray actors) sampling in parallel; 0 samples in this process"
+        0,
+        "remote RLlib env runners (Ray actors) sampling in parallel; 0 samples in this process "
+        "(the shipped fim_selection_v0 module: 2, on 2 cores twice the steps per second of 0)",
     )
     num_envs_per_env_runner: int = arg(1, "envs stepped together by each env runner")
     address: str | None = arg(
@@ -154,9 +158,9 @@ class Config:
     )
     force: bool = arg(False, "overwrite existing output files")
     train_batch_size: int = arg(
-        2000, "env steps sampled per iteration (RLlib train_batch_size_per_learner)"
+        1024, "env steps sampled per iteration (RLlib train_batch_size_per_learner)"
     )
-    minibatch_size: int = arg(256, "minibatch size of the PPO epochs (agent steps)")
+    minibatch_size: int = arg(512, "minibatch size of the PPO epochs (agent steps)")
     num_epochs: int = arg(4, "passes over each iteration's batch")
     lr: float = arg(1e-3, "Adam learning rate")
     gamma: float = arg(1.0, "discount (1: the undiscounted team return is the objective)")
@@ -170,6 +174,13 @@ class Config:
         "returns are ~36 nats; large = no clip)",
     )
     grad_clip: float = arg(0.5, "max global gradient norm (0: none)")
+    advantage_norm: str = arg(
+        "masked",
+        "masked: standardise each minibatch's advantages over the steps in the loss, as SB3 "
+        "(selenv.learned.rl.rllib_learner); rllib: RLlib's batch-wide standardisation, which "
+        "also counts the artificial bootstrap step of every agent's episode",
+        choices=("masked", "rllib"),
+    )
     hidden: str = arg("64,64", "comma-separated widths of the shared per-candidate MLP")
     vf: str = arg("64", "comma-separated widths of the value MLP on the pooled embedding")
     activation: str = arg("tanh", "activation of both MLPs", choices=("tanh", "relu"))
@@ -179,7 +190,7 @@ class Config:
         f"{GAIN_SKIP_DEFAULTS}; 1 starts receiver clustering near 'stay')",
     )
     eval_episodes: int = arg(
-        20, "held-out episodes played by greedy and the trained module after training (0: none)"
+        30, "held-out episodes played by greedy and the trained module after training (0: none)"
     )
     eval_seed: int = arg(10_000, "seed of the first held-out episode")
     tensorboard_dir: str = arg(
@@ -351,8 +362,12 @@ def build_config(cfg: Config, env_kwargs: dict[str, Any], *, seed: int | None = 
     from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
+    from selenv.learned.rl.rllib_learner import MaskedAdvantagePPOTorchLearner
     from selenv.learned.rl.rllib_module import SHARED_MODULE_ID, CandidateScoringRLModule
 
+    learner: dict[str, Any] = {}
+    if cfg.advantage_norm == "masked":
+        learner["learner_class"] = MaskedAdvantagePPOTorchLearner
     env_config = {"env": cfg.env, "env_kwargs": env_kwargs}
     probe = SelenvMultiAgentEnv(env_config)
     spec = RLModuleSpec(
@@ -386,6 +401,7 @@ def build_config(cfg: Config, env_kwargs: dict[str, Any], *, seed: int | None = 
             vf_loss_coeff=cfg.vf_loss_coeff,
             grad_clip=cfg.grad_clip or None,
             use_kl_loss=False,  # clipped surrogate only, as SB3's PPO
+            **learner,
         )
         .debugging(seed=cfg.seed if seed is None else seed, log_level="ERROR")
     )
