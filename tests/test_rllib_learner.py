@@ -74,3 +74,31 @@ def test_advantage_norm_rejects_unknown_values(capsys) -> None:
         train_rllib_marl.parse_args(["--advantage-norm", "sb3"])
     assert exc.value.code == 2
     assert "advantage-norm" in capsys.readouterr().err
+
+
+def test_plot_rllib_training_draws_the_recorded_runs_and_refuses_other_files(
+    tmp_path, capsys
+) -> None:
+    from pathlib import Path
+
+    from conftest import load_script
+
+    from selenv.exits import guarded_main
+
+    script = load_script("plot_rllib_training")
+    root = Path(__file__).resolve().parents[1] / "docs" / "bench" / "rllib_training"
+    fig = tmp_path / "rllib.png"
+    runs = [f"{p.stem}={p}" for p in sorted(root.glob("*.metrics.json"))]
+    assert len(runs) == 3
+    assert guarded_main(script.main, script.PROG, [*runs, "--out", str(fig)]) == 0
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["rllib.png"]  # no temporary left
+    capsys.readouterr()
+    other = tmp_path / "other.json"
+    other.write_text('{"iteration": 1}')
+    for bad in (f"x={other}", str(other), f"x={tmp_path / 'missing.json'}"):
+        assert guarded_main(script.main, script.PROG, [bad, "--out", str(fig)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and ("LABEL=PATH" in err or str(tmp_path) in err)
+    # the moving average: trailing mean over the window, fewer points at the start
+    np.testing.assert_allclose(script.smooth(np.array([1.0, 3.0, 5.0, 7.0]), 2), [1, 2, 4, 6])
