@@ -449,6 +449,26 @@ def test_shipped_modules_load_and_beat_random(env_id: str) -> None:
     assert res.agents["rllib"].mean_return > res.agents["random"].mean_return
 
 
+def test_shipped_fim_module_reproduces_its_recorded_result_against_sb3() -> None:
+    """The held-out comparison recorded in the shipped JSON replays on this machine: the same
+    decisions (returns within rtol 1e-9), and the recomputed paired CI includes or exceeds 0."""
+    from selenv.bench.stats import compare_paired
+
+    meta = json.loads(rllib_agent.default_path(FIM_MODULE).read_text())
+    held = meta["held_out_bench"]
+    first, last = held["seeds"]
+    res = run_bench(FIM_MODULE, ["ppo", "rllib"], episodes=last - first + 1, seed=first,
+                    progress=False, env_kwargs=held["env_kwargs"])  # fmt: skip
+    ppo, ours = res.agents["ppo"].returns, res.agents["rllib"].returns
+    recorded = held["agents"]
+    np.testing.assert_allclose(np.mean(ppo), recorded["ppo"]["mean_return"], rtol=1e-9)
+    np.testing.assert_allclose(np.mean(ours), recorded["rllib"]["mean_return"], rtol=1e-9)
+    paired = compare_paired(ours, ppo, "ppo")
+    np.testing.assert_allclose(paired.mean_diff, recorded["rllib"]["paired_vs_ppo"]["mean_diff"],
+                               rtol=1e-6, atol=1e-9)  # fmt: skip
+    assert paired.ci95[1] >= 0.0  # level with (or ahead of) the SB3 shared policy
+
+
 def test_sb3_shared_policy_weights_play_the_same_through_rllib(tmp_path: Path) -> None:
     """The two training routes face the same decision problem: the SB3 shared policy's
     weights, moved into the RLlib module, take the SB3 policy's decisions through the RLlib
