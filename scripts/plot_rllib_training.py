@@ -93,14 +93,14 @@ def plot(runs: list[tuple[str, list[dict[str, Any]]]], window: int, out: str, ti
 
     fig, axes = plt.subplots(1, len(PANELS), figsize=(14, 3.8))
     for label, records in runs:
-        for ax, (key, title) in zip(axes, PANELS, strict=True):
+        for ax, (key, heading) in zip(axes, PANELS, strict=True):
             pairs = [(r["env_steps_lifetime"], r.get(key)) for r in records]
             pairs = [(s, v) for s, v in pairs if isinstance(v, int | float) and np.isfinite(v)]
             if not pairs:
                 continue
             steps, values = (np.array(c, dtype=float) for c in zip(*pairs, strict=True))
             ax.plot(steps / 1000.0, smooth(values, window), label=label)
-            ax.set_title(title, fontsize=10)
+            ax.set_title(heading, fontsize=10)
             ax.set_xlabel("env steps (thousands)")
     axes[0].axhline(0.0, color="gray", lw=1)
     axes[0].legend(fontsize=8)
