@@ -157,6 +157,20 @@ NUMERICS_FILES = frozenset(
 )
 
 
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """With exactly ``-m numerics`` (``make test-numerics``), import only the numerics files.
+
+    Every other test file would be deselected anyway; not importing them saves the ~20 s of
+    collecting the whole suite (torch, Ray, SB3 imports) in every xdist worker.
+    """
+    if config.getoption("markexpr", "") != "numerics":
+        return None
+    name = collection_path.name
+    if collection_path.suffix == ".py" and name.startswith("test_") and name not in NUMERICS_FILES:
+        return True
+    return None
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     numerics = pytest.mark.numerics
     for item in items:
