@@ -21,13 +21,11 @@ PYTEST := $(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist loadscope
 
 .PHONY: bench test test-numerics lint docs docs-linkcheck docs-linkcheck-external figures perf perf-vector overheads clean
 
-# --no-compile: pip does not byte-compile every installed file (torch, Ray: about a minute of a
-# fresh install); Python compiles the modules that are imported, once, on first use
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	# torch first, so that nothing later resolves another build
-	$(PY) -c "import torch" 2>/dev/null || { test -n "$(TORCH_INDEX)" && $(PIP) install --quiet --no-compile --retries 0 --timeout 20 --index-url "$(TORCH_INDEX)" -c constraints.txt "$(TORCH)"; } || $(PIP) install --quiet --no-compile -c constraints.txt "$(TORCH)"
-	$(PIP) install --quiet --no-compile -c constraints.txt -e '.[dev,ray,torchrl,docs]'
+	$(PY) -c "import torch" 2>/dev/null || { test -n "$(TORCH_INDEX)" && $(PIP) install --quiet --retries 0 --timeout 20 --index-url "$(TORCH_INDEX)" -c constraints.txt "$(TORCH)"; } || $(PIP) install --quiet -c constraints.txt "$(TORCH)"
+	$(PIP) install --quiet -c constraints.txt -e '.[dev,ray,torchrl,docs]'
 	$(PY) -c "import torch; print('selenv: torch', torch.__version__, '(CUDA build)' if torch.version.cuda else '(CPU build)')"
 	touch $(STAMP)
 
