@@ -59,9 +59,12 @@ def test_wheel_has_checkpoints_and_one_top_level_name(installed):
     names = zipfile.ZipFile(wheel).namelist()
     tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert tops == {"selenv"}  # no generic 'train' / 'learned' / 'checkpoints'
-    shipped = {p.name for p in (ROOT / "checkpoints").iterdir() if p.suffix != ".py"}
+    shipped = {
+        p.name for p in (ROOT / "checkpoints").iterdir() if p.is_file() and p.suffix != ".py"
+    }
     packaged = {n.split("/")[-1] for n in names if n.startswith("selenv/checkpoints/")}
     assert shipped <= packaged
+    assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc")]  # no byte code
 
 
 def test_installed_wheel_runs_from_another_folder(installed):
