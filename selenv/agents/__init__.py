@@ -49,6 +49,7 @@ for _family in FAMILIES:
                 f"{_family.ppo_description} (checkpoints/{_family.checkpoint})",
                 kwargs={"env_id": _family.current_id},
                 all_versions=False,  # the shipped checkpoint was trained on this version
+                learned=True,
             )
         )
     for _name, _file, _text in _family.more_policies:
@@ -60,6 +61,7 @@ for _family in FAMILIES:
                 f"{_text} (checkpoints/{_file})",
                 kwargs={"env_id": _family.current_id, "shipped": _file},
                 all_versions=False,
+                learned=True,
             )
         )
 # an RLlib-trained shared module (selenv.learned.rl.rllib_agent, lazy: selenv never imports ray)
@@ -74,5 +76,6 @@ for _family in FAMILIES:
                 "(rllib:path=runs/rllib_<env>/policy.json; selenv/train/train_rllib_marl.py)",
                 kwargs={"env_id": _family.multiagent_module},
                 all_versions=False,  # a shipped module was trained on the current version
+                learned=True,
             )
         )

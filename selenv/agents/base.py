@@ -96,6 +96,10 @@ class AgentSpec:
     #: apply to every version of each env id's family (``-v0``, ``-v1``, ...); ``False`` for
     #: agents tied to one version, e.g. a policy trained on it
     all_versions: bool = True
+    #: a trained policy (it loads weights: a shipped checkpoint or a ``checkpoint=`` file),
+    #: not a heuristic or a search; ``scripts/bench_tables.py`` picks each env's best learned
+    #: agent by it
+    learned: bool = False
 
     def build(self, **kwargs: Any) -> Agent:
         """Instantiate the agent.

@@ -323,5 +323,6 @@ for _k in (4, 8):
             f"edit-ranking policy's {_k} best edits costed, best improving one played",
             kwargs={"env_id": CLUSTERING_ENV_ID, "verify_top_k": _k},
             all_versions=False,
+            learned=True,
         )
     )

@@ -353,5 +353,6 @@ register_agent(
         "a one-filter-step lookahead of greedy plus a learned correction from 12 pair features, "
         "trained by the cross-entropy method on episode returns (cem:checkpoint=...)",
         all_versions=False,  # the shipped weights were trained on this version
+        learned=True,
     )
 )

@@ -135,6 +135,7 @@ register_agent(
         "selenv.learned.rl.marl:make_shared_ppo",
         "shared (parameter-sharing) policy, each agent on its own observation "
         "(checkpoints/fim_marl_ppo.zip)",
+        learned=True,
     )
 )
 register_agent(
@@ -145,5 +146,6 @@ register_agent(
         "shared policy trained in independent mode, each agent on its own observation "
         "(checkpoints/fim_marl_ppo_independent.zip)",
         kwargs={"shipped": "fim_marl_ppo_independent.zip"},
+        learned=True,
     )
 )

@@ -217,5 +217,6 @@ register_agent(
         "fast_rollout on the shortlist the shipped ppo policy ranks first "
         "(ppo_search:checkpoint=...)",
         all_versions=False,  # the shipped checkpoint was trained on this version
+        learned=True,
     )
 )
