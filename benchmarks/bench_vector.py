@@ -1,28 +1,40 @@
-"""Throughput of the native vector envs against Gymnasium's SyncVectorEnv and CartPole-v1.
+"""Steps per second of the native vector envs and of single envs, each against a fair anchor.
 
-One process, one BLAS thread, interleaved rounds (each round times every contender once, so a
-load change hits all of them alike); medians of ``--rounds`` rounds; random masked actions,
-sampled outside the timed calls. Printed as Markdown tables:
+One process, one BLAS thread (``OPENBLAS_NUM_THREADS=1`` if unset, and threadpoolctl through
+:func:`selenv.threads.limit_threads`), interleaved rounds: each round times every contender of
+a table once, so a change of load hits all of them alike. Times are medians over ``--rounds``;
+a ratio is the median of the per-round ratios. Random masked actions are sampled outside the
+timed calls; episode ends inside a block are part of the step (the vector envs autoreset) and
+untimed for single envs. Printed as Markdown tables:
 
-1. **native vs sync**: total steps/s of ``gymnasium.make_vec(id, num_envs=B)`` (the family's
-   native vector env) and of ``SyncVectorEnv`` over ``B`` ``gymnasium.make(id)`` envs, default
-   keywords, ``B = --batch`` (64); CartPole-v1's own native vs sync as the anchor.
-2. **per sub-env step** at ``B = --wide`` (256) against one ``CartPole-v1`` step, and one
-   single-env ``reset`` against ``CartPole-v1``'s.
-3. **scaling** (``--scaling``): steps/s of the native env for ``B = 1 .. 1024`` and the time per
-   sub-env step against the family's size parameter (candidates, landmarks, agents,
-   receivers) with the fitted cost exponent ``t ~ size^p``.
+1. **native vs SyncVectorEnv** at ``B = --batch`` (64): total steps/s of
+   ``gymnasium.make_vec(id, num_envs=B)`` (the family's native vector env) and of
+   ``SyncVectorEnv`` over ``B`` ``gymnasium.make(id)`` envs, default keywords. CartPole-v1's
+   own ``CartPoleVectorEnv`` against its ``SyncVectorEnv`` is the reference row.
+2. **sub-env step vs CartPoleVectorEnv** at the same ``B`` (``--batch`` and ``--wide``: 64 and
+   256): microseconds per sub-env step of the native env and of Gymnasium's native
+   ``CartPoleVectorEnv`` (``make_vec("CartPole-v1", num_envs=B,
+   vectorization_mode="vector_entry_point")``), interleaved, and their ratio.
+3. **single env vs CartPole-v1**: one ``gymnasium.make(id)`` step and one reset against one
+   ``gymnasium.make("CartPole-v1")`` step and reset (the same wrappers on both).
+4. **scaling** (``--scaling``): native steps/s for ``B = 1 .. 1024`` with CartPoleVectorEnv's at
+   the same ``B``, and the time per sub-env step against the family's size parameter
+   (candidates, landmarks, agents, receivers) with the fitted cost exponent ``t ~ size^p``.
 
-    .venv/bin/python benchmarks/bench_vector.py                   # tables 1 and 2
-    .venv/bin/python benchmarks/bench_vector.py --scaling --json docs/bench/vector.json
-    make perf-vector                                              # all of it
+    .venv/bin/python benchmarks/bench_vector.py --rounds 5 --steps 20     # tables 1-3
+    .venv/bin/python benchmarks/bench_vector.py --scaling --json docs/bench/vector_envs.json
 
 ``--json PATH`` writes the figures (atomically: a temporary file, then a rename).
 """
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: tiny linear algebra
+
 import argparse
+import platform
 import statistics
 import time
 import warnings
@@ -37,6 +49,7 @@ from selenv.atomic import write_json as atomic_write_json
 from selenv.families import FAMILIES
 from selenv.threads import limit_threads
 
+CARTPOLE = "CartPole-v1"
 #: family id -> (size keyword, sizes for the scaling table, keywords that keep the scan cheap)
 SIZES: dict[str, tuple[str, list[int], dict[str, Any]]] = {
     "selenv/FIMSelection-v1": ("n_candidates", [25, 50, 100, 200, 400], {}),
@@ -44,6 +57,7 @@ SIZES: dict[str, tuple[str, list[int], dict[str, Any]]] = {
     "selenv/CLScheduling-v1": ("n_agents", [3, 4, 6, 8, 12, 16], {}),
     "selenv/ReceiverClustering-v1": ("n_agents", [10, 20, 30, 60], {}),
 }
+SCALING_B = (1, 4, 16, 64, 256, 1024)
 
 
 def sample(masks: np.ndarray, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
@@ -53,11 +67,12 @@ def sample(masks: np.ndarray, rng: np.random.Generator, shape: tuple[int, ...]) 
     return np.argmax(score, axis=-1)
 
 
-def _shape(venv: Any) -> tuple[int, ...]:
-    space = venv.single_action_space
+def _shape(space: gym.Space, batch: int) -> tuple[int, ...]:
     if isinstance(space, gym.spaces.MultiDiscrete):
-        return (venv.num_envs, len(space.nvec), int(space.nvec[0]))
-    return (venv.num_envs, int(space.n))
+        return (batch, len(space.nvec), int(space.nvec[0]))
+    if isinstance(space, gym.spaces.Discrete):
+        return (batch, int(space.n))
+    raise ValueError(f"space: expected Discrete or MultiDiscrete, got {space}")
 
 
 def _masks(venv: Any) -> np.ndarray:
@@ -69,22 +84,27 @@ def _masks(venv: Any) -> np.ndarray:
 class Runner:
     """A vector env stepped with random masked actions; :meth:`run` times ``steps`` steps."""
 
-    def __init__(self, make: Callable[[], Any], seed: int = 0) -> None:
+    def __init__(self, make: Callable[[], Any], steps: int, seed: int = 0) -> None:
         self.venv = make()
+        self.steps = steps
         self.rng = np.random.default_rng(seed)
         self.venv.reset(seed=seed)
-        self.shape = _shape(self.venv)
-        self.masked = self.venv.single_action_space.__class__.__name__ != "Box"
+        self.num_envs = int(self.venv.num_envs)
 
-    def run(self, steps: int) -> float:
-        """Seconds spent inside ``step`` for ``steps`` steps (sampling excluded)."""
+    def actions(self) -> np.ndarray:
+        """Random allowed actions for every sub-env (not timed)."""
+        shape = _shape(self.venv.single_action_space, self.num_envs)
+        return sample(_masks(self.venv), self.rng, shape)
+
+    def run(self) -> float:
+        """Seconds per vector step over ``self.steps`` steps (sampling excluded)."""
         spent = 0.0
-        for _ in range(steps):
-            actions = sample(_masks(self.venv), self.rng, self.shape)
+        for _ in range(self.steps):
+            actions = self.actions()
             t = time.perf_counter()
             self.venv.step(actions)
             spent += time.perf_counter() - t
-        return spent
+        return spent / self.steps
 
     def close(self) -> None:  # noqa: D102
         self.venv.close()
@@ -93,184 +113,265 @@ class Runner:
 class CartPoleRunner(Runner):
     """CartPole has no masks: uniform random actions."""
 
-    def run(self, steps: int) -> float:  # noqa: D102
-        spent = 0.0
-        for _ in range(steps):
-            actions = self.rng.integers(0, 2, self.venv.num_envs)
-            t = time.perf_counter()
-            self.venv.step(actions)
-            spent += time.perf_counter() - t
-        return spent
+    def actions(self) -> np.ndarray:  # noqa: D102
+        return self.rng.integers(0, 2, self.num_envs)
 
 
-def interleaved(runners: dict[str, Runner], steps: int, rounds: int) -> dict[str, float]:
-    """Median seconds per vector step of each runner over interleaved rounds."""
-    times: dict[str, list[float]] = {k: [] for k in runners}
-    for runner in runners.values():
-        runner.run(2)  # warm-up
+def vector(env_id: str, B: int, steps: int, mode: str | None = None, **kw: Any) -> Runner:
+    """A runner over ``make_vec(env_id, num_envs=B)`` (``mode``: Gymnasium's vectorization)."""
+    if env_id == CARTPOLE:
+        mode = mode or "vector_entry_point"
+        return CartPoleRunner(lambda: gym.make_vec(env_id, B, vectorization_mode=mode), steps)
+    extra = {} if mode is None else {"vectorization_mode": mode}
+    return Runner(lambda: gym.make_vec(env_id, num_envs=B, **extra, **kw), steps)
+
+
+def interleaved(blocks: dict[str, Callable[[], float]], rounds: int) -> dict[str, list[float]]:
+    """Each block's seconds per call in each of ``rounds`` rounds, blocks run in turn."""
+    for block in blocks.values():
+        block()  # warm-up
+    times: dict[str, list[float]] = {k: [] for k in blocks}
     for _ in range(rounds):
-        for name, runner in runners.items():
-            times[name].append(runner.run(steps) / steps)
-    return {k: statistics.median(v) for k, v in times.items()}
+        for name, block in blocks.items():
+            times[name].append(block())
+    return times
 
 
-def native_vs_sync(env_id: str, B: int, steps: int, rounds: int, **kw: Any) -> dict[str, float]:
+def ratio(num: list[float], den: list[float]) -> float:
+    """Median of the per-round ratios ``num / den``."""
+    return statistics.median(a / b for a, b in zip(num, den, strict=True))
+
+
+def native_vs_sync(env_id: str, B: int, steps: int, rounds: int) -> dict[str, float]:
     """Steps/s of the native vector env and of SyncVectorEnv at ``B``, and their ratio."""
-    cls = CartPoleRunner if env_id == "CartPole-v1" else Runner
-    runners = {
-        "native": cls(lambda: gym.make_vec(env_id, num_envs=B, **kw)),
-        "sync": cls(lambda: gym.make_vec(env_id, num_envs=B, vectorization_mode="sync", **kw)),
-    }
-    med = interleaved(runners, steps, rounds)
+    runners = {"native": vector(env_id, B, steps), "sync": vector(env_id, B, steps, "sync")}
+    t = interleaved({k: r.run for k, r in runners.items()}, rounds)
     for r in runners.values():
         r.close()
     return {
-        "native_steps_per_s": B / med["native"],
-        "sync_steps_per_s": B / med["sync"],
-        "ratio": med["sync"] / med["native"],
+        "native_steps_per_s": B / statistics.median(t["native"]),
+        "sync_steps_per_s": B / statistics.median(t["sync"]),
+        "ratio": ratio(t["sync"], t["native"]),
     }
 
 
-def single_reset_seconds(env_id: str, rounds: int) -> float:
-    """Median seconds of one ``reset`` of one ``gymnasium.make(env_id)`` env (seeded anew)."""
-    env = gym.make(env_id)
-    env.reset(seed=0)
-    ts = []
-    for r in range(rounds):
-        t = time.perf_counter()
-        env.reset(seed=r + 1)
-        ts.append(time.perf_counter() - t)
-    env.close()
-    return statistics.median(ts)
+def against_cartpole_vector(ids: list[str], B: int, steps: int, rounds: int) -> dict[str, Any]:
+    """Seconds per sub-env step of every native env and of CartPoleVectorEnv at ``B``."""
+    cart_steps = steps * 10  # a CartPole vector step is short: time more of them per round
+    runners = {CARTPOLE: vector(CARTPOLE, B, cart_steps)}
+    runners.update({i: vector(i, B, steps) for i in ids})
+    t = interleaved({k: r.run for k, r in runners.items()}, rounds)
+    for r in runners.values():
+        r.close()
+    out = {k: {"sub_step_s": statistics.median(v) / B} for k, v in t.items()}
+    for i in ids:
+        out[i]["vs_cartpole_vector"] = ratio(t[i], t[CARTPOLE])
+    return out
 
 
-def cartpole_step_seconds(rounds: int, steps: int = 2000) -> float:
-    """Median seconds of one ``CartPole-v1`` step (``gymnasium.make``, checker wrappers on)."""
-    env = gym.make("CartPole-v1")
-    env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    ts = []
-    for _ in range(rounds):
+class Single:
+    """One ``gymnasium.make(env_id)`` env: blocks of random masked steps and of resets."""
+
+    def __init__(self, env_id: str, steps: int, resets: int, seed: int = 0) -> None:
+        self.env = gym.make(env_id)
+        self.steps, self.resets = steps, resets
+        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+        self.space = self.env.action_space
+        self.masked = env_id != CARTPOLE
+        self._new_episode()
+
+    def _new_episode(self) -> None:
+        self.seed += 1
+        _, self.info = self.env.reset(seed=self.seed)
+
+    def _action(self) -> Any:
+        if not self.masked:
+            return int(self.rng.integers(2))
+        a = sample(self.info["action_mask"][None], self.rng, _shape(self.space, 1))[0]
+        return a if a.ndim else int(a)
+
+    def step_block(self) -> float:
+        """Seconds per ``step`` (actions and episode resets not timed)."""
+        spent = 0.0
+        for _ in range(self.steps):
+            action = self._action()
+            t = time.perf_counter()
+            _, _, term, trunc, self.info = self.env.step(action)
+            spent += time.perf_counter() - t
+            if term or trunc:
+                self._new_episode()
+        return spent / self.steps
+
+    def reset_block(self) -> float:
+        """Seconds per ``reset`` with a new seed each time."""
         t = time.perf_counter()
-        for _ in range(steps):
-            _, _, te, tr, _ = env.step(int(rng.integers(2)))
-            if te or tr:
-                env.reset()
-        ts.append((time.perf_counter() - t) / steps)
-    env.close()
-    return statistics.median(ts)
+        for _ in range(self.resets):
+            self._new_episode()
+        return (time.perf_counter() - t) / self.resets
+
+    def close(self) -> None:  # noqa: D102
+        self.env.close()
+
+
+def single_envs(ids: list[str], steps: int, rounds: int) -> dict[str, Any]:
+    """Single-env step and reset of every family against ``gymnasium.make("CartPole-v1")``."""
+    envs = {CARTPOLE: Single(CARTPOLE, steps * 50, 100)}
+    envs.update({i: Single(i, steps * 5, max(2, steps // 4)) for i in ids})
+    blocks: dict[str, Callable[[], float]] = {}
+    for k, e in envs.items():
+        blocks[f"{k} step"] = e.step_block
+        blocks[f"{k} reset"] = e.reset_block
+    t = interleaved(blocks, rounds)
+    for e in envs.values():
+        e.close()
+    out: dict[str, Any] = {}
+    for k in envs:
+        out[k] = {
+            "step_s": statistics.median(t[f"{k} step"]),
+            "reset_s": statistics.median(t[f"{k} reset"]),
+        }
+        if k != CARTPOLE:
+            out[k]["vs_cartpole_step"] = ratio(t[f"{k} step"], t[f"{CARTPOLE} step"])
+            out[k]["vs_cartpole_reset"] = ratio(t[f"{k} reset"], t[f"{CARTPOLE} reset"])
+    return out
 
 
 def scaling(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
-    """Steps/s vs ``B`` and time per sub-env step vs the family's size, with the exponent."""
-    by_b = {}
-    for B in (1, 4, 16, 64, 256, 1024):
-        r = Runner(lambda B=B: gym.make_vec(env_id, num_envs=B))
-        med = interleaved({"n": r}, max(2, steps // max(1, B // 64)), max(3, rounds // 3))["n"]
-        r.close()
-        by_b[B] = B / med
+    """Steps/s vs ``B`` (with CartPoleVectorEnv's) and time per sub-env step vs the size."""
+    by_b, cart_by_b, vs_cart = {}, {}, {}
+    for B in SCALING_B:
+        n = max(2, steps // max(1, B // 64))
+        runners = {"env": vector(env_id, B, n), "cart": vector(CARTPOLE, B, n * 10)}
+        t = interleaved({k: r.run for k, r in runners.items()}, max(3, rounds // 3))
+        for r in runners.values():
+            r.close()
+        by_b[B] = B / statistics.median(t["env"])
+        cart_by_b[B] = B / statistics.median(t["cart"])
+        vs_cart[B] = ratio(t["env"], t["cart"])
     key, sizes, extra = SIZES[env_id]
     by_size = {}
     for size in sizes:
-        kw = {key: size, **extra}
-        r = Runner(lambda kw=kw: gym.make_vec(env_id, num_envs=64, **kw))
-        med = interleaved({"n": r}, steps, max(3, rounds // 3))["n"]
+        r = vector(env_id, 64, steps, **{key: size, **extra})
+        by_size[size] = statistics.median(interleaved({"n": r.run}, max(3, rounds // 3))["n"]) / 64
         r.close()
-        by_size[size] = med / 64
     xs = np.log(np.array(list(by_size), float))
     ys = np.log(np.array(list(by_size.values())))
-    slope = float(np.polyfit(xs, ys, 1)[0])
     return {
         "steps_per_s_by_B": by_b,
+        "cartpole_vector_steps_per_s_by_B": cart_by_b,
+        "vs_cartpole_vector_by_B": vs_cart,
         "size_key": key,
         "sub_step_s_by_size": by_size,
-        "exponent": slope,
+        "exponent": float(np.polyfit(xs, ys, 1)[0]),
     }
 
 
-def write_json(path: str, data: dict[str, Any]) -> None:
-    """Write ``data`` to ``path`` atomically (:func:`selenv.atomic.write_json`)."""
-    atomic_write_json(path, data)
+def _row(cells: list[Any]) -> str:
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def _table(head: list[str], rows: list[list[Any]]) -> None:
+    print(_row(head))
+    print("|---" * len(head) + "|")
+    for cells in rows:
+        print(_row(cells), flush=True)
+
+
+def _us(seconds: float) -> str:
+    return f"{seconds * 1e6:,.1f} us"
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
+    return value
 
 
 def main() -> None:
+    """Parse the flags, run the tables, print them and write the JSON."""
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    ap.add_argument("--rounds", type=int, default=7)
-    ap.add_argument("--steps", type=int, default=20, help="vector steps per round")
-    ap.add_argument("--batch", type=int, default=64)
-    ap.add_argument("--wide", type=int, default=256)
+    ap.add_argument("--rounds", type=_positive, default=7, help="interleaved rounds")
+    ap.add_argument("--steps", type=_positive, default=20, help="vector steps per round")
+    ap.add_argument("--batch", type=_positive, default=64, help="B of table 1 and 2")
+    ap.add_argument("--wide", type=_positive, default=256, help="second B of table 2")
     ap.add_argument("--ids", nargs="*", help="family ids (default: every one with a native env)")
     ap.add_argument("--scaling", action="store_true", help="also the scaling tables")
     ap.add_argument("--json", help="write the figures to this JSON file")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     ids = args.ids or [f.current_id for f in FAMILIES if f.vector_class is not None]
-    out: dict[str, Any] = {"batch": args.batch, "wide": args.wide, "rounds": args.rounds}
+    widths = sorted({args.batch, args.wide})
+    out: dict[str, Any] = {
+        "batch": args.batch, "widths": widths, "rounds": args.rounds, "steps": args.steps,
+        "blas_threads": 1, "load_average_start": os.getloadavg()[0],
+        "numpy": np.__version__, "gymnasium": gym.__version__, "python": platform.python_version(),
+    }  # fmt: skip
+    for k in [CARTPOLE, *ids]:
+        out[k] = {}
     with limit_threads(blas=1, torch=1):
-        cart = native_vs_sync("CartPole-v1", args.batch, args.steps * 5, args.rounds)
-        cp_step = cartpole_step_seconds(args.rounds)
-        cp_reset = single_reset_seconds("CartPole-v1", 200)
-        out["CartPole-v1"] = {**cart, "step_s": cp_step, "reset_s": cp_reset}
-        print(f"## native vs SyncVectorEnv, B = {args.batch} (total steps/s; one BLAS thread)\n")
-        print("| env | native | sync | native / sync |")
-        print("|---|---|---|---|")
-        print(
-            f"| CartPole-v1 (anchor) | {cart['native_steps_per_s']:,.0f} | "
-            f"{cart['sync_steps_per_s']:,.0f} | {cart['ratio']:.1f}x |"
-        )
-        for env_id in ids:
+        print(f"## native vs SyncVectorEnv, B = {args.batch} (total steps/s)\n")
+        rows = []
+        for env_id in [CARTPOLE, *ids]:
             res = native_vs_sync(env_id, args.batch, args.steps, args.rounds)
-            out[env_id] = dict(res)
-            print(
-                f"| {env_id} | {res['native_steps_per_s']:,.0f} | "
-                f"{res['sync_steps_per_s']:,.0f} | {res['ratio']:.1f}x |",
-                flush=True,
-            )
-        print(
-            f"\n## per sub-env step at B = {args.wide} and one reset, vs CartPole-v1 "
-            f"(step {cp_step * 1e6:.1f} us, reset {cp_reset * 1e6:.1f} us)\n"
-        )
-        print("| env | sub-env step | / CartPole step | single-env reset | / CartPole reset |")
-        print("|---|---|---|---|---|")
-        for env_id in ids:
-            r = Runner(lambda env_id=env_id: gym.make_vec(env_id, num_envs=args.wide))
-            med = interleaved({"n": r}, max(2, args.steps // 2), args.rounds)["n"]
-            r.close()
-            sub = med / args.wide
-            reset = single_reset_seconds(env_id, max(5, args.rounds))
-            out[env_id].update({"sub_step_s_wide": sub, "reset_s": reset})
-            print(
-                f"| {env_id} | {sub * 1e6:.1f} us | {sub / cp_step:.2f}x | "
-                f"{reset * 1e3:.3f} ms | {reset / cp_reset:.0f}x |",
-                flush=True,
-            )
+            out[env_id].update(res)
+            name = f"{CARTPOLE} (CartPoleVectorEnv)" if env_id == CARTPOLE else env_id
+            rows.append([name, f"{res['native_steps_per_s']:,.0f}",
+                         f"{res['sync_steps_per_s']:,.0f}", f"{res['ratio']:.1f}x"])  # fmt: skip
+        _table(["env", "native", "sync", "native / sync"], rows)
+        for B in widths:
+            print(f"\n## sub-env step vs CartPoleVectorEnv at B = {B}\n")
+            res = against_cartpole_vector(ids, B, args.steps, args.rounds)
+            cart = res[CARTPOLE]["sub_step_s"]
+            rows = [[f"{CARTPOLE} (CartPoleVectorEnv)", _us(cart), f"{1 / cart:,.0f}", "1x"]]
+            for env_id in ids:
+                sub = res[env_id]["sub_step_s"]
+                out[env_id].setdefault("by_B", {})[B] = res[env_id]
+                rows.append([env_id, _us(sub), f"{1 / sub:,.0f}",
+                             f"{res[env_id]['vs_cartpole_vector']:.0f}x"])  # fmt: skip
+            out[CARTPOLE].setdefault("by_B", {})[B] = res[CARTPOLE]
+            _table(["env", "per sub-env step", "sub-env steps/s", "/ CartPoleVectorEnv"], rows)
+        print('\n## single env (gymnasium.make) vs gymnasium.make("CartPole-v1")\n')
+        res = single_envs(ids, args.steps, args.rounds)
+        rows = []
+        for env_id, r in res.items():
+            out[env_id].update(r)
+            if env_id == CARTPOLE:
+                rows.append([env_id, _us(r["step_s"]), f"{1 / r['step_s']:,.0f}", "1x",
+                             _us(r["reset_s"]), "1x"])  # fmt: skip
+                continue
+            rows.append([env_id, _us(r["step_s"]), f"{1 / r['step_s']:,.0f}",
+                         f"{r['vs_cartpole_step']:.1f}x", _us(r["reset_s"]),
+                         f"{r['vs_cartpole_reset']:.0f}x"])  # fmt: skip
+        _table(["env", "step", "steps/s", "/ CartPole step", "reset", "/ CartPole reset"], rows)
         if args.scaling:
             for env_id in ids:
                 sc = scaling(env_id, args.steps, args.rounds)
                 out[env_id]["scaling"] = sc
-                print(f"\n## {env_id}: scaling\n")
-                print("| B | " + " | ".join(str(b) for b in sc["steps_per_s_by_B"]) + " |")
-                print("|---" * (len(sc["steps_per_s_by_B"]) + 1) + "|")
-                print(
-                    "| steps/s | "
-                    + " | ".join(f"{v:,.0f}" for v in sc["steps_per_s_by_B"].values())
-                    + " |"
-                )
-                print(
-                    f"\n| {sc['size_key']} | "
-                    + " | ".join(str(s) for s in sc["sub_step_s_by_size"])
-                    + " | exponent |"
-                )
-                print("|---" * (len(sc["sub_step_s_by_size"]) + 2) + "|")
-                print(
-                    "| us per sub-env step (B = 64) | "
-                    + " | ".join(f"{v * 1e6:.1f}" for v in sc["sub_step_s_by_size"].values())
-                    + f" | {sc['exponent']:.2f} |",
-                    flush=True,
-                )
+                print(f"\n## {env_id}: scaling in B and in {sc['size_key']}\n")
+                _table(
+                    ["B", *map(str, sc["steps_per_s_by_B"])],
+                    [
+                        ["steps/s", *(f"{v:,.0f}" for v in sc["steps_per_s_by_B"].values())],
+                        ["CartPoleVectorEnv steps/s",
+                         *(f"{v:,.0f}" for v in sc["cartpole_vector_steps_per_s_by_B"].values())],
+                        ["/ CartPoleVectorEnv",
+                         *(f"{v:.0f}x" for v in sc["vs_cartpole_vector_by_B"].values())],
+                    ],
+                )  # fmt: skip
+                print()
+                _table(
+                    [sc["size_key"], *map(str, sc["sub_step_s_by_size"]), "exponent"],
+                    [["us per sub-env step (B = 64)",
+                      *(f"{v * 1e6:.1f}" for v in sc["sub_step_s_by_size"].values()),
+                      f"{sc['exponent']:.2f}"]],
+                )  # fmt: skip
+    out["load_average_end"] = os.getloadavg()[0]
+    print(f"\nload average {out['load_average_start']:.1f} -> {out['load_average_end']:.1f}")
     if args.json:
-        write_json(args.json, out)
-        print(f"\njson: {args.json}")
+        atomic_write_json(args.json, out)
+        print(f"json: {args.json}")
 
 
 if __name__ == "__main__":
