@@ -7,10 +7,11 @@ from step 50 by default), with the previous step's played selection as VNS's war
 (a) brute force over the C(30, 2) = 435 pairs (vectorised ``brute_force_whitened``),
 (b) VNS (``vns_whitened``) warm-started from the previous step's selection, and greedy,
 (c) one EKF update (``LandmarkEKF.update`` after ``predict``, timed alone) with K = 2 vs all
-    N landmarks, for N = 30, 100, 300, plus the bare Joseph-form ``kf_update`` on the stacked
-    rows (the linear algebra without the Jacobians and input checks),
+    N landmarks, for N = 30, 100, 200 (200: the largest ``n_landmarks``), plus the bare
+    Joseph-form ``kf_update`` on the stacked rows (the linear algebra without the Jacobians
+    and input checks),
 (d) a naive brute force: a Python loop over the pairs, one ``kf_update`` + ``slogdet`` each,
-(e) the solvers at N = 100 and 300 (brute force is O(N^2) pairs, VNS O(N) per move),
+(e) the solvers at N = 100 and 200 (brute force is O(N^2) pairs, VNS O(N) per move),
 (f) one 300-step episode: env + brute-force agent, env with k = N and the ``all`` agent, and
     ``LandmarkEKF`` driven directly with every landmark.
 
@@ -252,7 +253,7 @@ def main() -> None:
 
     print("\n(c) one EKF update after predict, median (us); K = 2 vs all N landmarks")
     print(f"{'N':>5}{'K=2':>9}{'all':>9}{'ratio':>8}{'kf K=2':>9}{'kf all':>9}{'ratio':>8}")
-    for n in (30, 100, 300):
+    for n in (30, 100, 200):
         u = update_times(n, a.repeat)
         print(
             f"{n:>5}{1e6 * u['k2']:>9.1f}{1e6 * u['all']:>9.1f}{u['all'] / u['k2']:>7.1f}x"
@@ -262,7 +263,7 @@ def main() -> None:
 
     print("\n(e) solvers vs N (K = 2, one state at step 50, median ms)")
     print(f"{'N':>5}{'pairs':>8}{'brute force':>13}{'VNS':>9}{'greedy':>9}")
-    for n in (30, 100, 300):
+    for n in (30, 100, 200):
         s = solver_scaling(n, a.repeat)
         print(
             f"{n:>5}{n * (n - 1) // 2:>8}{1e3 * s['brute_force']:>13.3f}"
