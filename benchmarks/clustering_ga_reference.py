@@ -1,10 +1,10 @@
-"""The receiver-clustering GA before the overhead work, kept only as the benchmark's reference.
+"""A straightforward implementation of the receiver-clustering GA, the benchmark's reference.
 
-A verbatim copy of ``selenv/families/clustering/ga.py`` (operators, :class:`GeneticClustering`)
-as it was before the overhead work, with the label helpers of that time (``canonical_labels`` by
-``np.unique``, ``cluster_keys`` by a stable argsort) and :func:`old_evaluate`, the
-``ClusterFilterBank.evaluate`` of that time (one ``check_clustering`` and ``cluster_keys`` per
-candidate, no caches). ``benchmarks/bench_clustering.py`` times it against the current code in
+The operators and :class:`GeneticClustering` of ``selenv/families/clustering/ga.py`` written
+plainly (every operator call validated), with plain label helpers (``canonical_labels`` by
+``np.unique``, ``cluster_keys`` by a stable argsort) and :func:`old_evaluate`, a plain
+``ClusterFilterBank.evaluate`` (one ``check_clustering`` and ``cluster_keys`` per candidate, no
+caches). ``benchmarks/bench_clustering.py`` times it against the current code in
 one process; ``tests/clustering/test_clustering_speed_identity.py`` holds the recorded outputs both
 give.
 Not part of the package; do not import it from ``selenv``.
@@ -584,7 +584,7 @@ class GeneticClustering:
         self.n_evaluations += B
 
 
-# -- the label helpers and the bank's evaluate before the overhead work ----------------------
+# -- the plain label helpers and the bank's evaluate ----------------------------------------
 def canonical_labels(labels: ArrayLike) -> IntArray:
     """Relabel by first appearance (the ``np.unique`` version of that time)."""
     x = as_labels(labels, "labels")
