@@ -57,6 +57,7 @@ import gymnasium as gym
 
 from selenv import __version__
 from selenv.agents import AGENTS, agents_for, parse_spec
+from selenv.agents.base import unknown_agent_message
 from selenv.atomic import OutputBusyError, OutputLock, describe_os_error
 from selenv.atomic import write_json as atomic_write_json
 from selenv.exits import DeferredSignals, Terminated, sigterm_raises
@@ -325,7 +326,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 return _error(f"--agents: {exc}")
         bad = [n for n in names if parse_spec(n)[0] not in AGENTS]
         if bad:
-            return _error(f"unknown agent(s) {bad}; known agents: {', '.join(sorted(AGENTS))}")
+            return _error(unknown_agent_message([parse_spec(n)[0] for n in bad], env_ids))
     if args.baseline is not None:
         try:
             parse_spec(args.baseline)

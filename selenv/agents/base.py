@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.families import version_ids
+from selenv.suggest import with_suggestion
 
 __all__ = [
     "AGENTS",
@@ -37,6 +38,7 @@ __all__ = [
     "make",
     "parse_spec",
     "register_agent",
+    "unknown_agent_message",
 ]
 
 
@@ -133,10 +135,9 @@ def _check_options(name: str, factory: Callable[..., Agent], options: dict[str, 
     accepted = [p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
     unknown = sorted(set(options) - set(accepted))
     if unknown:
-        raise ValueError(
-            f"agent {name!r} has no option(s) {unknown}; its options: "
-            f"{', '.join(accepted) or 'none'}"
-        )
+        message = f"agent {name!r} has no option(s) {unknown}"
+        listing = f"its options: {', '.join(accepted) or 'none'}"
+        raise ValueError(with_suggestion(message, unknown, accepted, listing))
 
 
 #: name -> env id -> spec
@@ -166,6 +167,28 @@ def agents_for(env_id: str) -> list[str]:
     ordered = [name for name in _ORDER.get(env_id, []) if env_id in AGENTS.get(name, {})]
     others = [n for n, by_env in AGENTS.items() if env_id in by_env and n not in ordered]
     return ordered + others
+
+
+def unknown_agent_message(names: str | list[str], env_ids: list[str] | tuple[str, ...]) -> str:
+    """The one-line message for agent name(s) ``names`` that are not registered, for ``env_ids``.
+
+    Close names are suggested among the agents that apply to those envs, which the message
+    then lists (every registered agent when none applies, e.g. an env of no selenv family)::
+
+        unknown agent 'gredy' for selenv/FIMSelection-v1; did you mean 'greedy'? agents for
+        this env: random, greedy, ...
+    """
+    names = [names] if isinstance(names, str) else list(names)
+    applicable = list(dict.fromkeys(a for env_id in env_ids for a in agents_for(env_id)))
+    where = f" for {', '.join(env_ids)}" if env_ids else ""
+    which = ", ".join(map(repr, names))
+    message = f"unknown agent{'s' if len(names) > 1 else ''} {which}{where}"
+    if not applicable:
+        listing = f"known agents: {', '.join(sorted(AGENTS))}"
+        return with_suggestion(message, names, AGENTS, listing)
+    these = "this env" if len(env_ids) == 1 else "these envs"
+    listing = f"agents for {these}: {', '.join(applicable)}"
+    return with_suggestion(message, names, applicable, listing)
 
 
 def parse_spec(spec: str) -> tuple[str, dict[str, Any]]:
@@ -210,7 +233,7 @@ def make(name: str, env_id: str, **kwargs: Any) -> Agent:
     name, extra = parse_spec(name)
     kwargs = {**extra, **kwargs}
     if name not in AGENTS:
-        raise ValueError(f"unknown agent {name!r}; known agents: {sorted(AGENTS)}")
+        raise ValueError(unknown_agent_message(name, [env_id]))
     if env_id not in AGENTS[name]:
         raise ValueError(
             f"agent {name!r} does not apply to {env_id!r}; it applies to {sorted(AGENTS[name])}"

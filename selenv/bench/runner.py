@@ -47,6 +47,7 @@ import gymnasium as gym
 from tqdm import tqdm
 
 from selenv.agents import AGENTS, Agent, agents_for, make, parse_spec
+from selenv.agents.base import unknown_agent_message
 from selenv.bench.multiagent import (
     build_parallel_env,
     is_multiagent_module,
@@ -72,6 +73,7 @@ from selenv.parallel import (
     stoppable,
 )
 from selenv.parallel.executors import in_pool_worker
+from selenv.suggest import with_suggestion
 from selenv.threads import limit_threads
 
 __all__ = [
@@ -212,10 +214,12 @@ def check_env_id(env_id: str) -> str:
     if is_multiagent_module(env_id):
         return "pettingzoo"
     kind = "PettingZoo module" if "." in env_id and "/" not in env_id else "env id"
-    raise BenchError(
-        f"unknown {kind} {env_id!r}; Gymnasium ids: {', '.join(ALL_ENV_IDS)}; "
+    known = [*gym.registry, *multiagent_modules()]
+    listing = (
+        f"Gymnasium ids: {', '.join(ALL_ENV_IDS)}; "
         f"PettingZoo modules: {', '.join(multiagent_modules())}"
     )
+    raise BenchError(with_suggestion(f"unknown {kind} {env_id!r}", env_id, known, listing))
 
 
 def _check_agents(
@@ -237,7 +241,7 @@ def _check_agents(
             raise BenchError(str(exc)) from None
     unknown = [n for n in names if parse_spec(n)[0] not in AGENTS]
     if unknown:
-        raise BenchError(f"unknown agent(s) {unknown}; known agents: {sorted(AGENTS)}")
+        raise BenchError(unknown_agent_message([parse_spec(n)[0] for n in unknown], [env_id]))
     inapplicable = {
         n: f"does not apply to {env_id} (applies to {', '.join(sorted(AGENTS[parse_spec(n)[0]]))})"
         for n in names

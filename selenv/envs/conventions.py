@@ -1,6 +1,7 @@
 """Constructor conventions shared by every env: keywords, ``render_mode``, ``spec``.
 
-* an unknown keyword is a ``TypeError`` (:func:`check_known_keywords`; Python's convention,
+* an unknown keyword is a ``TypeError`` with a "did you mean" for a close one
+  (:func:`check_known_keywords`, :class:`EpisodeLengthSpec`; Python's convention,
   which ``gymnasium.make``, SB3's ``make_vec_env`` and TorchRL rely on), a bad value a
   ``ValueError`` naming the argument;
 * ``render_mode`` is one of ``metadata["render_modes"]`` or ``None`` (:func:`check_render_mode`);
@@ -17,6 +18,7 @@ from typing import Any, cast
 from gymnasium.envs.registration import EnvSpec
 
 from selenv.scenarios.validation import ArgumentTypeError, describe
+from selenv.suggest import with_suggestion
 
 __all__ = [
     "EpisodeLengthSpec",
@@ -38,15 +40,14 @@ def check_known_keywords(given: dict[str, Any], known: Any, env_name: str, named
     The message has Python's own form (``got an unexpected keyword argument 'x'``, which
     wrappers such as TorchRL's ``GymEnv`` recognise to drop an optional keyword like
     ``frameskip``), names every unknown keyword and lists every keyword the constructor
-    accepts: ``known`` and its ``named`` parameters.
+    accepts: ``known`` and its ``named`` parameters, after a "did you mean" for a close one.
     """
     unknown = sorted(set(given) - set(known))
     if unknown:
         accepted = sorted(set(known) | set(named))
         more = f" (and {unknown[1:]})" if len(unknown) > 1 else ""
-        raise TypeError(
-            f"{env_name} got an unexpected keyword argument {unknown[0]!r}{more}; known: {accepted}"
-        )
+        message = f"{env_name} got an unexpected keyword argument {unknown[0]!r}{more}"
+        raise TypeError(with_suggestion(message, unknown, accepted, f"known: {accepted}"))
 
 
 def check_render_mode(render_mode: Any, metadata: dict[str, Any]) -> str | None:
@@ -79,6 +80,18 @@ class EpisodeLengthSpec:
     #: the longest possible episode, in ``step`` calls (set by the env's ``__init__``)
     max_episode_steps: int
     _spec: EnvSpec | None = None
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
+        """Refuse unknown keywords, with a "did you mean", before ``__init__`` runs.
+
+        Only for an ``__init__`` with a fixed signature (one that takes ``**config`` checks
+        its keywords itself with :func:`check_known_keywords`); the ``TypeError`` keeps
+        Python's wording, ``Env.__init__() got an unexpected keyword argument 'x'``.
+        """
+        params = inspect.signature(cls.__init__).parameters.values()
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            check_known_keywords(kwargs, named_parameters(cls), f"{cls.__name__}.__init__()")
+        return super().__new__(cls)
 
     @property
     def spec(self) -> EnvSpec | None:
