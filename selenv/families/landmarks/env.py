@@ -80,10 +80,14 @@ class LandmarkSettings:
     """The validated keywords of ``LandmarkSelection-v1`` (single and vector env alike).
 
     Attributes:
-        config: the scenario; n: ``N``; k: picks per filter step; horizon: filter steps;
-        objective: the cost's name; invalid_rule: the ``invalid_action`` handling;
-        render_mode: the checked mode; spec: what the gain state scores
-        (``solver_objective``, ``interest``).
+        config: the scenario.
+        n: ``N``, the number of landmarks.
+        k: picks per filter step.
+        horizon: filter steps.
+        objective: the cost's name.
+        invalid_rule: the ``invalid_action`` handling.
+        render_mode: the checked mode.
+        spec: what the gain state scores (``solver_objective``, ``interest``).
     """
 
     config: LandmarkConfig
