@@ -44,14 +44,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import signal
 import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import gymnasium as gym
 
@@ -68,6 +67,7 @@ from selenv.parallel import (
     add_executor_arguments,
     executor_from_args,
 )
+from selenv.untrusted import UntrustedInputError, loads_json
 
 if TYPE_CHECKING:
     from selenv.bench.runner import EnvBenchResult
@@ -97,18 +97,28 @@ _non_negative_int = _int_at_least(0)
 
 
 def _env_kwargs(text: str) -> dict[str, Any]:
+    """``--env-kwargs`` parsed by the bounded reader (size and nesting checked first)."""
     try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"not valid JSON ({exc}): {text!r}") from None
+        value = loads_json(text, "JSON")
+    except UntrustedInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("JSON: ")) from None
     if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r:.200}")
     return value
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """``argparse`` whose usage errors are one line on stderr (``PROG: error: ...``), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``PROG: error: MESSAGE`` on one line and exit with code 2."""
+        print(f"{self.prog}: error: {' '.join(message.split())}", file=sys.stderr)
+        raise SystemExit(2)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``selenv`` (subcommands ``list`` and ``bench``)."""
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="selenv",
         description="State-estimation selection problems as Gymnasium envs, with baselines.",
     )

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import importlib
 import inspect
-import json
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -202,8 +201,11 @@ def parse_spec(spec: str) -> tuple[str, dict[str, Any]]:
         "rollout:top_k=5:horizon=3"  -> ("rollout", {"top_k": 5, "horizon": 3})
 
     Raises:
-        ValueError: an empty option name or two checkpoints.
+        ValueError: an empty option name, two checkpoints, or a value nested deeper or larger
+            than :data:`selenv.untrusted.LIMITS` allows.
     """
+    from selenv.untrusted import NotParsedError, loads_json  # (light: numpy only)
+
     name, *args = spec.split(":")
     kwargs: dict[str, Any] = {}
     for arg in args:
@@ -217,9 +219,9 @@ def parse_spec(spec: str) -> tuple[str, dict[str, Any]]:
             continue
         if not key.isidentifier():
             raise ValueError(f"agent spec {spec!r}: {key!r} is not an option name")
-        try:
-            kwargs[key] = json.loads(text)
-        except json.JSONDecodeError:
+        try:  # bounded: a value nested deeper than the ceiling is refused, not parsed
+            kwargs[key] = loads_json(text, f"agent spec {name!r}: option {key}")
+        except NotParsedError:
             kwargs[key] = text
     return name, kwargs
 

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
 from selenv.atomic import describe_os_error, probe_writable
+from selenv.untrusted import UntrustedInputError, read_toml_file
 
 __all__ = [
     "FILE_ONLY_KEYS",
@@ -207,17 +208,18 @@ def read_config_file(
     """Field values of the TOML file ``path`` for ``cls``, and its ``script`` / ``out`` keys.
 
     Raises:
-        ConfigFileError: the file is missing or not TOML; a key is not a field of ``cls`` (or
-            is ``force``); a value has the wrong type or is not among the field's choices;
-            ``script`` is given and names another module than ``script``.
+        ConfigFileError: the file is missing, not TOML, larger or nested deeper than
+            :data:`selenv.untrusted.LIMITS` allows (checked before parsing); a key is not a
+            field of ``cls`` (or is ``force``); a value has the wrong type or is not among the
+            field's choices; ``script`` is given and names another module than ``script``.
     """
-    toml = _tomllib()
-    try:
-        data = toml.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigFileError(f"--config {path}: cannot read it ({exc.strerror})") from None
-    except (UnicodeDecodeError, toml.TOMLDecodeError) as exc:
-        raise ConfigFileError(f"--config {path}: not a valid TOML file ({exc})") from None
+    _tomllib()
+    try:  # bounded: size and nesting are checked before (and after) parsing
+        data = read_toml_file(path, "--config")
+    except FileNotFoundError:
+        raise ConfigFileError(f"--config {path}: cannot read it (no such file)") from None
+    except UntrustedInputError as exc:
+        raise ConfigFileError(str(exc)) from None
     fields = {f.name: f for f in dataclasses.fields(cls)}
     values: dict[str, Any] = {}
     info: dict[str, str] = {}

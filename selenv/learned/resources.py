@@ -8,8 +8,9 @@ A checkpoint's JSON metadata decides what a loader builds (layer widths, pool si
 it is treated as untrusted input and bounded **before anything is allocated**:
 
 * :func:`read_metadata` refuses a file larger than ``max_metadata_bytes`` and JSON nested
-  deeper than ``max_metadata_depth`` (found by a linear, non-recursive scan before parsing,
-  so a file nested 10^5 deep is a ``ValueError``, never a ``RecursionError``);
+  deeper than ``max_metadata_depth`` (found by :func:`selenv.untrusted.json_depth`, a linear,
+  non-recursive scan before parsing, so a file nested 10^5 deep is a ``ValueError``, never a
+  ``RecursionError``);
 * :func:`bounded_int`, :func:`bounded_widths` and :func:`check_parameter_count` hold every
   size against :data:`CHECKPOINT_LIMITS`, with a ``ValueError`` naming the file, the field, the
   value and the ceiling.
@@ -24,13 +25,14 @@ the weights-file limit ``MAX_WEIGHTS_BYTES`` of the loader if the file is larger
 from __future__ import annotations
 
 import json
-import re
 from importlib import resources
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from selenv.untrusted import json_depth
 
 __all__ = [
     "CHECKPOINT_LIMITS",
@@ -79,9 +81,6 @@ CHECKPOINT_LIMITS: dict[str, int] = {
     "max_candidate_width": 4096,
     "max_observation_entries": 2**24,
 }
-
-#: a JSON string literal (escapes included), matched without backtracking blow-up
-_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
 
 
 def current_class_name(name: object) -> object:
@@ -142,22 +141,6 @@ def with_shipped(shipped: object, kwargs: dict[str, Any]) -> dict[str, Any]:
 def limit_hint(key: str) -> str:
     """``"the ceiling N (selenv.learned.resources.CHECKPOINT_LIMITS['key'])"`` for messages."""
     return f"the ceiling {CHECKPOINT_LIMITS[key]:,} ({__name__}.CHECKPOINT_LIMITS[{key!r}])"
-
-
-def json_depth(text: str) -> int:
-    """The deepest nesting of arrays and objects in the JSON ``text``, without parsing it.
-
-    String literals are removed first (their brackets do not count), then the running count
-    of ``[``/``{`` minus ``]``/``}`` is taken in one vectorised pass: linear time, no
-    recursion, so a document nested 10^5 deep costs milliseconds. Malformed JSON gives some
-    number; parsing it afterwards reports the error.
-    """
-    bare = _JSON_STRING.sub("", text).encode("ascii", "ignore")
-    codes = np.frombuffer(bare, dtype=np.uint8)
-    if codes.size == 0:
-        return 0
-    step = np.isin(codes, (0x5B, 0x7B)).astype(np.int64) - np.isin(codes, (0x5D, 0x7D))
-    return int(max(np.cumsum(step).max(), 0))
 
 
 def read_metadata(path: str | Path, what: str = "checkpoint metadata") -> Any:

@@ -26,7 +26,6 @@ the run completes.
 
 from __future__ import annotations
 
-import json
 import multiprocessing
 import shlex
 import sys
@@ -43,6 +42,7 @@ from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.resources import read_metadata
 from selenv.learned.rl.cem import CEMSettings, cem_generation, new_state, state_from_json
 from selenv.learned.rl.training import _stop_exception, output_lock, run_cli
+from selenv.untrusted import json_object
 
 SCRIPT = "selenv.train.train_cl_cem"
 ENV_ID = "selenv/CLScheduling-v1"
@@ -161,12 +161,10 @@ def _check(cfg: Config, prog: str) -> dict[str, Any]:
             usage_error(prog, f"--{name.replace('_', '-')} must be a number > 0")
     if not (np.isfinite(cfg.min_std) and cfg.min_std >= 0):
         usage_error(prog, "--min-std must be a number >= 0")
-    try:
-        kwargs = json.loads(cfg.env_kwargs)
-    except json.JSONDecodeError as exc:
-        usage_error(prog, f"--env-kwargs must be a JSON object: {exc}")
-    if not isinstance(kwargs, dict):
-        usage_error(prog, f"--env-kwargs must be a JSON object, got {cfg.env_kwargs!r}")
+    try:  # size and nesting bounded before parsing
+        kwargs = json_object(cfg.env_kwargs, "--env-kwargs")
+    except ValueError as exc:
+        usage_error(prog, exc)
     final = outputs(cfg)
     if cfg.resume:
         if not Path(cfg.resume).is_file():

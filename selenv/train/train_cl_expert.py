@@ -92,6 +92,7 @@ from selenv.learned.rl.training import (
     verify_pair,
 )
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
+from selenv.untrusted import json_object
 
 SCRIPT = "selenv.train.train_cl_expert"
 
@@ -318,12 +319,10 @@ def run_expert_iteration(
         raise UsageError(f"--rounds must be >= 1, got {cfg.rounds}")
     if cfg.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
-    try:
-        kwargs = json.loads(cfg.env_kwargs)
-    except json.JSONDecodeError as exc:
-        raise UsageError(f"--env-kwargs must be a JSON object: {exc}") from None
-    if not isinstance(kwargs, dict):
-        raise UsageError(f"--env-kwargs must be a JSON object, got {cfg.env_kwargs!r}")
+    try:  # size and nesting bounded before parsing
+        kwargs = json_object(cfg.env_kwargs, "--env-kwargs")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     ours = {k: v for k, v in asdict(cfg).items() if k not in _FREE}
     resumed = (
         read_resume(cfg.resume, env_id=env_id, block="expert_iteration", ours=ours)

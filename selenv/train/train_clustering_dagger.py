@@ -80,6 +80,7 @@ from selenv.learned.rl.training import (
     verify_pair,
 )
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
+from selenv.untrusted import json_object
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 SCRIPT = "selenv.train.train_clustering_dagger"
@@ -263,6 +264,10 @@ def _run(cfg: Config) -> dict[str, Any]:
         raise UsageError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
     if cfg.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
+    try:  # size and nesting bounded before parsing
+        kwargs = json_object(cfg.env_kwargs, "--env-kwargs")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     ours = {k: v for k, v in asdict(cfg).items() if k not in _FREE}
     resumed = (
         read_resume(cfg.resume, env_id=ENV_ID, block="dagger", ours=ours) if cfg.resume else None
@@ -272,7 +277,6 @@ def _run(cfg: Config) -> dict[str, Any]:
         verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
     if meta.get("env_id") != ENV_ID:
         raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {meta.get('env_id')!r}")
-    kwargs = json.loads(cfg.env_kwargs)
     torch.set_num_threads(1)
     start = time.perf_counter()
     last = last_paths(out)[0]

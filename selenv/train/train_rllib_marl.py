@@ -96,6 +96,7 @@ from selenv.learned.rl.training import (
     _set_rng_state,
     run_cli,
 )
+from selenv.untrusted import json_object
 
 __all__ = [
     "Config",
@@ -314,14 +315,10 @@ def _check(cfg: Config) -> dict[str, Any]:
         raise UsageError("--gamma must be in (0, 1] and --lambda in [0, 1]")
     _widths(cfg.hidden, "--hidden")
     _widths(cfg.vf, "--vf")
-    try:
-        env_kwargs = json.loads(cfg.env_kwargs)
-    except RecursionError:
-        raise UsageError("--env-kwargs is nested too deeply") from None
-    except ValueError as exc:  # JSONDecodeError, ints beyond the digit limit
-        raise UsageError(f"--env-kwargs is not valid JSON: {exc}") from None
-    if not isinstance(env_kwargs, dict):
-        raise UsageError(f"--env-kwargs must be a JSON object, got {cfg.env_kwargs!r}")
+    try:  # size and nesting bounded before parsing
+        env_kwargs = json_object(cfg.env_kwargs, "--env-kwargs")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     try:  # the env rejects bad keywords now, not inside an env runner
         SelenvMultiAgentEnv({"env": cfg.env, "env_kwargs": env_kwargs}).close()
     except (TypeError, ValueError) as exc:

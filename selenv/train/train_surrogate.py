@@ -99,6 +99,7 @@ from selenv.learned.surrogates import (
 )
 from selenv.parallel import make_executor
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
+from selenv.untrusted import NotParsedError, loads_json
 
 #: Table II's optimisers except LDMV: its SGD (lr 0.05, batch 256) stays at the mean on our data
 #: (test R 0.16; 0.24 with momentum 0.9) while Adam at the same lr reaches R 0.92 (50k samples,
@@ -641,10 +642,12 @@ def _stamp(cfg: Config, X: np.ndarray) -> dict[str, Any]:
 
 def _check_resume(cfg: Config, state: dict[str, Any], stamp: dict[str, Any]) -> None:
     """Refuse a resume state of another run (names the first differing option, or the data)."""
-    try:
-        saved = json.loads(str(state.get("config")))
-    except json.JSONDecodeError:
+    try:  # bounded: the state is a file of the user's
+        saved = loads_json(str(state.get("config")), f"--resume {cfg.resume}: config")
+    except NotParsedError:
         saved = None
+    except ValueError as exc:  # too large or nested too deeply
+        raise UsageError(str(exc)) from None
     if not isinstance(saved, dict):
         raise UsageError(f"--resume {cfg.resume}: the state records no options")
     now = json.loads(stamp["config"])

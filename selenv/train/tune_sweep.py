@@ -62,6 +62,7 @@ import numpy as np
 from selenv.atomic import OutputLock, atomic_paths, describe_os_error, write_json
 from selenv.exits import DeferredSignals, Terminated, UsageError, guarded_main
 from selenv.train.tune_results import format_table, summarize
+from selenv.untrusted import json_object
 
 __all__ = [
     "MAX_CLUSTER_WORKERS",
@@ -316,8 +317,8 @@ def _parse(cls: type, key: str, text: str, option: str) -> Any:
             value = {"int": int, "float": float, "str": str}[typ](text)
         if key in POSITIVE and not value > 0:
             raise ValueError("expected a value > 0")
-        if key == "env_kwargs" and not isinstance(json.loads(text), dict):
-            raise ValueError("expected a JSON object")
+        if key == "env_kwargs":  # size and nesting bounded before parsing
+            json_object(text, "a JSON object")
         if key == "hidden" and not all(int(h) > 0 for h in text.split(",")):
             raise ValueError("expected comma-separated layer widths > 0")
         if key == "vec_env" and text not in ("native", "dummy", "subproc"):

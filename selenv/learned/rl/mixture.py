@@ -8,7 +8,6 @@ seed from its own ``np_random``. Same seed, same sequence of configurations and 
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from typing import Any
 
@@ -17,6 +16,7 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.learned.rl.views import CandidateView, view_for
+from selenv.untrusted import NotParsedError, loads_json
 
 __all__ = ["MIXTURES", "EnvMixture", "parse_mixture"]
 
@@ -47,9 +47,9 @@ def parse_mixture(text: str) -> list[dict[str, Any]]:
     """
     if text in MIXTURES:
         return [dict(c) for c in MIXTURES[text]]
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError:
+    try:  # size and nesting bounded before parsing
+        value = loads_json(text, "--mixture")
+    except NotParsedError:
         value = None
     if not isinstance(value, list) or not value or not all(isinstance(c, dict) for c in value):
         raise ValueError(

@@ -35,6 +35,7 @@ from tqdm.auto import tqdm
 import selenv  # noqa: F401  (registers the envs, also in worker processes)
 from selenv.atomic import atomic_path
 from selenv.learned.rl.views import view_for
+from selenv.untrusted import NotParsedError, loads_json
 
 __all__ = [
     "LABELS_FORMAT",
@@ -575,9 +576,9 @@ def read_resume(
 
     def norm(key: str, value: Any) -> Any:
         if key == "env_kwargs" and isinstance(value, str):
-            try:
-                return json.loads(value)
-            except json.JSONDecodeError:
+            try:  # bounded: a string of the metadata may hold anything
+                return loads_json(value, f"--resume {path}: env_kwargs")
+            except NotParsedError:
                 return value
         return value
 

@@ -86,6 +86,7 @@ from selenv.learned.resources import read_metadata
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
 from selenv.learned.rl.finetune import CriticWarmup, init_from_checkpoint
 from selenv.learned.rl.vec_env import make_native_vec_env
+from selenv.untrusted import json_object
 
 #: the ``--vec-env`` choices
 VEC_ENVS = ("native", "dummy", "subproc")
@@ -230,13 +231,10 @@ class PPOConfig:
 
     def kwargs(self) -> dict[str, Any]:
         """``env_kwargs`` parsed (a JSON object)."""
-        try:
-            out = json.loads(self.env_kwargs)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--env-kwargs must be a JSON object: {exc}") from None
-        if not isinstance(out, dict):
-            raise ValueError(f"--env-kwargs must be a JSON object, got {self.env_kwargs!r}")
-        return out
+        try:  # size and nesting bounded before parsing
+            return json_object(self.env_kwargs, "--env-kwargs")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
 
 
 def output_paths(cfg: PPOConfig) -> list[Path]:

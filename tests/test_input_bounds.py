@@ -1,0 +1,168 @@
+"""Input bounds checked before any work: one line / a ``ValueError`` naming the input.
+
+Nested JSON and TOML (every reader of the CLIs), the memory of ``make_vec`` and of the raw FIM
+solvers, the pre-flight write probe of ``--json``, the ``--num-workers`` ceiling before any
+heavy import, the refusal of a hostile ``.pth`` file and a killed resource tracker.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from selenv import untrusted
+from selenv.agents import parse_spec
+from selenv.cli import main
+from selenv.learned.config import ConfigFileError, arg, parse_config, read_config_file
+
+DEEP = 2000
+
+
+def _nested_json(depth: int = DEEP) -> str:
+    return '{"a": ' + "[" * depth + "]" * depth + "}"
+
+
+def _one_error_line(err: str, *needles: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+# --- 1. nesting and size of every JSON / TOML the CLIs read ---------------------------------
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "[" * DEEP + "]" * DEEP,
+        '{"k": ' * 100_000 + "1" + "}" * 100_000,
+        '["' + "[" * 100 + '", ' + "[" * 70 + "]" * 70 + "]",
+    ],
+    ids=["arrays", "objects-1e5", "brackets-in-strings-then-deep"],
+)
+def test_deep_json_is_a_value_error_naming_the_input(text: str) -> None:
+    with pytest.raises(ValueError, match=r"^--env-kwargs: nested deeper than 64 levels"):
+        untrusted.loads_json(text, "--env-kwargs")
+
+
+def test_brackets_inside_strings_do_not_count_and_limits_are_read_at_call_time(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    text = json.dumps({"s": "[" * 500, "v": [[[1]]]})
+    assert untrusted.loads_json(text, "x") == json.loads(text)
+    monkeypatch.setitem(untrusted.LIMITS, "max_depth", 3)
+    with pytest.raises(ValueError, match="x: nested deeper than 3 levels"):
+        untrusted.loads_json(text, "x")
+    monkeypatch.setitem(untrusted.LIMITS, "max_argument_bytes", 10)
+    with pytest.raises(ValueError, match=r"x: \d+ bytes, more than the ceiling of 10"):
+        untrusted.loads_json(json.dumps({"s": "y" * 20}), "x")
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "x = " + "[" * DEEP + "]" * DEEP,
+        "x = " + "{a = " * DEEP + "1" + "}" * DEEP,
+        "x." * 300 + "y = 1",
+        "[" + "t." * 300 + "u]\nv = 1",
+    ],
+    ids=["arrays", "inline-tables", "dotted-keys", "table-header"],
+)
+def test_deep_toml_is_a_value_error_naming_the_input(text: str) -> None:
+    with pytest.raises(ValueError, match=r"^--config f\.toml: nested deeper than 64 levels"):
+        untrusted.loads_toml(text, "--config f.toml")
+
+
+def test_toml_strings_and_comments_do_not_count() -> None:
+    text = 's = "[[[[[["\nm = """\n[[[[[[\n"""\n# [[[[[[[[\n[t]\nv = [[1], [2]]\n'
+    assert untrusted.loads_toml(text, "f") == {
+        "s": "[[[[[[",
+        "m": "[[[[[[\n",
+        "t": {"v": [[1], [2]]},
+    }
+
+
+def test_bench_env_kwargs_nested_is_one_line_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["bench", "selenv/FIMSelection-v1", "--env-kwargs", _nested_json()])
+    assert code == 2
+    captured = capsys.readouterr()
+    _one_error_line(captured.err, "--env-kwargs", "nested deeper than 64")
+    assert captured.out == ""
+
+
+@pytest.mark.parametrize("text", ["[1]", "{oops"])
+def test_bench_env_kwargs_not_an_object_is_one_line_exit_2(
+    text: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["bench", "selenv/FIMSelection-v1", "--env-kwargs", text]) == 2
+    _one_error_line(capsys.readouterr().err, "--env-kwargs")
+
+
+def test_agent_spec_option_nested_is_refused_and_plain_text_stays_a_string() -> None:
+    with pytest.raises(ValueError, match="agent spec 'rollout': option top_k: nested deeper"):
+        parse_spec("rollout:top_k=" + "[" * DEEP + "]" * DEEP)
+    assert parse_spec("rollout:top_k=5:mode=fast") == ("rollout", {"top_k": 5, "mode": "fast"})
+
+
+def test_bench_agent_spec_nested_is_one_line_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    spec = "greedy:x=" + "[" * DEEP + "]" * DEEP
+    assert main(["bench", "selenv/FIMSelection-v1", "--agents", spec]) == 2
+    _one_error_line(capsys.readouterr().err, "--agents", "nested deeper than 64")
+
+
+@dataclasses.dataclass
+class _Cfg:
+    steps: int = arg(3, "steps")
+    env_kwargs: str = arg("{}", "env keywords")
+
+
+def test_config_toml_nested_is_refused_before_parsing(tmp_path: Path) -> None:
+    path = tmp_path / "deep.toml"
+    path.write_text("steps = 5\nx = " + "[" * DEEP + "]" * DEEP + "\n")
+    with pytest.raises(ConfigFileError, match=r"--config .*deep\.toml: nested deeper than 64"):
+        read_config_file(path, _Cfg)
+
+
+def test_config_toml_nested_exits_2_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "deep.toml"
+    path.write_text("x = " + "{a = " * DEEP + "1" + "}" * DEEP + "\n")
+    with pytest.raises(SystemExit) as stop:
+        parse_config(_Cfg, ["--config", str(path)], "test", script="tests.cfg")
+    assert stop.value.code == 2
+    _one_error_line(capsys.readouterr().err, "--config", "nested deeper than 64")
+
+
+def test_config_toml_too_large_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(untrusted.LIMITS, "max_bytes", 100)
+    path = tmp_path / "big.toml"
+    path.write_text("steps = 5\n" + "# padding\n" * 20)
+    with pytest.raises(ConfigFileError, match="more than the ceiling of 100"):
+        read_config_file(path, _Cfg)
+
+
+def test_training_env_kwargs_nested_is_a_usage_error() -> None:
+    pytest.importorskip("torch")
+    from selenv.exits import UsageError
+    from selenv.learned.rl.training import PPOConfig
+
+    cfg = PPOConfig(env_kwargs=_nested_json())
+    with pytest.raises(UsageError, match=r"^--env-kwargs: nested deeper than 64"):
+        cfg.kwargs()
+    assert PPOConfig(env_kwargs='{"budget": 3}').kwargs() == {"budget": 3}
+
+
+def test_checkpoint_metadata_reader_shares_the_scan(tmp_path: Path) -> None:
+    from selenv.learned.resources import json_depth, read_metadata
+
+    assert json_depth is untrusted.json_depth
+    path = tmp_path / "m.json"
+    path.write_text(_nested_json())
+    with pytest.raises(ValueError, match="nested deeper than 64"):
+        read_metadata(path)
