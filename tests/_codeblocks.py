@@ -13,6 +13,7 @@ import re
 import signal
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -106,13 +107,18 @@ def run_block(
             raise BlockTimeout(f"{source}:{block.line}: the block ran longer than {timeout} s")
 
         previous = signal.signal(signal.SIGALRM, _expire)
-        signal.setitimer(signal.ITIMER_REAL, timeout)
+        # the per-test hang guard (pytest-timeout) may have its own alarm armed: re-armed after
+        outer_left, _ = signal.setitimer(signal.ITIMER_REAL, timeout)
+        armed_at = time.monotonic()
     try:
         exec(code, namespace)
     finally:
         if use_alarm:
             signal.setitimer(signal.ITIMER_REAL, 0)
             signal.signal(signal.SIGALRM, signal.SIG_DFL if previous is None else previous)
+            if outer_left > 0:
+                left = outer_left - (time.monotonic() - armed_at)
+                signal.setitimer(signal.ITIMER_REAL, max(left, 1e-3))
     return namespace
 
 

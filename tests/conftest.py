@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import signal
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -116,8 +117,23 @@ def fuzz_settings(weight: float = 1.0) -> settings:
     return settings(profile, max_examples=max(1, round(profile.max_examples * weight)))
 
 
+def _foreground_signals() -> None:
+    """SIGINT and SIGQUIT as in a terminal, whatever the launcher left ignored.
+
+    A background job of a non-interactive shell (``nohup make test &``, some CI runners)
+    starts with both ignored. The in-process signal tests send SIGINT to this process and
+    expect the product's handlers to see it as they do in a foreground run; children get
+    their defaults from tests/_proc.py. SIGHUP stays as inherited (``nohup``'s purpose).
+    """
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if signal.getsignal(signal.SIGQUIT) is signal.SIG_IGN:
+        signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+
+
 def pytest_configure(config: pytest.Config) -> None:
     global _LONG_BY_MARKER
+    _foreground_signals()
     _LONG_BY_MARKER = "fuzz_long" in (config.getoption("markexpr", "") or "")
 
 
@@ -195,17 +211,18 @@ def tmpfs_of_size(tmp_path: Path):
     still open, e.g. referenced by a failed save's traceback).
     """
     import gc
-    import subprocess
+
+    from _proc import run
 
     mounts: list[Path] = []
 
     def make(size: str = "64k") -> Path:
         mnt = tmp_path / f"tmpfs{len(mounts)}"
         mnt.mkdir()
-        proc = subprocess.run(
+        proc = run(
             ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)],
             capture_output=True,
-            check=False,
+            timeout=60,
         )
         if proc.returncode != 0:
             pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.decode().strip()}")
@@ -215,8 +232,8 @@ def tmpfs_of_size(tmp_path: Path):
     yield make
     gc.collect()
     for mnt in mounts:
-        if subprocess.run(["umount", str(mnt)], capture_output=True, check=False).returncode:
-            subprocess.run(["umount", "-l", str(mnt)], capture_output=True, check=False)
+        if run(["umount", str(mnt)], capture_output=True, timeout=60).returncode:
+            run(["umount", "-l", str(mnt)], capture_output=True, timeout=60)
 
 
 @pytest.fixture

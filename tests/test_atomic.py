@@ -12,12 +12,13 @@ import errno
 import json
 import os
 import signal
-import subprocess
 import sys
 import textwrap
 import time
 from pathlib import Path
+from subprocess import PIPE, Popen
 
+import _proc
 import pytest
 
 from selenv.atomic import (
@@ -115,14 +116,14 @@ def test_full_disk_keeps_the_old_file(tiny_fs: Path) -> None:
     assert probe.value.errno == errno.ENOSPC
 
 
-def _run_child(code: str, cwd: Path, **kwargs: object) -> subprocess.Popen[bytes]:
+def _run_child(code: str, cwd: Path, **kwargs: object) -> Popen[bytes]:
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    return subprocess.Popen(
+    return _proc.popen(
         [sys.executable, "-c", textwrap.dedent(code)],
         cwd=cwd,
         env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stdout=PIPE,
+        stderr=PIPE,
         **kwargs,  # type: ignore[call-overload]
     )
 
@@ -144,7 +145,7 @@ def test_file_size_limit_keeps_the_old_file(tmp_path: Path) -> None:
         """,
         tmp_path,
     )
-    out, err = child.communicate(timeout=120)
+    out, err = _proc.communicate(child)
     assert out.decode().strip() == str(errno.EFBIG), err.decode()
     assert target.read_bytes() == OLD
     assert _leftovers(tmp_path, {"out.json"}) == []
@@ -167,9 +168,9 @@ def test_sigkill_between_write_and_rename_keeps_the_old_file(tmp_path: Path) -> 
         tmp_path,
     )
     assert child.stdout is not None
-    assert child.stdout.readline().strip() == b"written"
+    assert _proc.readline(child, stream=child.stdout).strip() == b"written"
     child.send_signal(signal.SIGKILL)
-    child.wait(timeout=30)
+    _proc.wait(child, 30)
     assert target.read_bytes() == OLD
     orphans = _leftovers(tmp_path, {"policy.zip"})
     assert len(orphans) == 1 and orphans[0].startswith(".policy.tmp-")
@@ -192,13 +193,13 @@ def test_lock_refuses_a_second_writer_and_takes_over_a_dead_ones(tmp_path: Path)
         tmp_path,
     )
     assert child.stdout is not None
-    assert child.stdout.readline().strip() == b"locked"
+    assert _proc.readline(child, stream=child.stdout).strip() == b"locked"
     try:
         with pytest.raises(OutputBusyError, match=f"PID {child.pid}"), OutputLock(target):
             pass
     finally:
         child.send_signal(signal.SIGKILL)
-        child.wait(timeout=30)
+        _proc.wait(child, 30)
     deadline = time.monotonic() + 10
     while True:  # the child is reaped: its PID is gone, its lock file remains
         try:
@@ -279,10 +280,11 @@ def test_sigterm_becomes_terminated_in_a_child(tmp_path: Path) -> None:
         tmp_path,
     )
     assert child.stdout is not None and child.stderr is not None
-    assert child.stdout.readline().strip() == b"running"
+    assert _proc.readline(child, stream=child.stdout).strip() == b"running"
     child.send_signal(signal.SIGTERM)
-    assert child.wait(timeout=30) == 143
-    assert child.stderr.read().decode() == "prog: terminated (SIGTERM)\n"
+    _, err = _proc.communicate(child, 30)
+    assert child.returncode == 143
+    assert err.decode() == "prog: terminated (SIGTERM)\n"
 
 
 def test_deferred_signals_record_then_raise_on_the_second(tmp_path: Path) -> None:

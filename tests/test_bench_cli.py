@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+import _proc
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -430,7 +430,7 @@ def test_unknown_env_lists_known_ids(capsys: pytest.CaptureFixture[str]) -> None
 
 
 def test_python_dash_m_selenv() -> None:
-    proc = subprocess.run(
+    proc = _proc.run(
         [sys.executable, "-m", "selenv", "list"], capture_output=True, text=True, check=True
     )
     assert FIM in proc.stdout

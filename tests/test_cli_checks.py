@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import _proc
 import pytest
 
 import selenv.cli as cli
@@ -81,7 +82,6 @@ def test_train_dispatches_and_reports_exit_codes(capsys):
 
 def test_cli_start_imports_no_heavy_package() -> None:
     """``selenv list`` (and ``--help``) start without torch, matplotlib, scipy.optimize/stats."""
-    import subprocess
     import sys
 
     code = (
@@ -92,7 +92,9 @@ def test_cli_start_imports_no_heavy_package() -> None:
         "heavy = ('torch', 'matplotlib', 'scipy.optimize', 'scipy.stats', 'ray', 'cvxpy')\n"
         "print(sorted(m for m in heavy if m in sys.modules))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = _proc.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+    )
     assert out.stdout.strip() == "[]", out.stdout
 
 

@@ -21,10 +21,10 @@ import functools
 import importlib.util
 import re
 import shlex
-import subprocess
 import sys
 from pathlib import Path
 
+import _proc
 import pytest
 from _codeblocks import (  # tests/ helper
     Block,
@@ -130,7 +130,7 @@ def shell_commands(text: str) -> list[tuple[int, str]]:
 
 @functools.cache
 def _help(argv: tuple[str, ...]) -> str:
-    proc = subprocess.run(
+    proc = _proc.run(
         [*argv, "--help"], capture_output=True, text=True, cwd=ROOT, timeout=300, check=False
     )
     return proc.stdout + proc.stderr
@@ -253,7 +253,7 @@ def test_env_pages_are_generated_from_the_current_docstrings() -> None:
     Run as a fresh process, as a user would: the agent tables list what the package
     registers, not what other tests of this worker added.
     """
-    proc = subprocess.run(
+    proc = _proc.run(
         [sys.executable, "scripts/gen_env_pages.py", "--check"],
         capture_output=True, text=True, cwd=ROOT, timeout=300, check=False,
     )  # fmt: skip
@@ -278,11 +278,15 @@ def test_env_page_sections_follow_gymnasiums_manual_form() -> None:
 
 
 def test_markdown_to_myst_conversion() -> None:
-    """RST roles and literal blocks of docstrings become MyST."""
+    """Docstrings become Markdown that reads on GitHub: Python roles as links or code."""
     gen = _gen_module()
-    out = gen.myst("See :class:`~a.B` and :func:`c`::\n\n    x = 1\n\nafter\n")
-    assert "{class}`~a.B`" in out and "{func}`c`" in out
+    text = "See :class:`~selenv.families.fim.env.FIMSelectionEnv`, :func:`c` and :doc:`x`::"
+    out = gen.myst(text + "\n\n    x = 1\n\nafter\n")
+    assert "[`FIMSelectionEnv`](../api/families.md#selenvfamiliesfimenv)" in out
+    assert "`c()`" in out and "{doc}`x`" in out  # no API section: code; not a Python role: kept
     assert "```text\nx = 1\n```" in out and ":class:" not in out
+    for path, page in gen.pages().items():  # the MyST roles would show as raw text on GitHub
+        assert not re.search(r"\{(class|func|meth|mod|attr|data)\}`", page), path.name
 
 
 _WORK_ITEM = re.compile(r"\b(issue|ticket|work[- ]item)s?\b\s*#?\d+", re.I)

@@ -31,6 +31,7 @@ import time
 import uuid
 from pathlib import Path
 
+import _proc
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -111,7 +112,7 @@ class Run:
         args += ["--episodes", "2", "--env-kwargs", '{"n_candidates": 20, "budget": 3}']
         args += ["--no-progress", "--json", str(self.out), "--executor", "ray"]
         args += ["--num-workers", "1"]
-        self.proc = subprocess.Popen(
+        self.proc = _proc.popen(
             [sys.executable, "-m", "selenv", *args],
             cwd=folder,
             env=env,
@@ -148,7 +149,7 @@ class Run:
 
     def finish(self) -> None:
         """Wait for the bench's exit and collect its stderr."""
-        _, self.err = self.proc.communicate(timeout=END_SECONDS)
+        _, self.err = _proc.communicate(self.proc, END_SECONDS)
         self.rc = self.proc.returncode
 
     def left(self) -> set[int]:
@@ -175,7 +176,7 @@ class Run:
             except OSError:
                 pass
         if self.proc.poll() is None:
-            self.proc.wait(10)
+            _proc.wait(self.proc, 10)
 
 
 def _episodes(path: Path) -> dict[str, int]:
@@ -195,7 +196,8 @@ def test_ray_faults_keep_the_finished_episodes_and_leave_no_process(tmp_path: Pa
         while waiting and time.monotonic() < deadline:
             for fault, run in list(waiting.items()):
                 if run.proc.poll() is not None:
-                    pytest.fail(f"{fault}: bench ended early: {run.proc.communicate()[1]}")
+                    err = _proc.communicate(run.proc, 30)[1]
+                    pytest.fail(f"{fault}: bench ended early: {err}")
                 if run.is_held():
                     run.inject(fault)
                     del waiting[fault]
@@ -248,7 +250,7 @@ def test_guard_kills_the_listed_processes_when_its_input_ends() -> None:
     whose start time does not match (a reused PID) and one not listed."""
     from selenv.parallel.ray_session import _spawn_guard, _stop_guard
 
-    listed, reused, other = (subprocess.Popen(["sleep", "60"]) for _ in range(3))
+    listed, reused, other = (_proc.popen(["sleep", "60"]) for _ in range(3))
     guard = _spawn_guard([listed.pid])
     try:
         assert os.getsid(guard.pid) == guard.pid
@@ -258,10 +260,8 @@ def test_guard_kills_the_listed_processes_when_its_input_ends() -> None:
         assert listed.poll() is None and guard.poll() is None  # nothing before the end of input
         _stop_guard(guard)
         assert guard.returncode == 0
-        assert listed.wait(10) == -signal.SIGKILL
+        assert _proc.wait(listed, 10) == -signal.SIGKILL
         assert reused.poll() is None and other.poll() is None
     finally:
         for proc in (listed, reused, other, guard):
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+            _proc.stop(proc)

@@ -14,6 +14,7 @@ import shutil
 import time
 from pathlib import Path
 
+import _proc
 import numpy as np
 import pytest
 
@@ -503,7 +504,6 @@ def test_sb3_shared_policy_weights_play_the_same_through_rllib(tmp_path: Path) -
 def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path, tmpfs_of_size) -> None:
     """ENOSPC while exporting: an OSError naming the output, the old pair byte-identical."""
     import errno
-    import subprocess
 
     mnt = tmpfs_of_size("256k")
     try:
@@ -521,7 +521,7 @@ def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path, tmpfs_of_
         assert sorted(p.name for p in mnt.iterdir()) == ["filler", "policy.json", "policy.pth"]
         load_exported(json_path)  # still a matching, loadable pair
     finally:
-        subprocess.run(["umount", str(mnt)], capture_output=True, check=False)
+        _proc.run(["umount", str(mnt)], capture_output=True, timeout=60)
 
 
 def _signal_after_recording(monkeypatch, signum: int, at: int, check=None) -> None:
@@ -688,19 +688,17 @@ def test_terminated_training_resumes_to_the_same_iteration_count(
 
 def test_a_second_training_on_the_same_out_is_refused(tmp_path, capsys) -> None:
     """Another live process holds the output's lock: exit 2, one line, nothing written."""
-    import subprocess
     import sys
 
     out = tmp_path / "p"
-    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    other = _proc.popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         (tmp_path / ".p.json.lock").write_text(f"{other.pid}\n")
         with pytest.raises(SystemExit) as exc:  # usage errors exit through argparse's way
             train_rllib_marl.cli([*TINY, "--out", str(out)])
         assert exc.value.code == 2
     finally:
-        other.kill()
-        other.wait()
+        _proc.stop(other)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "p.json" in err[0] and str(other.pid) in err[0], err
     assert not out.with_suffix(".json").exists()

@@ -18,6 +18,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import _proc
 import pytest
 from conftest import load_script
 
@@ -356,12 +357,12 @@ def test_huge_sizes_in_real_processes(tmp_path: Path) -> None:
     try:
         for script in SCRIPTS:
             out = tmp_path / script.stem
-            procs[script] = (out, subprocess.Popen(
+            procs[script] = (out, _proc.popen(
                 [sys.executable, str(script), *REAL[script.stem], "--out", str(out)],
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
             ))  # fmt: skip
         for script, (out, proc) in procs.items():
-            _, err = proc.communicate(timeout=120)
+            _, err = _proc.communicate(proc, 120)
             assert proc.returncode == 2, err
             assert err.count("\n") == 1, err
             assert err.startswith(f"{script.name}: error: {REAL[script.stem][0]}: "), err
@@ -369,6 +370,4 @@ def test_huge_sizes_in_real_processes(tmp_path: Path) -> None:
             assert not out.exists()
     finally:
         for _, proc in procs.values():
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+            _proc.stop(proc)

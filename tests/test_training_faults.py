@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import _proc
 import pytest
 
 from selenv.atomic import describe_os_error
@@ -81,7 +82,7 @@ def _run(
     env = {**os.environ, "PYTHONWARNINGS": "ignore", "OPENBLAS_NUM_THREADS": "1"}
     if kill_at is not None:
         env["KILL_AT_REPLACE"] = str(kill_at)
-    return subprocess.run(
+    return _proc.run(
         [sys.executable, "-c", CHILD, str(sig), *argv],
         capture_output=True,
         text=True,

@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import _proc
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -93,7 +94,7 @@ def _stopped_sweep(out: Path) -> dict:
     """
     argv = [*TINY, "--seeds=0,1", "--grid=learning_rate=3e-4", "--num-workers=1", f"--out={out}"]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.Popen(
+    proc = _proc.popen(
         [sys.executable, "-m", "selenv.train.tune_sweep", *argv],
         cwd=Path(__file__).resolve().parents[1],
         env=env,
@@ -107,15 +108,14 @@ def _stopped_sweep(out: Path) -> dict:
         while not record.exists():
             if proc.poll() is not None or time.monotonic() > deadline:
                 proc.kill()
-                pytest.fail(f"no trial record (exit {proc.wait()}): {proc.communicate()[1]}")
+                _, err = _proc.communicate(proc, 30)
+                pytest.fail(f"no trial record (exit {proc.returncode}): {err}")
             time.sleep(0.05)
         tree = _tree(proc.pid)  # the sweep's Ray processes, before the stop
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
+        _, err = _proc.communicate(proc, 120)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        _proc.stop(proc)
     deadline = time.monotonic() + 30  # the raylet's workers end shortly after the driver
     while (alive := [p for p, (t, _) in tree.items() if _start_time(p) == t]) and (
         time.monotonic() < deadline
