@@ -249,7 +249,6 @@ def main() -> None:
         p = f"{paper:.2f}" if paper else ""
         print(f"{name:<44}{ms:>9.3f}{p:>10}{ms / bf_ms:>7.2f}x")
     print(f"naive picks == brute-force picks: {agree}; VNS finds the optimum in {vns_opt:.0%}")
-    print(f"targets: brute force <= 2 ms ({bf_ms:.3f}), VNS <= 0.5 ms ({vns_ms:.3f})")
 
     print("\n(c) one EKF update after predict, median (us); K = 2 vs all N landmarks")
     print(f"{'N':>5}{'K=2':>9}{'all':>9}{'ratio':>8}{'kf K=2':>9}{'kf all':>9}{'ratio':>8}")
