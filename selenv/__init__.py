@@ -6,8 +6,12 @@
 
 from __future__ import annotations
 
-from selenv import _compat, agents, envs, families
-from selenv.families import ENV_IDS
+from selenv import _signals
+
+_signals.start_cli()  # first: the `selenv` command handles SIGINT/SIGTERM before heavy imports
+
+from selenv import _compat, agents, envs, families  # noqa: E402
+from selenv.families import ENV_IDS  # noqa: E402
 
 _compat.install()  # the module paths that moved into the family folders stay importable
 

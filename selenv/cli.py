@@ -57,16 +57,18 @@ import gymnasium as gym
 from selenv import __version__
 from selenv.agents import AGENTS, agents_for, parse_spec
 from selenv.agents.base import unknown_agent_message
-from selenv.atomic import OutputBusyError, OutputLock, describe_os_error
+from selenv.atomic import OutputBusyError, OutputLock, describe_os_error, probe_replaceable
 from selenv.atomic import write_json as atomic_write_json
-from selenv.exits import DeferredSignals, Terminated, sigterm_raises
+from selenv.exits import DeferredSignals, Terminated, end_startup, hold_signals, sigterm_raises
 from selenv.families import ENV_IDS
 from selenv.parallel import (
     ExecutorError,
     WorkerDiedError,
     add_executor_arguments,
     executor_from_args,
+    max_pool_workers,
 )
+from selenv.parallel.executors import POOL_WORKERS_PER_CPU
 from selenv.untrusted import UntrustedInputError, loads_json
 
 if TYPE_CHECKING:
@@ -244,7 +246,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     import importlib
     import inspect
 
-    module = importlib.import_module(f"selenv.train.{args.script}")
+    with hold_signals():  # torch / Ray imports: a signal waits until they are done
+        module = importlib.import_module(f"selenv.train.{args.script}")
     argv = list(args.script_args)
     entry = getattr(module, "cli", None)
     try:
@@ -308,6 +311,24 @@ def _check_baseline(baseline: str, env_ids: list[str], names: list[str] | None) 
     return None
 
 
+def _workers_problem(args: argparse.Namespace) -> str | None:
+    """Why ``--num-workers`` is refused (``None`` if it is not), from the numbers alone.
+
+    The process pool's ceiling (:func:`selenv.parallel.max_pool_workers`) is checked here,
+    before the agents are built and before any executor starts, so the refusal costs no
+    torch or Ray import.
+    """
+    workers = getattr(args, "num_workers", None)
+    ceiling = max_pool_workers()
+    if args.executor == "process" and workers is not None and workers > ceiling:
+        return (
+            f"--num-workers {workers} exceeds the ceiling of {ceiling} processes for "
+            f"--executor process ({POOL_WORKERS_PER_CPU} per CPU of this machine); use "
+            "fewer, or --executor ray with a cluster"
+        )
+    return None
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run the benchmark described by the parsed ``args``; print tables, write JSON/plots.
 
@@ -318,6 +339,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from selenv.bench import BenchError, check_env_id
     from selenv.bench.runner import MAX_EPISODES, episodes_problem
 
+    why = _workers_problem(args)  # before any agent (torch) or executor (Ray) is loaded
+    if why is not None:
+        return _error(why)
     env_ids = list(dict.fromkeys(args.env_ids)) or list(ENV_IDS)
     for env_id in env_ids:
         try:
@@ -397,6 +421,11 @@ def _unwritable(path: Path, option: str, *, folder: bool) -> str | None:
             kind = "not a folder" if folder else "a folder, expected a file path"
             return f"{option} {path}: exists and is {kind}"
         target = path if folder else path.parent
+        if not folder:
+            try:  # an immutable or append-only file passes the folder probe, not the rename
+                probe_replaceable(path)
+            except OSError as exc:
+                return f"{option} {describe_os_error(exc).removeprefix('cannot write ')}"
     else:
         target = path.parent
         while not target.exists():
@@ -597,35 +626,43 @@ def _keep_partial(path: Path, doc: dict[str, object], exc: OSError) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``selenv`` console script; returns the exit code.
 
+    SIGINT / SIGTERM end any command with one line and exit 130 / 143. In the ``selenv``
+    process the handlers are installed when ``selenv`` is first imported and the signals are
+    held through the imports (:mod:`selenv._signals`): one received since exec stops here.
+
     Args:
         argv: arguments without the program name (default: ``sys.argv[1:]``).
     """
-    parser = build_parser()
-    try:
-        args = parser.parse_args(None if argv is None else list(argv))
-    except SystemExit as exc:  # argparse exits on --help, --version and usage errors
-        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
-    if args.command == "list":
-        return cmd_list()
-    if args.command == "train":
-        return cmd_train(args)
-    args.argv = ["selenv", *(sys.argv[1:] if argv is None else argv)]
+    args: argparse.Namespace | None = None
     try:
         with sigterm_raises():
+            end_startup()
+            parser = build_parser()
+            try:
+                args = parser.parse_args(None if argv is None else list(argv))
+            except SystemExit as exc:  # argparse exits on --help, --version and usage errors
+                return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+            if args.command == "list":
+                return cmd_list()
+            if args.command == "train":
+                return cmd_train(args)
+            args.argv = ["selenv", *(sys.argv[1:] if argv is None else argv)]
             return cmd_bench(args)
     except KeyboardInterrupt:  # during the checks or start-up, or while shutting down
-        print(f"selenv: interrupted (SIGINT) {_when_stopped(args)}", file=sys.stderr)
+        print(f"selenv: interrupted (SIGINT){_when_stopped(args)}", file=sys.stderr)
         return 130
     except Terminated:
-        print(f"selenv: terminated (SIGTERM) {_when_stopped(args)}", file=sys.stderr)
+        print(f"selenv: terminated (SIGTERM){_when_stopped(args)}", file=sys.stderr)
         return 143
 
 
-def _when_stopped(args: argparse.Namespace) -> str:
-    """What an interruption outside the run left: nothing, or the outputs already written."""
+def _when_stopped(args: argparse.Namespace | None) -> str:
+    """What an interruption outside a bench run left: nothing, or the outputs already written."""
+    if args is not None and args.command != "bench":
+        return ""
     if getattr(args, "finished", False):
-        return "while shutting down (the results were already reported above)"
-    return "before any episode ran; nothing written"
+        return " while shutting down (the results were already reported above)"
+    return " before any episode ran; nothing written"
 
 
 if __name__ == "__main__":

@@ -15,7 +15,12 @@ SIGTERM                              143    ``prog: terminated (SIGTERM)``
 ==================================  =====  ==================================================
 
 Commands that keep partial work (an interrupted bench, a training run) do so before these
-exceptions reach :func:`guarded_main`; the line then says what was kept. :func:`check_size`
+exceptions reach :func:`guarded_main`; the line then says what was kept.
+
+Signals never raise into native code: the handlers installed here raise only outside the
+:func:`hold_signals` regions (imports of torch or Ray, building agents, loading checkpoints, a
+command's start-up), which raise a signal received inside them when they end (see
+:mod:`selenv._signals`). A process started with SIGINT ignored keeps it ignored. :func:`check_size`
 checks a typed size against its valid range and its work ceiling before any work (the usage
 error names the option and, for a ceiling, the option that lifts it).
 """
@@ -30,6 +35,15 @@ from contextlib import contextmanager
 from types import FrameType
 from typing import Any
 
+from selenv._signals import (
+    Terminated,
+    defer,
+    end_startup,
+    held,
+    hold_signals,
+    on_signal,
+    signal_exception,
+)
 from selenv.atomic import OutputBusyError, describe_os_error
 
 __all__ = [
@@ -37,13 +51,11 @@ __all__ = [
     "Terminated",
     "UsageError",
     "check_size",
+    "end_startup",
     "guarded_main",
+    "hold_signals",
     "sigterm_raises",
 ]
-
-
-class Terminated(BaseException):
-    """SIGTERM, raised in the main thread like ``KeyboardInterrupt`` for SIGINT."""
 
 
 class UsageError(ValueError):
@@ -101,13 +113,12 @@ def check_size(
 
 @contextmanager
 def sigterm_raises() -> Iterator[None]:
-    """While active, SIGTERM raises :class:`Terminated` in the main thread (restored after)."""
+    """While active, SIGTERM raises :class:`Terminated` in the main thread (restored after).
 
-    def _raise(signum: int, frame: FrameType | None) -> None:
-        raise Terminated()
-
+    Inside a :func:`hold_signals` region the exception waits until the region ends.
+    """
     try:
-        previous = signal.signal(signal.SIGTERM, _raise)
+        previous = signal.signal(signal.SIGTERM, on_signal)
     except ValueError:  # not the main thread: leave SIGTERM alone
         yield
         return
@@ -123,9 +134,10 @@ class DeferredSignals:
     A long run checks :attr:`signal` at its safe points (after an episode, an update, an
     epoch) and stops there, keeping its completed work; a writer holds the signals until its
     files are in place. With ``second_raises`` (the default) a second signal raises at once
-    (``KeyboardInterrupt`` / :class:`Terminated`), abandoning the run; atomic writes keep the
-    files intact. Outside the main thread nothing is installed. The previous handlers are
-    restored on exit.
+    (``KeyboardInterrupt`` / :class:`Terminated`; at the end of a :func:`hold_signals` region
+    inside one), abandoning the run; atomic writes keep the files intact. SIGINT ignored on
+    entry stays ignored (a run under ``nohup`` stops on SIGTERM). Outside the main thread
+    nothing is installed. The previous handlers are restored on exit.
 
     Attributes:
         signal: the first signal's name (``"SIGINT"`` / ``"SIGTERM"``), else ``None``.
@@ -140,7 +152,10 @@ class DeferredSignals:
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         if self.signal is not None and self.second_raises:
-            raise KeyboardInterrupt if signum == signal.SIGINT else Terminated()
+            if held():
+                defer(signum)
+                return
+            raise signal_exception(signum)
         self.received.append(signum)
         if self.signal is None:
             self.signal = signal.Signals(signum).name
@@ -148,6 +163,8 @@ class DeferredSignals:
     def __enter__(self) -> DeferredSignals:
         for signum in (signal.SIGINT, signal.SIGTERM):
             try:
+                if signum == signal.SIGINT and signal.getsignal(signum) is signal.SIG_IGN:
+                    continue  # ignored on entry (nohup, a background job): stays ignored
                 self._previous[signum] = signal.signal(signum, self._handle)
             except ValueError:  # not the main thread: signals unchanged
                 break
@@ -167,6 +184,7 @@ def guarded_main(main: Callable[..., Any], prog: str, *args: Any, **kwargs: Any)
     """
     try:
         with sigterm_raises():
+            end_startup()  # a signal received since the process started stops it here
             result = main(*args, **kwargs)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted (SIGINT)", file=sys.stderr)

@@ -25,6 +25,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
+from selenv._signals import hold_signals
 from selenv.families import version_ids
 from selenv.suggest import with_suggestion
 
@@ -240,4 +241,5 @@ def make(name: str, env_id: str, **kwargs: Any) -> Agent:
         raise ValueError(
             f"agent {name!r} does not apply to {env_id!r}; it applies to {sorted(AGENTS[name])}"
         )
-    return AGENTS[name][env_id].build(**kwargs)
+    with hold_signals():  # torch imports, checkpoint loads: a signal waits until they end
+        return AGENTS[name][env_id].build(**kwargs)
