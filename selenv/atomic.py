@@ -17,7 +17,9 @@ weights, datasets, figures) goes through this module:
   the owner's PID); a second run aiming at the same output is refused with
   :class:`OutputBusyError`; a lock whose process is gone is taken over.
 * :func:`probe_writable`: a real write (create, write, ``fsync``, remove) in the output's
-  folder, for checks made before a long run (``os.access`` says yes to root on a full disk).
+  folder, for checks made before a long run (``os.access`` says yes to root on a full disk),
+  and :func:`probe_replaceable`: an existing output that cannot be replaced (immutable or
+  append-only) is found then too.
 * :func:`describe_os_error`: the one line a command prints for an ``OSError`` on a path.
 """
 
@@ -38,6 +40,7 @@ __all__ = [
     "atomic_path",
     "atomic_paths",
     "describe_os_error",
+    "probe_replaceable",
     "probe_writable",
     "save_figure",
     "write_bytes",
@@ -165,17 +168,48 @@ def save_figure(fig: Any, target: str | os.PathLike[str], **kwargs: Any) -> Path
     return path
 
 
+def probe_replaceable(target: str | os.PathLike[str]) -> None:
+    """Check that an existing regular file ``target`` may be replaced (renamed over).
+
+    The file is opened for writing (no truncation, nothing written, closed at once): an
+    immutable or append-only file (``chattr +i`` / ``+a``) refuses that with ``EPERM``, as it
+    refuses the final ``os.replace``. A missing or non-regular ``target`` and ``EACCES``
+    (permission bits, which do not stop a rename in a writable folder) pass.
+
+    Raises:
+        PermissionError: ``EPERM``, naming the file.
+    """
+    path = Path(target)
+    if not path.is_file():
+        return
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except PermissionError as exc:
+        if exc.errno == errno.EPERM:
+            raise PermissionError(
+                errno.EPERM,
+                "operation not permitted (an immutable or append-only file cannot be replaced)",
+                str(path),
+            ) from None
+        return
+    except OSError:  # e.g. ETXTBSY: not what this probe checks
+        return
+    os.close(fd)
+
+
 def probe_writable(target: str | os.PathLike[str]) -> None:
     """Check that an output can really be written where ``target`` points, now.
 
     Creates the parent folders, writes, flushes and removes a small hidden file next to
-    ``target``, and checks that an existing target is a file. Raises the ``OSError`` of the
-    first step that fails (``ENOSPC`` on a full disk, ``EROFS``, ``EACCES``, ...) or
-    ``IsADirectoryError``.
+    ``target``, and checks that an existing target is a file that may be replaced
+    (:func:`probe_replaceable`). Raises the ``OSError`` of the first step that fails
+    (``ENOSPC`` on a full disk, ``EROFS``, ``EACCES``, ``EPERM`` for an immutable file, ...)
+    or ``IsADirectoryError``.
     """
     path = Path(target)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a folder, expected a file path", str(path))
+    probe_replaceable(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     probe = _temp_for(path)
     try:

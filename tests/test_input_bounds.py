@@ -8,10 +8,16 @@ heavy import, the refusal of a hostile ``.pth`` file and a killed resource track
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
+import os
+import shutil
+import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
+from _proc import run
 
 from selenv import untrusted
 from selenv.agents import parse_spec
@@ -166,3 +172,118 @@ def test_checkpoint_metadata_reader_shares_the_scan(tmp_path: Path) -> None:
     path.write_text(_nested_json())
     with pytest.raises(ValueError, match="nested deeper than 64"):
         read_metadata(path)
+
+
+# --- 4. the pre-flight write probe finds an output that cannot be replaced ------------------
+
+
+def _no_episode(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Record every ``run_bench`` call (the refusal must come before the first one)."""
+    import selenv.bench
+
+    calls: list[str] = []
+
+    def recorded(env_id: str, *args: Any, **kwargs: Any) -> Any:
+        calls.append(env_id)
+        raise AssertionError("an episode ran")
+
+    monkeypatch.setattr(selenv.bench, "run_bench", recorded)
+    return calls
+
+
+def _chattr(flag: str, path: Path) -> bool:
+    """``chattr flag path``; False where the file system or the user cannot."""
+    if shutil.which("chattr") is None:
+        return False
+    done = run(["chattr", flag, str(path)], capture_output=True, timeout=30)
+    return done.returncode == 0
+
+
+@pytest.mark.parametrize("flag", ["+i", "+a"])
+def test_immutable_json_is_refused_before_any_episode(
+    flag: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    out = tmp_path / "out.json"
+    out.write_text("{}")
+    if not _chattr(flag, out):
+        pytest.skip(f"chattr {flag} does not work here (the mocked-syscall test covers it)")
+    calls = _no_episode(monkeypatch)
+    try:
+        code = main(["bench", "selenv/FIMSelection-v1", "--agents", "greedy", "--json", str(out)])
+    finally:
+        _chattr(flag.replace("+", "-"), out)
+    assert code == 2 and calls == []
+    _one_error_line(capsys.readouterr().err, f"--json {out}", "EPERM")
+    assert out.read_text() == "{}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+
+
+def _eperm_on_write_open(monkeypatch: pytest.MonkeyPatch, target: Path) -> None:
+    """``os.open(target, O_WRONLY...)`` fails with EPERM, as on an immutable file."""
+    real_open = os.open
+
+    def refusing(path: Any, flags: int, *args: Any, **kwargs: Any) -> int:
+        if Path(path) == target and flags & os.O_WRONLY:
+            raise PermissionError(errno.EPERM, "Operation not permitted", str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", refusing)
+
+
+def test_unreplaceable_json_mocked_is_refused_before_any_episode(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out.json"
+    out.write_text("{}")
+    calls = _no_episode(monkeypatch)
+    _eperm_on_write_open(monkeypatch, out)
+    code = main(["bench", "selenv/FIMSelection-v1", "--agents", "greedy", "--json", str(out)])
+    assert code == 2 and calls == []
+    _one_error_line(capsys.readouterr().err, f"--json {out}", "immutable", "EPERM")
+
+
+def test_probe_replaceable_passes_plain_and_read_only_files(tmp_path: Path) -> None:
+    from selenv.atomic import probe_replaceable
+
+    plain, missing = tmp_path / "a.json", tmp_path / "none.json"
+    plain.write_text("{}")
+    probe_replaceable(plain)
+    probe_replaceable(missing)
+    assert plain.read_text() == "{}" and not missing.exists()
+
+
+def test_training_outputs_forced_onto_an_unreplaceable_file_exit_2(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from selenv.learned.config import check_outputs
+
+    out = tmp_path / "p.zip"
+    out.write_bytes(b"old")
+    _eperm_on_write_open(monkeypatch, out)
+    with pytest.raises(SystemExit) as stop:
+        check_outputs("prog", [out], force=True)
+    assert stop.value.code == 2
+    _one_error_line(capsys.readouterr().err, f"--out {out}", "EPERM")
+    assert out.read_bytes() == b"old"
+
+
+# --- 5. ceilings before any import-heavy work ----------------------------------------------
+
+_CHILD = """
+import sys
+from selenv.cli import main
+code = main(sys.argv[1:])
+heavy = sorted(m for m in ("torch", "ray", "stable_baselines3") if m in sys.modules)
+print(code, ",".join(heavy) or "-")
+"""
+
+
+def test_num_workers_ceiling_is_checked_before_agents_or_executors_load() -> None:
+    argv = ["bench", "--executor", "process", "--num-workers", "100000", "--episodes", "1"]
+    done = run([sys.executable, "-c", _CHILD, *argv], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["2", "-"], done.stdout
+    _one_error_line(done.stderr, "--num-workers 100000", "ceiling")

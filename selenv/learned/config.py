@@ -31,7 +31,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
-from selenv.atomic import describe_os_error, probe_writable
+from selenv.atomic import describe_os_error, probe_replaceable, probe_writable
 from selenv.untrusted import UntrustedInputError, read_toml_file
 
 __all__ = [
@@ -340,6 +340,11 @@ def check_outputs(
             prog,
             f"{', '.join(existing)} {verb}: pass --force to overwrite, or choose another {option}",
         )
+    for path in paths:
+        try:  # --force onto an immutable or append-only file: found now, not after the run
+            probe_replaceable(path)
+        except OSError as exc:
+            usage_error(prog, f"{option} {describe_os_error(exc).removeprefix('cannot write ')}")
     for folder in dict.fromkeys([*(p.parent for p in paths), *map(Path, folders)]):
         problem = _unwritable(folder)
         if problem is not None:
