@@ -117,6 +117,11 @@ def fuzz_settings(weight: float = 1.0) -> settings:
     return settings(profile, max_examples=max(1, round(profile.max_examples * weight)))
 
 
+#: environment variable: the signals the suite's launch left ignored (``"SIGINT,SIGQUIT"`` for a
+#: background job of a non-interactive shell, ``""`` in a terminal)
+LAUNCH_IGNORED = "SELENV_SUITE_LAUNCH_IGNORED"
+
+
 def _foreground_signals() -> None:
     """SIGINT and SIGQUIT as in a terminal, whatever the launcher left ignored.
 
@@ -124,7 +129,14 @@ def _foreground_signals() -> None:
     starts with both ignored. The in-process signal tests send SIGINT to this process and
     expect the product's handlers to see it as they do in a foreground run; children get
     their defaults from tests/_proc.py. SIGHUP stays as inherited (``nohup``'s purpose).
+    The first process of a run (xdist's controller) records what the launch ignored in the
+    environment variable :data:`LAUNCH_IGNORED`, which its workers inherit and the check of
+    ``make test-detached`` reads (tests/test_proc.py).
     """
+    ignored = [
+        s.name for s in (signal.SIGINT, signal.SIGQUIT) if signal.getsignal(s) is signal.SIG_IGN
+    ]
+    os.environ.setdefault(LAUNCH_IGNORED, ",".join(ignored))
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if signal.getsignal(signal.SIGQUIT) is signal.SIG_IGN:
