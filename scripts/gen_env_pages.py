@@ -46,7 +46,54 @@ REPRODUCTION = {
     "clustering": "greiff",
 }
 
+API = ROOT / "docs" / "api"
+
 _ROLE = re.compile(r"(?<![\w`{]):(?P<role>[a-z]+(?::[a-z]+)?):`(?P<target>[^`]+)`")
+_PY_ROLES = {"class", "func", "meth", "mod", "attr", "data", "exc", "obj"}
+_AUTOMODULE = re.compile(r"^\.\. automodule:: (?P<module>[\w.]+)\s*$")
+
+
+def heading_slug(title: str) -> str:
+    """The anchor of a Markdown heading, as GitHub and MyST (``myst_heading_anchors``) make it."""
+    return re.sub(r"[^\w\- ]", "", title.strip().lower()).replace(" ", "-")
+
+
+def api_sections(api: Path = API) -> dict[str, str]:
+    """Module -> ``page.md#anchor`` of the API section (a ``##`` heading) documenting it."""
+    out: dict[str, str] = {}
+    for page in sorted(api.glob("*.md")):
+        seen: dict[str, int] = {}
+        anchor = ""
+        for line in page.read_text(encoding="utf-8").splitlines():
+            if line.startswith("#"):
+                slug = heading_slug(line.lstrip("#"))
+                anchor = slug if slug not in seen else f"{slug}-{seen[slug]}"
+                seen[slug] = seen.get(slug, 0) + 1
+            elif (found := _AUTOMODULE.match(line.strip())) and anchor:
+                out.setdefault(found["module"], f"{page.name}#{anchor}")
+    return out
+
+
+def role_markdown(role: str, target: str, sections: dict[str, str]) -> str:
+    """An RST role as plain Markdown that reads on GitHub and cross-references in Sphinx.
+
+    A Python object becomes its name in code, linked to the API section of the module that
+    documents it (``[`FIMSelectionEnv`](../api/families.md#selenvfamiliesfimenv)``), or just
+    code when no API page documents it; any other role stays a MyST role.
+    """
+    kind = role.rsplit(":", 1)[-1]
+    if kind not in _PY_ROLES:
+        return "{" + role + "}`" + target + "`"
+    name = target.lstrip("~").strip()
+    text = name.rsplit(".", 1)[-1] if target.startswith("~") else name
+    if kind in ("func", "meth"):
+        text += "()"
+    parts = name.split(".")
+    for i in range(len(parts), 0, -1):
+        section = sections.get(".".join(parts[:i]))
+        if section is not None:
+            return f"[`{text}`](../api/{section})"
+    return f"`{text}`"
 
 
 def snake(name: str) -> str:
@@ -58,11 +105,14 @@ def snake(name: str) -> str:
 def myst(doc: str) -> str:
     """A docstring in Gymnasium's manual form as MyST Markdown.
 
-    RST roles (``:class:`~x.Y```) become MyST roles (``{class}`~x.Y```), a paragraph ending in
-    ``::`` (an RST literal block follows) ends in ``:``, and the indented literal block after it
-    becomes a fenced block; the ``##`` headings, tables and lists are Markdown already.
+    RST roles of Python objects (``:class:`~x.Y```) become plain Markdown (:func:`role_markdown`:
+    a link to the API section of the module, so that the page reads on GitHub too), other
+    roles MyST roles; a paragraph ending in ``::`` (an RST literal block follows) ends in
+    ``:``, and the indented literal block after it becomes a fenced block; the ``##``
+    headings, tables and lists are Markdown already.
     """
-    doc = _ROLE.sub(lambda m: "{" + m["role"] + "}`" + m["target"] + "`", doc)
+    sections = api_sections()
+    doc = _ROLE.sub(lambda m: role_markdown(m["role"], m["target"], sections), doc)
     lines = doc.splitlines()
     out: list[str] = []
     i = 0
@@ -121,17 +171,19 @@ def family_page(spec: Any) -> str:
     first, _, body = doc.partition("\n")
     ids = [v.env_id for v in spec.versions]
     vector = spec.vector_class.replace(":", ".") if spec.vector_class else None
+    sections = api_sections()
     rows = [
         ("Paper", spec.title),
         ("Make", f'`gymnasium.make("{env_id}")`'),
         (
             "Vector env",
-            f'`gymnasium.make_vec("{env_id}", num_envs=B)`: {{class}}`~{vector}`'
+            f'`gymnasium.make_vec("{env_id}", num_envs=B)`: '
+            + role_markdown("class", f"~{vector}", sections)
             if vector
             else "Gymnasium's `SyncVectorEnv`",
         ),
         ("Ids", ", ".join(f"`{i}`" + (" (deprecated)" if i.endswith("-v0") else "") for i in ids)),
-        ("Env class", f"{{class}}`~{spec.env_class.replace(':', '.')}`"),
+        ("Env class", role_markdown("class", f"~{spec.env_class.replace(':', '.')}", sections)),
         ("Action space", space_rows(env.action_space)),
         ("Observation space", space_rows(env.observation_space)),
         ("Episode length", f"at most {env.spec.max_episode_steps} steps" if env.spec else "-"),
