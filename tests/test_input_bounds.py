@@ -11,8 +11,10 @@ import dataclasses
 import errno
 import json
 import os
+import pickle
 import shutil
 import sys
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -287,3 +289,67 @@ def test_num_workers_ceiling_is_checked_before_agents_or_executors_load() -> Non
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["2", "-"], done.stdout
     _one_error_line(done.stderr, "--num-workers 100000", "ceiling")
+
+
+# --- 6. a hostile torch file is refused in one line naming the file ------------------------
+
+
+class _Payload:
+    """Unpickling this creates ``marker``: stands in for an arbitrary shell command."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (Path.touch, (self.marker,))
+
+
+@pytest.mark.parametrize("saver", ["pickle", "torch.save"])
+def test_hostile_tensor_file_is_one_line_and_never_run(saver: str, tmp_path: Path) -> None:
+    th = pytest.importorskip("torch")
+    from selenv.learned.tensor_load import load_tensors
+
+    marker, pth = tmp_path / "pwned", tmp_path / "m.pth"
+    if saver == "pickle":
+        pth.write_bytes(pickle.dumps({"w": _Payload(marker)}))
+    else:
+        th.save({"w": _Payload(marker)}, pth)
+    with pytest.raises(ValueError) as err:
+        load_tensors(pth, f"weights {pth}", verb="are")
+    message = str(err.value)
+    assert "\n" not in message and len(message) < 400, message
+    assert message.startswith(f"weights {pth} are not a plain tensor file (")
+    assert "nothing in it was run" in message and "Weights only load failed" not in message
+    assert not marker.exists()
+
+
+def test_junk_tensor_file_is_one_line(tmp_path: Path) -> None:
+    pytest.importorskip("torch")
+    from selenv.learned.tensor_load import load_tensors
+
+    for junk in (b"", b"PK\x03\x04junk", b"\x80\x02"):  # empty, a broken zip, a cut pickle
+        with pytest.raises(ValueError, match=r"^x\.pt is not a readable tensor file \(") as err:
+            load_tensors(junk, "x.pt")
+        assert "\n" not in str(err.value)
+
+
+def test_bench_with_a_hostile_policy_pth_exits_2_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("sb3_contrib")
+    from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
+
+    shipped = DEFAULT_CHECKPOINTS["selenv/FIMSelection-v1"]
+    marker, bad = tmp_path / "pwned", tmp_path / "hostile.zip"
+    with zipfile.ZipFile(shipped) as src, zipfile.ZipFile(bad, "w") as dst:
+        for item in src.infolist():
+            if item.filename == "policy.pth":
+                dst.writestr(item.filename, pickle.dumps({"w": _Payload(marker)}))
+            else:
+                dst.writestr(item, src.read(item))
+    shutil.copy(shipped.with_suffix(".json"), bad.with_suffix(".json"))
+    calls = _no_episode(monkeypatch)
+    code = main(["bench", "selenv/FIMSelection-v1", "--agents", f"ppo:{bad}", "--episodes", "1"])
+    assert code == 2 and calls == []
+    _one_error_line(capsys.readouterr().err, str(bad), "policy.pth is not a plain tensor file")
+    assert not marker.exists()

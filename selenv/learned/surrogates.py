@@ -56,6 +56,7 @@ from selenv.atomic import atomic_paths
 from selenv.core.linalg import FloatArray, as_float_array, check_finite
 from selenv.learned.resources import checkpoint_path, read_metadata
 from selenv.learned.surrogate_data import features, n_features
+from selenv.learned.tensor_load import load_tensors
 
 __all__ = [
     "C_SCALE",
@@ -499,13 +500,9 @@ class Surrogate:
                 f"not the one the JSON records (they come from different saves; re-run the "
                 f"training or restore both files)"
             )
-        try:
-            state = th.load(io.BytesIO(blob), map_location="cpu", weights_only=True)
-        except Exception as exc:  # empty, truncated or hostile files alike: refuse
-            msg = (str(exc).splitlines() or [type(exc).__name__])[0]
-            raise ValueError(
-                f"surrogate weights {pt} are not a readable tensor file: {msg}"
-            ) from None
+        state = load_tensors(  # one line if refused, nothing run
+            blob, f"surrogate weights {pt}", verb="are", kind="a readable tensor file"
+        )
         if not isinstance(state, dict):
             raise ValueError(f"surrogate weights {pt} must map parameter names to tensors")
         problem = _weights_disagree(state, spec, meta)

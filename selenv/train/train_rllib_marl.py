@@ -96,6 +96,7 @@ from selenv.learned.rl.training import (
     _set_rng_state,
     run_cli,
 )
+from selenv.learned.tensor_load import load_tensors
 from selenv.untrusted import json_object
 
 __all__ = [
@@ -637,10 +638,9 @@ def read_optimizer_state(json_path: str | Path, meta: dict[str, Any]) -> dict[st
     from selenv.learned.rl.rllib_agent import read_extra_file
 
     raw = read_extra_file(json_path, meta, OPTIMIZER_FILE, MAX_OPTIMIZER_BYTES)
-    try:
-        state = th.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
-    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
-        raise ValueError(f"{OPTIMIZER_FILE} of {json_path} is not plain tensors: {exc}") from exc
+    state = load_tensors(
+        raw, f"{OPTIMIZER_FILE} of {json_path}", kind="plain tensors", junk="plain tensors"
+    )
     if not isinstance(state, dict) or not state:
         raise ValueError(f"{OPTIMIZER_FILE} of {json_path} is not an optimizer state")
     return state

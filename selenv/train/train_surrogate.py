@@ -97,6 +97,7 @@ from selenv.learned.surrogates import (
     barrier_loss,
     n_parameters,
 )
+from selenv.learned.tensor_load import load_tensors
 from selenv.parallel import make_executor
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.untrusted import NotParsedError, loads_json
@@ -510,11 +511,12 @@ def read_resume(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"--resume {path}: no such file")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # truncated, junk or hostile files alike
-        msg = (str(exc).splitlines() or [type(exc).__name__])[0]
-        raise UsageError(f"--resume {path}: not a readable resume state ({msg})") from None
+    try:  # truncated, junk or hostile files alike: one line, nothing run
+        state = load_tensors(
+            path, f"--resume {path}", kind="a readable resume state", junk="a readable resume state"
+        )
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
         raise UsageError(f"--resume {path}: not a resume state of {SCRIPT}")
     return state

@@ -35,6 +35,7 @@ from tqdm.auto import tqdm
 import selenv  # noqa: F401  (registers the envs, also in worker processes)
 from selenv.atomic import atomic_path
 from selenv.learned.rl.views import view_for
+from selenv.learned.tensor_load import load_tensors
 from selenv.untrusted import NotParsedError, loads_json
 
 __all__ = [
@@ -537,10 +538,7 @@ def read_fit_state(path: str | Path, fit: Any) -> FitState | None:
         raise ValueError(f"{extra} is not the optimizer state its checkpoint records")
     if extra.stat().st_size > MAX_OPTIMIZER_BYTES:
         raise ValueError(f"{extra} is larger than {MAX_OPTIMIZER_BYTES} bytes")
-    try:
-        optimizer = th.load(extra, map_location="cpu", weights_only=True)
-    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
-        raise ValueError(f"{extra} is not plain tensors: {exc}") from None
+    optimizer = load_tensors(extra, str(extra), kind="plain tensors", junk="plain tensors")
     if not isinstance(optimizer, dict):
         raise ValueError(f"{extra} does not hold an optimizer state")
     return FitState(done, optimizer)

@@ -53,6 +53,7 @@ from selenv.learned.rl.rllib_env import (
     view_for,
 )
 from selenv.learned.rl.safe_load import checked_layout, scorer_parameters
+from selenv.learned.tensor_load import load_tensors
 
 __all__ = [
     "CHECKPOINT_DIR",
@@ -271,10 +272,7 @@ def read_extra_file(json_path: str | Path, meta: dict[str, Any], key: str, limit
 def _read_weights(json_path: Path, weights: Any) -> dict[str, th.Tensor]:
     """The state_dict named by the JSON's ``weights`` entry, checked (see module docstring)."""
     pth, raw = _checked_file(json_path, weights, "weights", ".pth", MAX_WEIGHTS_BYTES)
-    try:
-        state = th.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
-    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
-        raise ValueError(f"weights {pth} are not a plain tensor file: {exc}") from exc
+    state = load_tensors(raw, f"weights {pth}", verb="are")  # one line if refused
     if not isinstance(state, dict) or not all(
         isinstance(k, str) and isinstance(v, th.Tensor) for k, v in state.items()
     ):

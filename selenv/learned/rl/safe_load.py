@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import io
 import math
 import re
 import zipfile
@@ -59,6 +58,7 @@ from selenv.learned.rl.candidate_policy import (
     make_ppo,
 )
 from selenv.learned.rl.views import N_FEATURES, candidate_space
+from selenv.learned.tensor_load import load_tensors
 
 __all__ = [
     "MAX_CHECKPOINT_BYTES",
@@ -224,12 +224,7 @@ def read_weights(checkpoint: str | Path) -> dict[str, th.Tensor]:
             raw = zf.read(info)
     except (zipfile.BadZipFile, OSError) as exc:
         raise ValueError(f"checkpoint {path} is not a readable zip file: {exc}") from exc
-    try:
-        state = th.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
-    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
-        raise ValueError(
-            f"checkpoint {path}: policy.pth is not a plain tensor file: {exc}"
-        ) from exc
+    state = load_tensors(raw, f"checkpoint {path}: policy.pth")  # one line if refused
     if not isinstance(state, dict) or not all(
         isinstance(k, str) and isinstance(v, th.Tensor) for k, v in state.items()
     ):

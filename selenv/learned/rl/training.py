@@ -52,7 +52,6 @@ import base64
 import contextlib
 import dataclasses
 import hashlib
-import io
 import itertools
 import json
 import os
@@ -86,6 +85,7 @@ from selenv.learned.resources import read_metadata
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
 from selenv.learned.rl.finetune import CriticWarmup, init_from_checkpoint
 from selenv.learned.rl.vec_env import make_native_vec_env
+from selenv.learned.tensor_load import load_tensors
 from selenv.untrusted import json_object
 
 #: the ``--vec-env`` choices
@@ -1038,14 +1038,15 @@ def _restore(model: Any, venv: VecEnv, cfg: PPOConfig, meta: dict[str, Any]) -> 
     try:
         model.policy.load_state_dict(read_weights(path), strict=True)
         raw = _zip_member(path, "policy.optimizer.pth", MAX_OPTIMIZER_BYTES)
-        optimizer = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
-        model.policy.optimizer.load_state_dict(optimizer)
     except (ValueError, RuntimeError, KeyError, TypeError) as exc:
         raise UsageError(f"--resume {path}: cannot load its weights: {exc}") from None
-    except Exception as exc:  # unpickling errors of every kind: refuse, never fall back
-        raise UsageError(
-            f"--resume {path}: policy.optimizer.pth is not plain tensors: {exc}"
-        ) from None
+    try:  # hostile or junk: one line, nothing run
+        optimizer = load_tensors(
+            raw, "policy.optimizer.pth", kind="plain tensors", junk="plain tensors"
+        )
+        model.policy.optimizer.load_state_dict(optimizer)
+    except (ValueError, RuntimeError, KeyError, TypeError) as exc:
+        raise UsageError(f"--resume {path}: {exc}") from None
     done = int(state["num_timesteps"])
     model.num_timesteps = done
     model._n_updates = int(state.get("n_updates", 0))
