@@ -4,10 +4,10 @@ For each family, the training script's own defaults (``Config()`` of ``train_fim
 ``train_landmark_ppo``, ``train_cl_ppo``, ``train_clustering_ppo``: env keywords, candidate
 view, ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, network), two ways:
 
-* **before**: ``DummyVecEnv`` over ``n_envs`` ``gymnasium.make`` envs in their candidate view
-  (the scripts' path until the native vector envs), and for ReceiverClustering the per-edit MLP
-  scorer it trained with (``--scorer mlp``);
-* **after**: the script's default now, ``vec_env="native"`` (``NativeVecEnv`` over
+* **DummyVecEnv** (``"before"`` in the JSON): ``DummyVecEnv`` over ``n_envs``
+  ``gymnasium.make`` envs in their candidate view, and for ReceiverClustering the per-edit MLP
+  scorer (``--scorer mlp``);
+* **native** (``"after"``): the script's default, ``vec_env="native"`` (``NativeVecEnv`` over
   ``gymnasium.make_vec``) and for ReceiverClustering the factorised edit scorer.
 
 fps = environment steps / wall seconds of ``model.learn(rollouts * n_envs * n_steps)`` (rollout
@@ -128,7 +128,7 @@ def main() -> None:
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     out: dict[str, Any] = {}
-    print("| env (script defaults) | before: DummyVecEnv | after: native | after / before |")
+    print("| env (script defaults) | DummyVecEnv | native | native / DummyVecEnv |")
     print("|---|---|---|---|")
     with limit_threads(blas=1, torch=1):
         torch.set_num_threads(1)
