@@ -353,3 +353,66 @@ def test_bench_with_a_hostile_policy_pth_exits_2_in_one_line(
     assert code == 2 and calls == []
     _one_error_line(capsys.readouterr().err, str(bad), "policy.pth is not a plain tensor file")
     assert not marker.exists()
+
+
+# --- 2. make_vec estimates its memory before allocating ------------------------------------
+
+
+@pytest.mark.parametrize(
+    "env_id", ["selenv/FIMSelection-v1", "selenv/ReceiverClustering-v1", "selenv/CLScheduling-v1"]
+)
+def test_make_vec_refuses_a_batch_that_does_not_fit_before_allocating(
+    env_id: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import gymnasium as gym
+
+    from selenv.envs import vector_memory
+
+    cls = type(gym.make_vec(env_id, num_envs=1))
+    built: list[int] = []
+    init = cls.__init__
+
+    def recorded(self: Any, num_envs: int = 1, *args: Any, **kwargs: Any) -> None:
+        built.append(num_envs)
+        init(self, num_envs, *args, **kwargs)
+
+    monkeypatch.setattr(cls, "__init__", recorded)
+    monkeypatch.setattr(vector_memory, "available_memory", lambda: (64 * 2**20, "MemAvailable"))
+    with pytest.raises(ValueError) as err:
+        gym.make_vec(env_id, num_envs=65536)
+    message = str(err.value)
+    assert message.startswith("num_envs=65536: ") and "\n" not in message
+    assert "would need about" in message and "64.0 MB of memory available" in message
+    assert built == [1, 2, 8]  # only the warm-up and the two small probes were built
+
+
+def test_make_vec_builds_a_batch_that_fits_and_small_batches_are_not_probed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import gymnasium as gym
+
+    from selenv.envs import vector_memory
+
+    estimates: list[int | None] = []
+    check = vector_memory.check_vector_memory
+
+    def spy(*args: Any, **kwargs: Any) -> int | None:
+        estimates.append(check(*args, **kwargs))
+        return estimates[-1]
+
+    monkeypatch.setattr("selenv.envs.vector.check_vector_memory", spy)
+    monkeypatch.setattr(vector_memory, "available_memory", lambda: (2**40, "MemAvailable"))
+    venv = gym.make_vec("selenv/FIMSelection-v1", num_envs=vector_memory.PROBE_ABOVE)
+    assert venv.num_envs == vector_memory.PROBE_ABOVE and estimates == []
+    venv = gym.make_vec("selenv/FIMSelection-v1", num_envs=vector_memory.PROBE_ABOVE + 1)
+    assert venv.num_envs == vector_memory.PROBE_ABOVE + 1
+    assert len(estimates) == 1 and estimates[0] is not None and estimates[0] > 0
+
+
+def test_available_memory_reads_the_machine() -> None:
+    from selenv.envs.vector_memory import available_memory, human_bytes
+
+    free, source = available_memory()
+    assert free is None or free > 0
+    assert source in ("MemAvailable", "the cgroup's memory.max")
+    assert human_bytes(1536) == "1.5 KB" and human_bytes(3 * 2**30) == "3.0 GB"

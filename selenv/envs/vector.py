@@ -29,6 +29,9 @@ What this base does, the same way for every family:
 * **Masks**: :meth:`action_masks` returns the ``(B, ...)`` masks (MaskablePPO's protocol).
 * **Rendering**: ``render()`` returns the frames of every sub-env (a tuple, like
   ``SyncVectorEnv``); :meth:`render_env` draws one.
+* **Memory**: above 256 sub-envs the memory ``num_envs`` needs is estimated before anything
+  is allocated (:mod:`selenv.envs.vector_memory`); a ``ValueError`` naming ``num_envs``, the
+  estimate and the available memory refuses a batch that would not fit.
 * **Threads**: ``reset`` and ``step`` run with one BLAS thread (:func:`selenv.threads.small_blas`:
   the batched calls are many small matrices, which BLAS threads only slow down).
 """
@@ -44,6 +47,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from selenv.envs.vector_memory import PROBE_ABOVE, check_vector_memory
 from selenv.scenarios.validation import ArgumentTypeError, describe
 from selenv.threads import small_blas
 
@@ -105,6 +109,20 @@ class BatchedVectorEnv(VectorEnv):
         "autoreset_mode": AutoresetMode.NEXT_STEP,
         "render_modes": ["rgb_array"],
     }
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> BatchedVectorEnv:
+        """Check the memory a large ``num_envs`` needs before ``__init__`` allocates it.
+
+        Above :data:`selenv.envs.vector_memory.PROBE_ABOVE` sub-envs the memory is estimated
+        (:func:`~selenv.envs.vector_memory.check_vector_memory`) and a ``ValueError`` naming
+        ``num_envs``, the estimate and the available memory is raised when it does not fit.
+        """
+        num_envs = kwargs.get("num_envs", args[0] if args else 1)
+        valid = isinstance(num_envs, int | np.integer) and not isinstance(num_envs, bool)
+        if valid and PROBE_ABOVE < num_envs <= MAX_NUM_ENVS:
+            rest = {k: v for k, v in kwargs.items() if k != "num_envs"}
+            check_vector_memory(cls, int(num_envs), tuple(args[1:]), rest)
+        return super().__new__(cls)
 
     def _setup(
         self,
