@@ -416,3 +416,68 @@ def test_available_memory_reads_the_machine() -> None:
     assert free is None or free > 0
     assert source in ("MemAvailable", "the cgroup's memory.max")
     assert human_bytes(1536) == "1.5 KB" and human_bytes(3 * 2**30) == "3.0 GB"
+
+
+# --- 3. the raw-array FIM solvers estimate their memory before copying ---------------------
+
+_N = 10**8
+
+
+def _solver_calls() -> list[tuple[str, tuple[Any, ...]]]:
+    import numpy as np
+
+    Q0 = np.eye(4)
+    H = np.broadcast_to(np.ones((1, 4)), (_N, 4))  # 32 bytes until something copies it
+    R = np.broadcast_to(np.ones(1), (_N,))
+    G = np.broadcast_to(np.ones((1, 2, 4)), (_N, 2, 4))
+    raw, white = (Q0, H, R, 3), (Q0, G, 3)
+    return [
+        ("greedy", raw),
+        ("lazy_greedy", raw),
+        ("swap", raw),
+        ("brute_force", raw),
+        ("greedy_whitened", white),
+        ("lazy_greedy_whitened", white),
+        ("swap_whitened", white),
+        ("brute_force_whitened", white),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("name", "args"), _solver_calls(), ids=lambda v: v if isinstance(v, str) else ""
+)
+def test_fim_solvers_refuse_a_huge_broadcast_pool_before_copying(
+    name: str, args: tuple[Any, ...], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import tracemalloc
+
+    from selenv import memory
+    from selenv.agents import fim_solvers
+
+    monkeypatch.setattr(memory, "available_memory", lambda: (2**30, "MemAvailable"))
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError) as err:
+            getattr(fim_solvers, name)(*args)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    message = str(err.value)
+    assert f"N={_N:,} candidates" in message and "need about" in message, message
+    assert "1.0 GB of memory available" in message
+    assert peak < 32 * 2**20, f"{name} allocated {peak:,} bytes before refusing"
+
+
+def test_small_pools_never_read_the_available_memory(monkeypatch: pytest.MonkeyPatch) -> None:
+    import numpy as np
+
+    from selenv import memory
+    from selenv.agents import fim_solvers
+
+    def unread() -> tuple[int | None, str]:
+        raise AssertionError("a small pool read the available memory")
+
+    monkeypatch.setattr(memory, "available_memory", unread)
+    H = np.arange(20.0).reshape(10, 2) / 10 + np.eye(10, 2)
+    assert len(fim_solvers.greedy(np.eye(2), H, np.ones(10), 2).indices) == 2
+    assert fim_solvers.working_bytes(_N, 1, 4) == 8 * _N * (16 + 3 + 32 + 4)

@@ -38,6 +38,10 @@ the union of the pools, each pick the best gain among the pools with budget left
 Fisher, Nemhauser & Wolsey 1978, log det only) and ``partition_swap_whitened`` (then swaps
 within a pool); all three take ``objective`` too.
 
+Memory: before anything is copied, a pool whose working arrays (:func:`working_bytes`, from
+``N``, ``m`` and ``d``) would exceed the memory available now is a ``ValueError`` naming ``N``
+and the estimate (a ``np.broadcast_to`` view of 10^8 candidates costs nothing until copied).
+
 Validation: the raw-array solvers go through :func:`~selenv.core.information.as_candidates`
 (real types only: complex, bool, str, object raise ``TypeError``; shapes name the argument
 that disagrees with the others; finiteness, SPD-ness and the valid range of
@@ -82,6 +86,7 @@ from selenv.core.objectives import (
     swap_criteria,
 )
 from selenv.families.clustering.labels import check_int
+from selenv.memory import refuse_if_larger
 from selenv.threads import small_blas
 
 __all__ = [
@@ -104,6 +109,47 @@ __all__ = [
 
 #: default size guard of :func:`brute_force` (number of subsets evaluated)
 MAX_BRUTE_FORCE_SUBSETS = 2_000_000
+
+
+#: working memory below which a pool is not checked against the available memory
+_CHECK_ABOVE_BYTES = 64 * 2**20
+
+
+def working_bytes(N: int, m: int, d: int) -> int:
+    """The memory a solver may hold at once for a pool of ``N`` candidates of ``m x d``.
+
+    float64 arrays of the validated ``H`` and the whitened ``G`` (2 N m d), their temporaries
+    (2 N m d), the broadcast, factored and validated ``R`` (3 N m^2), per-candidate ``d x d``
+    information matrices and gain states (2 N d^2) and per-candidate vectors (4 N).
+    """
+    return 8 * N * (4 * m * d + 3 * m * m + 2 * d * d + 4)
+
+
+def _check_pool_memory(pool: object, name: str) -> None:
+    """Refuse a pool (``H`` or ``G``) whose solver working memory would not fit, before copying.
+
+    The shape is read without copying an array (a broadcast view of 10^8 candidates is a few
+    bytes until something copies it); anything without a usable shape is left to the
+    validation that follows.
+
+    Raises:
+        ValueError: naming ``N``, ``m``, ``d``, the estimate and the available memory.
+    """
+    try:
+        shape = np.shape(pool)
+    except (ValueError, TypeError):  # ragged or odd input: the checks that follow name it
+        return
+    if len(shape) == 2:
+        (N, d), m = shape, 1
+    elif len(shape) == 3:
+        N, m, d = shape
+    else:
+        return
+    estimate = working_bytes(N, m, d)
+    if estimate > _CHECK_ABOVE_BYTES:  # small pools (every env step) skip reading the memory
+        refuse_if_larger(
+            estimate, f"{name} has N={N:,} candidates of {m} x {d}: the solver's working arrays"
+        )
 
 
 @dataclass(frozen=True)
@@ -201,6 +247,7 @@ def greedy_whitened(
         ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
             [0, N]; an unknown ``objective``; a bad ``interest``.
     """
+    _check_pool_memory(G, "G")  # before any copy of a (maybe broadcast) pool
     if type(objective) is str and objective == "logdet" and interest is None:  # one validation
         Q0_a, G_a = whitened_pool(Q0, G)
         return _greedy_logdet(Q0_a, G_a, cholesky_spd(Q0_a, "Q0"), budget)
@@ -274,6 +321,7 @@ def lazy_greedy_whitened(
         TypeError, ValueError: as :func:`greedy_whitened`; ``ValueError`` for an
             ``objective`` other than ``"logdet"``.
     """
+    _check_pool_memory(G, "G")  # before any copy of a (maybe broadcast) pool
     _refuse_lazy(objective)
     check_interest(interest, 0, "logdet")
     state = LogDetGainState(Q0, G, track_gains=True)  # validates Q0 and G
@@ -326,6 +374,7 @@ def brute_force_whitened(
             [0, N], or ``C(N, budget) > max_subsets`` (the size guard); an unknown
             ``objective``; a bad ``interest``.
     """
+    _check_pool_memory(G, "G")  # before any copy of a (maybe broadcast) pool
     Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
     objective, idx = _objective(objective, interest, G.shape[2])
@@ -423,6 +472,7 @@ def swap_whitened(
             [0, N]; ``initial`` not ``budget`` distinct indices in [0, N); ``tol`` not a
             finite number >= 0.
     """
+    _check_pool_memory(G, "G")  # before any copy of a (maybe broadcast) pool
     Q0, G = whitened_pool(Q0, G)
     N = G.shape[0]
     budget = _check_budget(budget, N)
@@ -489,6 +539,7 @@ def greedy(
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
             [0, N]; an unknown ``objective``; a bad ``interest``.
     """
+    _check_pool_memory(H, "H")  # before any copy of a (maybe broadcast) pool
     if type(objective) is str and objective == "logdet" and interest is None:  # fast path
         return _greedy_logdet(*_as_candidates(Q0, H, R), budget)
     Q0_a, G = as_candidates(Q0, H, R)
@@ -510,6 +561,7 @@ def lazy_greedy(
             [0, N]; ``objective`` not ``"logdet"``.
     """
     _refuse_lazy(objective)
+    _check_pool_memory(H, "H")  # before any copy of a (maybe broadcast) pool
     Q0_a, G = as_candidates(Q0, H, R)
     return lazy_greedy_whitened(Q0_a, G, budget)
 
@@ -533,6 +585,7 @@ def brute_force(
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
             [0, N]; an unknown ``objective``; a bad ``interest``.
     """
+    _check_pool_memory(H, "H")  # before any copy of a (maybe broadcast) pool
     Q0_a, G = as_candidates(Q0, H, R)
     return brute_force_whitened(
         Q0_a, G, budget, max_subsets=max_subsets, objective=objective, interest=interest
@@ -558,6 +611,7 @@ def swap(
         ValueError: see :func:`~selenv.core.information.as_candidates`; ``budget`` outside
             [0, N]; an unknown ``objective``; a bad ``interest``.
     """
+    _check_pool_memory(H, "H")  # before any copy of a (maybe broadcast) pool
     Q0_a, G = as_candidates(Q0, H, R)
     return swap_whitened(
         Q0_a, G, budget, max_rounds=max_rounds, objective=objective, interest=interest

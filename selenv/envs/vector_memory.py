@@ -9,8 +9,9 @@ after a ``B = 1`` warm-up that absorbs one-time caches), so it follows every fam
 configuration without a formula to keep in step with the code; the estimate is
 ``margin * (peak(2) + (B - 2) * rate)``.
 
-When that estimate exceeds the memory available now (:func:`available_memory`: Linux
-``MemAvailable``, or ``os.sysconf`` pages, capped by a cgroup v2 ``memory.max``), the
+When that estimate exceeds the memory available now
+(:func:`selenv.memory.available_memory`: Linux ``MemAvailable``, or ``os.sysconf`` pages,
+capped by a cgroup v2 ``memory.max``), the
 constructor raises a ``ValueError`` naming ``num_envs``, the estimate and the available memory
 instead of running into a ``MemoryError`` seconds (and gigabytes) later.
 """
@@ -18,10 +19,10 @@ instead of running into a ``MemoryError`` seconds (and gigabytes) later.
 from __future__ import annotations
 
 import contextlib
-import os
 import tracemalloc
-from pathlib import Path
 from typing import Any
+
+from selenv.memory import available_memory, human_bytes
 
 __all__ = ["MARGIN", "PROBE_ABOVE", "available_memory", "check_vector_memory", "human_bytes"]
 
@@ -31,48 +32,6 @@ PROBE_ABOVE = 256
 MARGIN = 1.25
 #: the two small batch sizes the rate is measured on
 _PROBE_SIZES = (2, 8)
-
-
-def human_bytes(n: float) -> str:
-    """``1.5 GB``-style size (powers of 1024, one decimal)."""
-    for unit in ("B", "KB", "MB", "GB"):
-        if abs(n) < 1024 or unit == "GB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} GB"  # pragma: no cover
-
-
-def _meminfo_available() -> int | None:
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def _cgroup_room() -> int | None:
-    """What the cgroup v2 memory limit of this process still allows (``None``: no limit)."""
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if limit == "max":
-            return None
-        used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
-        return max(int(limit) - used, 0)
-    except (OSError, ValueError):
-        return None
-
-
-def available_memory() -> tuple[int | None, str]:
-    """``(bytes available now, where that number comes from)``; ``None`` when unknown."""
-    free, room = _meminfo_available(), _cgroup_room()
-    if room is not None and (free is None or room < free):
-        return room, "the cgroup's memory.max"
-    return free, "MemAvailable"
 
 
 def _traced_peak(cls: type, num_envs: int, args: tuple[Any, ...], kwargs: dict[str, Any]) -> int:
