@@ -49,7 +49,10 @@ toc_object_entries = False
 
 html_theme = "furo"
 html_title = f"selenv {release}"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+# code blocks wrap (commands, Python) or scroll with a visible bar (text output): no long
+# line is cut off at the page edge
+html_css_files = ["selenv.css"]
 html_theme_options = {"navigation_with_keys": True}
 
 # linkcheck (make docs-linkcheck-external) follows the external links; the internal ones are
