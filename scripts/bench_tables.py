@@ -282,7 +282,8 @@ def page_blocks(doc: dict[str, Any]) -> dict[str, str]:
     prov = doc["provenance"]
     date, commit = _date_commit(doc)
     packages = ", ".join(f"{k} {v}" for k, v in prov.get("packages", {}).items() if v)
-    argv = " ".join(str(a) for a in prov.get("argv", []))
+    args = [str(a) for a in prov.get("argv", [])]
+    argv = " ".join([Path(args[0]).name, *args[1:]] if args else [])  # no machine's paths
     run = (
         f"Run of {date} at commit {commit} (selenv {prov.get('selenv_version')}, Python "
         f"{prov.get('python')} on {prov.get('platform')}; {packages}); command: `{argv}`."
@@ -360,13 +361,19 @@ def _first_difference(old: str, new: str) -> str:
     return f"{len(a)} lines, the JSON gives {len(b)}"
 
 
+def _show(path: str | Path) -> str:
+    """``path`` relative to the repository when inside it (how messages name files)."""
+    resolved = Path(path).resolve()
+    return str(resolved.relative_to(ROOT)) if resolved.is_relative_to(ROOT) else str(path)
+
+
 def check(
     json_path: str | Path = JSON_PATH, readme: str | Path = README, page: str | Path = PAGE
 ) -> list[str]:
     """One line per file whose generated parts disagree with the JSON (empty: all agree)."""
     return [
-        f"{path}: generated part differs from {json_path} ({_first_difference(old, new)}); "
-        f"run {COMMAND}"
+        f"{_show(path)}: generated part differs from {_show(json_path)} "
+        f"({_first_difference(old, new)}); run {COMMAND}"
         for path, (old, new) in expected(json_path, readme, page).items()
         if old != new
     ]
