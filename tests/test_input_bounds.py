@@ -481,3 +481,38 @@ def test_small_pools_never_read_the_available_memory(monkeypatch: pytest.MonkeyP
     H = np.arange(20.0).reshape(10, 2) / 10 + np.eye(10, 2)
     assert len(fim_solvers.greedy(np.eye(2), H, np.ones(10), 2).indices) == 2
     assert fim_solvers.working_bytes(_N, 1, 4) == 8 * _N * (16 + 3 + 32 + 4)
+
+
+# --- 7. a killed resource tracker: no stdlib tracebacks ------------------------------------
+
+_TRACKER_SCRIPT = """
+import os, signal
+from multiprocessing import resource_tracker
+
+from selenv.parallel import ProcessExecutor
+
+
+def square(x):
+    return x * x
+
+
+if __name__ == "__main__":
+    with ProcessExecutor(num_workers=2) as pool:
+        first = pool.map(square, [1, 2, 3], progress=False)
+        os.kill(resource_tracker._resource_tracker._pid, signal.SIGKILL)
+        second = pool.map(square, [4, 5], progress=False)
+    print(first + second)
+"""
+
+
+def test_a_killed_resource_tracker_prints_no_traceback(tmp_path: Path) -> None:
+    if sys.platform == "win32":  # pragma: no cover
+        pytest.skip("no resource tracker on Windows")
+    script = tmp_path / "tracker_killed.py"
+    script.write_text(_TRACKER_SCRIPT)
+    done = run([sys.executable, str(script)], capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["[1,", "4,", "9,", "16,", "25]"]
+    assert "Traceback" not in done.stderr and "KeyError" not in done.stderr, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) <= 1 and all("resource tracker" in line for line in lines), done.stderr

@@ -75,6 +75,7 @@ from typing import Any, TypeVar
 from tqdm import tqdm
 
 from selenv.exits import DeferredSignals, hold_signals
+from selenv.parallel import _tracker_guard
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.parallel.ray_session import ray_session
 
@@ -387,6 +388,7 @@ class ProcessExecutor(Executor):
 
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
+            _tracker_guard.install()  # a killed resource tracker: one warning, no tracebacks
             with _single_threaded_children():
                 self._pool = ProcessPoolExecutor(
                     self.num_workers,
