@@ -252,7 +252,7 @@ def _lines(stderr: str) -> list[str]:
 #: seconds after the handler is installed: 0 is during ``import selenv`` (before the agents
 #: load); the later ones fall in the agents' imports and checkpoint loads or after the first
 #: episode, wherever this machine's speed puts them (the outcome must not depend on it)
-DELAYS = (0.0, 0.4, 1.2, 2.5)
+DELAYS = (0.0, 1.2, 2.5)
 
 
 @linux_only
