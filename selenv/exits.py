@@ -20,9 +20,10 @@ exceptions reach :func:`guarded_main`; the line then says what was kept.
 Signals never raise into native code: the handlers installed here raise only outside the
 :func:`hold_signals` regions (imports of torch or Ray, building agents, loading checkpoints, a
 command's start-up), which raise a signal received inside them when they end (see
-:mod:`selenv._signals`). A process started with SIGINT ignored keeps it ignored. :func:`check_size`
-checks a typed size against its valid range and its work ceiling before any work (the usage
-error names the option and, for a ceiling, the option that lifts it).
+:mod:`selenv._signals`). A process started with SIGINT ignored keeps it ignored.
+
+:func:`check_size` checks a typed size against its valid range and its work ceiling before
+any work (the usage error names the option and, for a ceiling, the option that lifts it).
 """
 
 from __future__ import annotations

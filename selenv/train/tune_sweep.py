@@ -296,8 +296,9 @@ def _rearm(stop: DeferredSignals) -> None:
 
     Ray installs a SIGTERM handler (``sys.exit``) and, in its core worker, a native crash
     handler; the ones ``stop`` saved when it was entered are still restored when it exits.
+    Only the signals ``stop`` handles: a SIGINT ignored on entry (``nohup``) stays ignored.
     """
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum in list(stop._previous):
         try:
             signal.signal(signum, stop._handle)
         except ValueError:  # not the main thread: nothing was installed either
