@@ -319,7 +319,7 @@ def _parse(cls: type, key: str, text: str, option: str) -> Any:
         if key in POSITIVE and not value > 0:
             raise ValueError("expected a value > 0")
         if key == "env_kwargs":  # size and nesting bounded before parsing
-            json_object(text, "a JSON object")
+            json_object(text, "env_kwargs")
         if key == "hidden" and not all(int(h) > 0 for h in text.split(",")):
             raise ValueError("expected comma-separated layer widths > 0")
         if key == "vec_env" and text not in ("native", "dummy", "subproc"):
@@ -332,7 +332,7 @@ def _parse(cls: type, key: str, text: str, option: str) -> Any:
             if text not in ALGORITHMS:
                 raise ValueError(f"expected one of {sorted(ALGORITHMS)}")
     except ValueError as exc:  # json.JSONDecodeError is a ValueError
-        raise UsageError(f"{option} {key}={text!r}: not a valid {typ} ({exc})") from None
+        raise UsageError(f"{option} {key}={text!r:.200}: not a valid {typ} ({exc})") from None
     return value
 
 
