@@ -131,3 +131,19 @@ def test_env_keyword_stranger_is_listed_without_a_question() -> None:
     with pytest.raises(TypeError, match="unexpected keyword argument 'colour'") as exc:
         gym.make(FIM, colour="red")
     assert "did you mean" not in str(exc.value) and "known: " in str(exc.value)
+
+
+def test_vector_env_keyword_typo_is_a_type_error_with_a_suggestion() -> None:
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'budgt'.*'budget'\?"):
+        gym.make_vec(FIM, num_envs=2, budgt=3)
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'horizn'.*'horizon'\?"):
+        gym.make_vec(RC, num_envs=2, horizn=3)
+
+
+def test_pettingzoo_keyword_typo_is_a_type_error_with_a_suggestion() -> None:
+    from selenv.multiagent import fim_selection_v0, receiver_clustering_v1
+
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'budgts'.*'budgets'\?"):
+        fim_selection_v0.parallel_env(budgts=3)
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'horizn'.*'horizon'\?"):
+        receiver_clustering_v1.parallel_env(horizn=3)

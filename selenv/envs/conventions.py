@@ -1,7 +1,7 @@
 """Constructor conventions shared by every env: keywords, ``render_mode``, ``spec``.
 
 * an unknown keyword is a ``TypeError`` with a "did you mean" for a close one
-  (:func:`check_known_keywords`, :class:`EpisodeLengthSpec`; Python's convention,
+  (:func:`check_known_keywords`, :class:`KnownKeywords`; Python's convention,
   which ``gymnasium.make``, SB3's ``make_vec_env`` and TorchRL rely on), a bad value a
   ``ValueError`` naming the argument;
 * ``render_mode`` is one of ``metadata["render_modes"]`` or ``None`` (:func:`check_render_mode`);
@@ -22,6 +22,7 @@ from selenv.suggest import with_suggestion
 
 __all__ = [
     "EpisodeLengthSpec",
+    "KnownKeywords",
     "check_known_keywords",
     "check_render_mode",
     "named_parameters",
@@ -67,7 +68,25 @@ def check_render_mode(render_mode: Any, metadata: dict[str, Any]) -> str | None:
     return render_mode
 
 
-class EpisodeLengthSpec:
+class KnownKeywords:
+    """Mixin (put it first among the bases): unknown keywords are refused with a "did you mean".
+
+    For a constructor with a fixed signature, whose unknown keywords Python itself would
+    refuse; one that takes ``**config`` checks them itself with :func:`check_known_keywords`.
+    The check runs in ``__new__``, before ``__init__``: the ``TypeError`` keeps Python's
+    wording (``Env.__init__() got an unexpected keyword argument 'x'``), then suggests the
+    close keywords and lists the known ones.
+    """
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
+        """Check ``kwargs`` against the keywords of ``cls.__init__``, then create the object."""
+        params = inspect.signature(cls.__init__).parameters.values()
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            check_known_keywords(kwargs, named_parameters(cls), f"{cls.__name__}.__init__()")
+        return super().__new__(cls)
+
+
+class EpisodeLengthSpec(KnownKeywords):
     """Mixin (put it before ``gymnasium.Env``): the spec reports the episode length.
 
     ``gymnasium.make`` stores a spec with ``max_episode_steps=None`` on the unwrapped env; the
@@ -80,18 +99,6 @@ class EpisodeLengthSpec:
     #: the longest possible episode, in ``step`` calls (set by the env's ``__init__``)
     max_episode_steps: int
     _spec: EnvSpec | None = None
-
-    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
-        """Refuse unknown keywords, with a "did you mean", before ``__init__`` runs.
-
-        Only for an ``__init__`` with a fixed signature (one that takes ``**config`` checks
-        its keywords itself with :func:`check_known_keywords`); the ``TypeError`` keeps
-        Python's wording, ``Env.__init__() got an unexpected keyword argument 'x'``.
-        """
-        params = inspect.signature(cls.__init__).parameters.values()
-        if not any(p.kind is p.VAR_KEYWORD for p in params):
-            check_known_keywords(kwargs, named_parameters(cls), f"{cls.__name__}.__init__()")
-        return super().__new__(cls)
 
     @property
     def spec(self) -> EnvSpec | None:

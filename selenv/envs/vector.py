@@ -47,6 +47,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from selenv.envs.conventions import KnownKeywords
 from selenv.envs.vector_memory import PROBE_ABOVE, check_vector_memory
 from selenv.scenarios.validation import ArgumentTypeError, describe
 from selenv.threads import small_blas
@@ -90,7 +91,7 @@ def merge_infos(infos: dict[str, Any], new: dict[str, Any], idx: np.ndarray, n: 
         infos["_" + key][idx] = True
 
 
-class BatchedVectorEnv(VectorEnv):
+class BatchedVectorEnv(KnownKeywords, VectorEnv):
     """Base of the families' native vector envs (see the module docstring).
 
     Subclasses call :meth:`_setup` from ``__init__`` and implement:
@@ -122,7 +123,7 @@ class BatchedVectorEnv(VectorEnv):
         if valid and PROBE_ABOVE < num_envs <= MAX_NUM_ENVS:
             rest = {k: v for k, v in kwargs.items() if k != "num_envs"}
             check_vector_memory(cls, int(num_envs), tuple(args[1:]), rest)
-        return super().__new__(cls)
+        return super().__new__(cls, *args, **kwargs)  # KnownKeywords: unknown keywords
 
     def _setup(
         self,

@@ -121,7 +121,7 @@ from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from selenv.envs.actions import InvalidActionRule, check_discrete
-from selenv.envs.conventions import check_render_mode
+from selenv.envs.conventions import KnownKeywords, check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.families.clustering.env import (
     clustering_config,
@@ -192,7 +192,7 @@ def resolve_moves(
     return new, accepted
 
 
-class ReceiverClusteringParallelEnv(ParallelEnv):
+class ReceiverClusteringParallelEnv(KnownKeywords, ParallelEnv):
     """Parallel multi-agent receiver clustering; see the module docstring for the manual.
 
     Args:

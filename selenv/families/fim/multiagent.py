@@ -78,7 +78,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from selenv.core.information import LogDetGainState
 from selenv.envs.actions import InvalidActionRule, check_discrete
-from selenv.envs.conventions import check_render_mode
+from selenv.envs.conventions import KnownKeywords, check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.families.fim.env import (
     candidate_features,
@@ -94,7 +94,7 @@ __all__ = ["FIMSelectionParallelEnv", "env", "parallel_env", "raw_env"]
 MODES = ("independent", "cooperative")
 
 
-class FIMSelectionParallelEnv(ParallelEnv):
+class FIMSelectionParallelEnv(KnownKeywords, ParallelEnv):
     """Parallel multi-agent FIM selection; see the module docstring for the manual.
 
     Args:
