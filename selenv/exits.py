@@ -18,7 +18,7 @@ Commands that keep partial work (an interrupted bench, a training run) do so bef
 exceptions reach :func:`guarded_main`; the line then says what was kept.
 
 Signals never raise into native code: the handlers installed here raise only outside the
-:func:`hold_signals` regions (imports of torch or Ray, building agents, loading checkpoints, a
+:func:`hold_signals` regions (torch imports, building agents, loading checkpoints, a
 command's start-up), which raise a signal received inside them when they end (see
 :mod:`selenv._signals`). A process started with SIGINT ignored keeps it ignored.
 

@@ -1,7 +1,7 @@
 """Signals never raise into native code, reach the ``selenv`` process early, keep SIGINT ignored.
 
 In this process: a signal received inside :func:`selenv.exits.hold_signals` (imports, agent
-building, Ray's start) is raised when the region ends, not where it arrived; a process that
+building) is raised when the region ends, not where it arrived; a process that
 ignores SIGINT keeps ignoring it. In real ``python -m selenv bench`` children (every one with
 explicit signal dispositions and a deadline on every wait, see ``_proc``): SIGTERM at several
 points of the start-up always ends with exit 143, one line and no lock or temporary file; a
@@ -27,7 +27,6 @@ from selenv import _signals
 from selenv.agents import AGENTS
 from selenv.agents.base import AgentSpec, make
 from selenv.exits import DeferredSignals, Terminated, hold_signals, sigterm_raises
-from selenv.parallel import executors
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = "selenv/FIMSelection-v1"
@@ -122,26 +121,6 @@ def test_make_holds_signals_while_the_agent_is_built(monkeypatch: pytest.MonkeyP
     with sigterm_raises(), pytest.raises(Terminated):
         make("signal_probe", ENV)
     assert built == ["finished"]
-
-
-def test_ray_start_holds_signals_and_stops_the_session(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A SIGTERM while Ray starts: Ray comes up, is shut down again, then Terminated."""
-    events: list[str] = []
-
-    class Session:
-        def __enter__(self) -> object:
-            os.kill(os.getpid(), signal.SIGTERM)
-            events.append("up")
-            return object()
-
-        def __exit__(self, *exc: object) -> None:
-            events.append("down")
-
-    monkeypatch.setattr(executors, "ray_session", lambda *a, **k: Session())
-    executor = executors.RayExecutor(num_workers=1)
-    with sigterm_raises(), pytest.raises(Terminated):
-        executor.start()
-    assert events == ["up", "down"]
 
 
 def test_deferred_signals_second_signal_waits_for_a_held_region() -> None:

@@ -74,7 +74,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from selenv.exits import DeferredSignals, hold_signals
+from selenv.exits import DeferredSignals
 from selenv.parallel import _tracker_guard
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.parallel.ray_session import ray_session
@@ -688,13 +688,8 @@ class RayExecutor(Executor):
         """Start or join Ray now (idempotent)."""
         if self._ray is None:
             session = ray_session(self.address, None if self.address else self._num_workers)
-            try:
-                with hold_signals():  # importing and starting Ray: a signal waits until it is up
-                    self._ray = session.__enter__()
-                    self._session = session
-            except BaseException:  # a signal received meanwhile: stop the Ray just started
-                self.close()
-                raise
+            self._ray = session.__enter__()
+            self._session = session
 
     def __enter__(self) -> RayExecutor:
         self.start()
