@@ -40,7 +40,9 @@ test: $(STAMP)
 # background job of a non-interactive shell, which starts with SIGINT and SIGQUIT ignored (as
 # on some CI runners). Not wrapped in `timeout` (that resets the dispositions and hides the
 # problem): pytest-timeout is the hang guard. The log is printed; the exit code is pytest's.
-DETACHED_TESTS := tests/test_proc.py tests/test_atomic.py tests/test_bench_faults.py \
+# `make test-detached DETACHED_TESTS=tests` runs the whole suite that way (CI launches
+# `make test` itself as such a background job: .ci/run).
+DETACHED_TESTS ?= tests/test_proc.py tests/test_atomic.py tests/test_bench_faults.py \
 	tests/test_ray_faults.py tests/test_ranking_resume.py tests/test_training_faults.py \
 	tests/test_rllib.py::test_interrupted_training_keeps_the_last_completed_iteration \
 	tests/test_surrogate_faults.py::test_signal_keeps_best_weights_and_resume_equals_an_uninterrupted_run \
