@@ -57,8 +57,10 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from selenv.core.information import (
     LogDetGainState,
@@ -136,7 +138,7 @@ def _check_pool_memory(pool: object, name: str) -> None:
         ValueError: naming ``N``, ``m``, ``d``, the estimate and the available memory.
     """
     try:
-        shape = np.shape(pool)
+        shape = np.shape(cast(ArrayLike, pool))
     except (ValueError, TypeError):  # ragged or odd input: the checks that follow name it
         return
     if len(shape) == 2:
