@@ -291,6 +291,42 @@ def test_num_workers_ceiling_is_checked_before_agents_or_executors_load() -> Non
     _one_error_line(done.stderr, "--num-workers 100000", "ceiling")
 
 
+@pytest.mark.parametrize(
+    ("script", "option"),
+    [
+        ("train_cl_cem", "--workers"),
+        ("train_cl_expert", "--workers"),
+        ("train_clustering_dagger", "--workers"),
+        ("train_landmark_expert", "--workers"),
+        ("train_clustering_ppo", "--rank-workers"),
+    ],
+)
+def test_training_worker_counts_are_refused_before_any_process_starts(
+    script: str,
+    option: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A worker count above the pool's ceiling is a usage error at parsing, before any pool."""
+    import importlib
+
+    import selenv.parallel.executors as executors
+
+    module = importlib.import_module(f"selenv.train.{script}")
+    started: list[object] = []
+    monkeypatch.setattr(executors.ProcessExecutor, "__init__", lambda *a, **k: started.append(a))
+    ceiling = executors.max_pool_workers()
+    with pytest.raises(SystemExit) as stop:
+        module.parse_args(["--out", str(tmp_path / "out.zip"), option, str(ceiling + 1)])
+    assert stop.value.code == 2
+    _one_error_line(capsys.readouterr().err, f"{option} {ceiling + 1}", "ceiling")
+    assert started == []
+    # the ceiling itself is accepted by the parser
+    cfg = module.parse_args(["--out", str(tmp_path / "out.zip"), option, str(ceiling)])
+    assert getattr(cfg, option.removeprefix("--").replace("-", "_")) == ceiling
+
+
 # --- 6. a hostile torch file is refused in one line naming the file ------------------------
 
 
