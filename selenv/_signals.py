@@ -148,11 +148,13 @@ def start_cli() -> None:
     global _held, _startup
     if _startup or not _main_thread() or not is_cli_process():
         return
+    # hold first: a SIGTERM that arrives between the two installations is recorded, not raised
+    # inside signal.signal() (seen: a Terminated traceback from the SIGINT installation)
+    _held += 1
+    _startup = True
     signal.signal(signal.SIGTERM, on_signal)
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, on_signal)
-    _held += 1
-    _startup = True
 
 
 def end_startup() -> None:

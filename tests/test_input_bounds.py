@@ -308,23 +308,28 @@ def test_training_worker_counts_are_refused_before_any_process_starts(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    """A worker count above the pool's ceiling is a usage error at parsing, before any pool."""
+    """A worker count above the pool's ceiling: exit 2, one line, no pool, nothing written."""
     import importlib
+    import multiprocessing.pool
 
     import selenv.parallel.executors as executors
+    from selenv.learned.rl.training import run_cli
 
     module = importlib.import_module(f"selenv.train.{script}")
     started: list[object] = []
     monkeypatch.setattr(executors.ProcessExecutor, "__init__", lambda *a, **k: started.append(a))
+    monkeypatch.setattr(multiprocessing.pool.Pool, "__init__", lambda *a, **k: started.append(a))
     ceiling = executors.max_pool_workers()
-    with pytest.raises(SystemExit) as stop:
-        module.parse_args(["--out", str(tmp_path / "out.zip"), option, str(ceiling + 1)])
-    assert stop.value.code == 2
-    _one_error_line(capsys.readouterr().err, f"{option} {ceiling + 1}", "ceiling")
+    out = tmp_path / "run" / ("out.json" if script == "train_cl_cem" else "out.zip")
+    argv = ["--out", str(out), option, str(ceiling + 1), "--no-progress"]
+    try:  # train_cl_cem's checks exit through SystemExit(2), the others return 2
+        code = run_cli(module.main, f"python -m {module.SCRIPT}", argv)
+    except SystemExit as stop:
+        code = stop.code
+    assert code == 2
+    _one_error_line(capsys.readouterr().err, f"{option}: must be in [1, {ceiling}]")
     assert started == []
-    # the ceiling itself is accepted by the parser
-    cfg = module.parse_args(["--out", str(tmp_path / "out.zip"), option, str(ceiling)])
-    assert getattr(cfg, option.removeprefix("--").replace("-", "_")) == ceiling
+    assert not (tmp_path / "run").exists()
 
 
 # --- 6. a hostile torch file is refused in one line naming the file ------------------------

@@ -372,7 +372,7 @@ def test_bench_agent_without_export_says_how_to_train(tmp_path: Path, monkeypatc
         (["--env", "cartpole"], "invalid choice"),
         (["--minibatch-size", "64", "--train-batch-size", "32"], "minibatch"),
         (["--hidden", "16,x"], "--hidden"),
-        (["--env-kwargs", "[" * 100_000 + "]" * 100_000], "nested too deeply"),
+        (["--env-kwargs", "[" * 100_000 + "]" * 100_000], "nested deeper than"),
         (["--vf", "64," * 20 + "64"], "--vf has 21 layers"),
         (["--iterations", "100001"], "--iterations 100,001 is above its ceiling 100,000"),
         (["--num-epochs", "1001"], "--num-epochs 1,001 is above its ceiling 1,000"),

@@ -292,36 +292,7 @@ def parse_config(
             "to replace it)",
             file=sys.stderr,
         )
-    _check_pool_sizes(parser.prog, ns)
     return cls(**ns)
-
-
-#: options that start one process each: checked against the process pool's ceiling
-POOL_OPTIONS = ("workers", "rank_workers")
-
-
-def _check_pool_sizes(prog: str, ns: dict[str, Any]) -> None:
-    """Refuse a process count above the pool's ceiling before any work (exit 2, one line).
-
-    The same ceiling as ``selenv bench --num-workers``
-    (:func:`selenv.parallel.executors.max_pool_workers`: 8 per CPU, at least 16), checked
-    here, right after parsing, so that a typo such as ``--workers 100000`` is refused before
-    torch or an env is imported and before any process is started. A script with an
-    ``--executor`` option (Ray tasks may run on a cluster) checks its own ceiling instead.
-    """
-    if "executor" in ns:
-        return
-    from selenv.parallel.executors import max_pool_workers
-
-    ceiling = max_pool_workers()
-    for name in POOL_OPTIONS:
-        value = ns.get(name)
-        if isinstance(value, int) and value > ceiling:
-            usage_error(
-                prog,
-                f"--{name.replace('_', '-')} {value} exceeds the ceiling of {ceiling} worker "
-                "processes on this machine (8 per CPU); use fewer",
-            )
 
 
 def _unwritable(folder: Path) -> str | None:

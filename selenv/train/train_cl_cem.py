@@ -37,11 +37,12 @@ from typing import Any
 import numpy as np
 
 from selenv.atomic import write_json
-from selenv.exits import Terminated, UsageError
+from selenv.exits import Terminated, UsageError, check_size
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.resources import read_metadata
 from selenv.learned.rl.cem import CEMSettings, cem_generation, new_state, state_from_json
 from selenv.learned.rl.training import _stop_exception, output_lock, run_cli
+from selenv.parallel.executors import max_pool_workers
 from selenv.untrusted import json_object
 
 SCRIPT = "selenv.train.train_cl_cem"
@@ -148,6 +149,11 @@ def _check(cfg: Config, prog: str) -> dict[str, Any]:
                 prog,
                 f"--{name.replace('_', '-')} {value} exceeds {CEILINGS[name]} (pass --allow-large)",
             )
+    try:  # the pool's ceiling, before any process starts
+        check_size("--workers", cfg.workers, low=1, high=max_pool_workers(),
+                   note=" (evaluation processes on this machine)")  # fmt: skip
+    except UsageError as exc:
+        usage_error(prog, exc)
     if cfg.elite > cfg.population:
         usage_error(prog, f"--elite must be <= --population ({cfg.population}), got {cfg.elite}")
     if cfg.horizon > 5:

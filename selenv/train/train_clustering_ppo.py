@@ -44,6 +44,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from selenv.exits import check_size
 from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.edit_policy import SCORERS, scorer_policy_kwargs
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
@@ -56,6 +57,7 @@ from selenv.learned.rl.training import (
     train,
 )
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
+from selenv.parallel.executors import max_pool_workers
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 SCRIPT = "selenv.train.train_clustering_ppo"
@@ -142,6 +144,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
     prog = f"python -m {SCRIPT}"
+    check_size("--rank-workers", cfg.rank_workers, low=1, high=max_pool_workers(),
+               note=" (labelling processes on this machine)")  # fmt: skip
     check_run_outputs(cfg, prog)
     with output_lock(cfg.out, prog):  # one run per --out
         if cfg.scorer not in SCORERS:
