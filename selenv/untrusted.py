@@ -36,6 +36,7 @@ __all__ = [
     "loads_json",
     "loads_toml",
     "read_json_file",
+    "read_text",
     "read_toml_file",
     "toml_depth",
     "value_depth",
@@ -169,9 +170,25 @@ def json_object(text: str, what: str = "--env-kwargs") -> dict[str, Any]:
     return value
 
 
-def _read_text(path: str | Path, what: str) -> str:
-    """The UTF-8 text of the regular file ``path``, no larger than ``max_bytes``."""
+def read_text(
+    path: str | Path, what: str, *, max_bytes: int | None = None, ceiling: str | None = None
+) -> str:
+    """The UTF-8 text of the regular file ``path``, its size checked before it is read.
+
+    Args:
+        path: the file.
+        what: how messages name it (``"checkpoint metadata"``, ``"--config"``).
+        max_bytes: the largest size read (default ``LIMITS["max_bytes"]``).
+        ceiling: how messages name that limit (default ``"selenv.untrusted.LIMITS['max_bytes']"``).
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist (the message names it).
+        UntrustedInputError: unreadable, not a regular file, larger than ``max_bytes`` or not
+            UTF-8; the message starts with ``"{what} {path}: "``.
+    """
     path = Path(path)
+    limit = LIMITS["max_bytes"] if max_bytes is None else max_bytes
+    where = ceiling or "selenv.untrusted.LIMITS['max_bytes']"
     try:
         size = path.stat().st_size
     except FileNotFoundError:
@@ -180,10 +197,9 @@ def _read_text(path: str | Path, what: str) -> str:
         raise UntrustedInputError(f"{what} {path}: cannot read it ({exc.strerror})") from None
     if not path.is_file():
         raise UntrustedInputError(f"{what} {path}: not a regular file")
-    if size > LIMITS["max_bytes"]:
+    if size > limit:
         raise UntrustedInputError(
-            f"{what} {path}: {size:,} bytes, more than the ceiling of {LIMITS['max_bytes']:,} "
-            "(selenv.untrusted.LIMITS['max_bytes'])"
+            f"{what} {path}: {size:,} bytes, more than the ceiling of {limit:,} ({where})"
         )
     try:
         return path.read_bytes().decode("utf-8")
@@ -200,7 +216,7 @@ def read_json_file(path: str | Path, what: str) -> Any:
         FileNotFoundError: ``path`` does not exist.
         UntrustedInputError: not a readable regular UTF-8 file, too large, too deep, not JSON.
     """
-    return loads_json(_read_text(path, what), f"{what} {path}", argument=False)
+    return loads_json(read_text(path, what), f"{what} {path}", argument=False)
 
 
 def _tomllib() -> Any:
@@ -243,4 +259,4 @@ def read_toml_file(path: str | Path, what: str) -> dict[str, Any]:
         FileNotFoundError: ``path`` does not exist.
         UntrustedInputError: not a readable regular UTF-8 file, too large, too deep, not TOML.
     """
-    return loads_toml(_read_text(path, what), f"{what} {path}")
+    return loads_toml(read_text(path, what), f"{what} {path}")

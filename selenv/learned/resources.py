@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from selenv.untrusted import json_depth
+from selenv.untrusted import json_depth, read_text
 
 __all__ = [
     "CHECKPOINT_LIMITS",
@@ -157,22 +157,12 @@ def read_metadata(path: str | Path, what: str = "checkpoint metadata") -> Any:
             JSON; each message names the file.
     """
     path = Path(path)
-    try:
-        size = path.stat().st_size
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{what} {path} not found") from None
-    except OSError as exc:
-        raise ValueError(f"{what} {path} is not readable: {exc}") from None
-    if not path.is_file():
-        raise ValueError(f"{what} {path} is not a regular file")
-    if size > CHECKPOINT_LIMITS["max_metadata_bytes"]:
-        raise ValueError(
-            f"{what} {path} is {size:,} bytes, more than {limit_hint('max_metadata_bytes')}"
-        )
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{what} {path} is not readable UTF-8 text: {exc}") from None
+    text = read_text(
+        path,
+        what,
+        max_bytes=CHECKPOINT_LIMITS["max_metadata_bytes"],
+        ceiling=f"{__name__}.CHECKPOINT_LIMITS['max_metadata_bytes']",
+    )
     limit = CHECKPOINT_LIMITS["max_metadata_depth"]
     if json_depth(text) > limit:
         raise ValueError(
