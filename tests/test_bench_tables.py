@@ -7,14 +7,12 @@ reference, random) are checked on small synthetic results.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import pytest
+from conftest import load_script
 
 from selenv.agents import AGENTS
 from selenv.bench import AgentResult, EnvBenchResult, format_table, results_to_json
@@ -23,17 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CL = "selenv/CLScheduling-v1"
 
 
-def _load_script() -> ModuleType:
-    path = ROOT / "scripts" / "bench_tables.py"
-    spec = importlib.util.spec_from_file_location("bench_tables", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("bench_tables", module)
-    spec.loader.exec_module(module)
-    return module
-
-
-bt = _load_script()
+bt = load_script("bench_tables")
 
 
 def _agent(name: str, returns: list[float], ms: float = 1.0) -> AgentResult:
