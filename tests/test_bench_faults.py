@@ -265,7 +265,7 @@ def test_sigterm_with_a_process_pool_keeps_episodes_and_leaves_no_worker(tmp_pat
     )
     rc, err = _run(args, tmp_path, env=env)
     assert rc == 143, err
-    assert "Traceback" not in err and "KeyboardInterrupt" not in err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     lines = _lines(err)
     assert len(lines) == 1 and "terminated (SIGTERM)" in lines[0], err
     doc = json.loads(out.read_text())["results"][0]

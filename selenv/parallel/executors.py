@@ -75,7 +75,7 @@ from typing import Any, TypeVar
 from tqdm import tqdm
 
 from selenv.exits import DeferredSignals
-from selenv.parallel import _tracker_guard
+from selenv.parallel import _discarded, _tracker_guard
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.parallel.ray_session import ray_session
 
@@ -519,6 +519,7 @@ class ProcessExecutor(Executor):
         if pool is None:
             return
         self._track(pool)
+        _discarded.discard(pool)  # its manager thread may raise once the workers are killed
         self._signal_workers(signal.SIGKILL)
         with contextlib.suppress(Exception):
             pool.shutdown(wait=True, cancel_futures=True)

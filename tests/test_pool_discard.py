@@ -1,0 +1,70 @@
+"""A process pool discarded on purpose ends without a thread traceback (``_discarded``)."""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+
+import pytest
+
+from selenv.parallel import _discarded
+
+
+class _Pool:
+    """Stands in for a ProcessPoolExecutor: only its manager-thread attribute is read."""
+
+    def __init__(self, thread: threading.Thread | None) -> None:
+        self._executor_manager_thread = thread
+
+
+@pytest.fixture
+def seen(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The uncaught thread exceptions that reach the hook in place before ``install``."""
+    got: list[str] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: got.append(args.thread.name))
+    monkeypatch.setattr(_discarded, "_previous", None)
+    return got
+
+
+def _failing(name: str, gate: threading.Event) -> threading.Thread:
+    def body() -> None:
+        gate.wait(30)
+        raise OSError("handle is closed")
+
+    return threading.Thread(target=body, name=name)
+
+
+def test_a_discarded_pools_manager_thread_is_silent_and_others_are_not(seen: list[str]) -> None:
+    gate = threading.Event()
+    manager, other = _failing("manager", gate), _failing("other", gate)
+    _discarded.discard(_Pool(manager))
+    assert threading.excepthook is _discarded._hook
+    manager.start()
+    other.start()
+    gate.set()
+    manager.join(30)
+    other.join(30)
+    assert seen == ["other"]  # the other thread's exception still reaches the previous hook
+
+
+def test_install_is_idempotent_and_a_pool_without_a_thread_records_nothing(
+    seen: list[str],
+) -> None:
+    _discarded.install()
+    _discarded.install()
+    assert _discarded._previous is not _discarded._hook
+    before = len(_discarded._discarded)
+    _discarded.discard(_Pool(None))
+    _discarded.discard(object())
+    assert len(_discarded._discarded) == before
+
+
+def test_a_real_pools_manager_thread_is_found() -> None:
+    """The CPython attribute the hook relies on exists on this Python's ProcessPoolExecutor."""
+    with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
+        assert pool.submit(abs, -3).result(timeout=120) == 3
+        thread = pool._executor_manager_thread  # type: ignore[attr-defined]
+        assert isinstance(thread, threading.Thread)
+        _discarded.discard(pool)
+        assert thread in _discarded._discarded
