@@ -83,7 +83,8 @@ _ASSIGN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*=")
 _ALLOWED_TOOLS = {
     "make", "git", "cd", "source", "export", "ls", "cat", "cp", "mkdir", "rm", "tensorboard",
     "ray", "wc", "diff", "echo", "unset", "for", "do", "done", "true", "test", "head",
-    "tail", "grep", "open", "xdg-open", "python3.11", "apt-get", "sudo", "pip", "nohup", "bash", "yes",
+    "tail", "grep", "open", "xdg-open", "python3.11", "apt-get", "sudo", "pip", "nohup", "bash",
+    "yes",
 }  # fmt: skip
 
 
