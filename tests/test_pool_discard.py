@@ -68,3 +68,35 @@ def test_a_real_pools_manager_thread_is_found() -> None:
         assert isinstance(thread, threading.Thread)
         _discarded.discard(pool)
         assert thread in _discarded._discarded
+
+
+def test_a_stopped_map_discards_the_pool_before_asking_the_workers_to_stop(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A worker that leaves on the stop request can break the pool at once: the pool must be
+    recorded as discarded before SIGUSR1, not only when its workers are killed."""
+    import signal
+
+    from selenv.parallel import ProcessExecutor
+
+    executor = ProcessExecutor(1)
+    recorded_at: dict[int, bool] = {}
+    signal_workers = executor._signal_workers
+
+    def spy(signum: int) -> None:
+        pool = executor._pool
+        thread = getattr(pool, "_executor_manager_thread", None)
+        recorded_at[signum] = thread is not None and thread in _discarded._discarded
+        signal_workers(signum)
+
+    monkeypatch.setattr(executor, "_signal_workers", spy)
+
+    def stop(index: int, result: int) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            executor.map(abs, [-1, -2, -3, -4], on_result=stop)
+    finally:
+        executor.close()
+    assert recorded_at.get(signal.SIGUSR1) is True

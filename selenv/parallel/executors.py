@@ -490,6 +490,11 @@ class ProcessExecutor(Executor):
         finish: Callable[[Future[R]], None],
     ) -> None:
         """Cancel what has not started, ask the workers to stop, collect, then kill them."""
+        if self._pool is not None:
+            # from here on the pool is being discarded: a worker that exits on SIGUSR1 can make
+            # the manager thread call ``terminate_broken`` on futures cancelled just below, which
+            # raises ``InvalidStateError`` in that thread (CPython 3.11) before ``_discard`` runs
+            _discarded.discard(self._pool)
         for fut in pending:
             fut.cancel()
         self._signal_workers(signal.SIGUSR1)
