@@ -1,0 +1,161 @@
+"""The learned edit ranking of ``ReceiverClustering-v1`` played by the receivers of its module.
+
+``selenv.multiagent.receiver_clustering_v1`` observes, per receiver, the single-agent env's
+observation (the same :func:`~selenv.families.clustering.env.clustering_observation`:
+``assignment``, ``sigma``, ``position_var``, ``time``, ...) plus ``self`` and a label mask. So
+the single-agent edit view (:class:`~selenv.families.clustering.view.ClusteringEditView`) and
+the shipped edit-ranking checkpoint of ``selenv/ReceiverClustering-v1`` (the ``ppo_top8``
+policy) apply unchanged to any receiver's observation, and the multi-agent policy is built
+from them as the module's ``greedy``
+(:class:`~selenv.families.clustering.multiagent_agents.ClusteringGreedyPolicy`) is built from
+the single-agent greedy:
+
+1. every ``every`` steps, the policy scores every edit (no-op, moves, swaps) of the current
+   clustering;
+2. among the no-op and the edits the module's resolution rule always carries out
+   (:meth:`ClusteringGreedyPolicy.allowed_edits
+   <selenv.families.clustering.multiagent_agents.ClusteringGreedyPolicy.allowed_edits>`:
+   every allowed move, and a swap only when both clusters have room), its ``top_k``
+   highest-scoring ones are costed exactly (Algorithm 1, one evaluation per edit, the no-op
+   free);
+3. the lowest-cost one is played if it lowers ``J``, by the receivers concerned (the mover
+   answers its target label, both swapped receivers answer each other's label); everyone
+   else stays.
+
+When greedy's best edit is among the ``top_k``, this is greedy's joint action; with ``top_k``
+at least the number of allowed edits it is greedy itself, at every step instead of every
+fifth. The decision costs at most ``top_k`` cost evaluations instead of one per allowed edit.
+
+:func:`make_clustering_marl_learned` is the factory the agent registry calls.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from selenv.agents.multiagent import CLUSTERING_MODULE, MultiAgentPolicy
+from selenv.families.clustering.agents import CLUSTERING_ENV_ID
+from selenv.families.clustering.env import apply_edit, edit_cost_changes
+from selenv.families.clustering.labels import check_int
+from selenv.families.clustering.multiagent import ReceiverClusteringParallelEnv
+from selenv.families.clustering.multiagent_agents import ClusteringGreedyPolicy
+from selenv.families.clustering.view import ClusteringEditView
+from selenv.learned.rl.agent import SB3PolicyAgent
+from selenv.learned.rl.lean import LeanScorer
+
+__all__ = ["OPTIONS", "ClusteringLearnedPolicy", "make_clustering_marl_learned"]
+
+#: the options of :func:`make_clustering_marl_learned` (those of :class:`ClusteringLearnedPolicy`)
+OPTIONS = ("checkpoint", "top_k", "every", "swaps")
+
+
+class ClusteringLearnedPolicy(MultiAgentPolicy):
+    """The edit ranking's ``top_k`` edits costed, the best improving one played (module doc).
+
+    Args:
+        checkpoint: an edit-ranking checkpoint of ``selenv/ReceiverClustering-v1`` (SB3 zip with
+            its JSON; ``None``: the shipped one, the policy of ``ppo_top8``).
+        top_k: edits costed per decision (>= 1; the no-op, when ranked among them, is free).
+        every: steps between decisions (everyone stays in between).
+        swaps: offer the swaps that the resolution rule always carries out.
+
+    Raises:
+        ValueError: a bad option value (named), or a checkpoint that is missing, unreadable
+            or not trained on ``selenv/ReceiverClustering-v1``.
+    """
+
+    name = "learned"
+
+    def __init__(
+        self,
+        checkpoint: str | Path | None = None,
+        top_k: int = 8,
+        every: int = 1,
+        swaps: bool = True,
+    ) -> None:
+        self.top_k = check_int(top_k, "top_k", 1)
+        self.every = check_int(every, "every", 1)
+        if not isinstance(swaps, bool):
+            raise ValueError(f"swaps must be a bool, got {type(swaps).__name__}")
+        self.swaps = swaps
+        if checkpoint is not None and not isinstance(checkpoint, str | Path):
+            raise ValueError(f"checkpoint must be a path, got {type(checkpoint).__name__}")
+        # loads the weights safely and checks the checkpoint's env id (ValueError naming it)
+        self.ranker = SB3PolicyAgent(checkpoint, env_id=CLUSTERING_ENV_ID)
+        self.checkpoint = self.ranker.checkpoint
+        self.rule = ClusteringGreedyPolicy(every=1, swaps=swaps)
+        self.view: ClusteringEditView | None = None
+        self.scorer: LeanScorer | None = None
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Bind the edit view of ``env``'s receivers and the policy for its edit count.
+
+        Raises:
+            ValueError: ``env`` is not the ``ParallelEnv`` of ``receiver_clustering_v1`` (or
+                v0), or its observations do not fit the checkpoint.
+        """
+        if not isinstance(env, ReceiverClusteringParallelEnv):
+            raise ValueError(
+                f"the learned clustering policy plays {CLUSTERING_MODULE}'s parallel_env(), "
+                f"got {type(env).__name__}"
+            )
+        super().reset(env, seed)
+        self.view = ClusteringEditView(env.n, env.max_size, "edit")
+        space = self.view.space(env.observation_space(env.possible_agents[0]))
+        self.scorer = LeanScorer(self.ranker.policy_for(space))
+
+    def ranked_edits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The ``top_k`` highest-scoring of the no-op and the allowed edits (best first).
+
+        ``obs`` is any receiver's observation (the shared fields are the same for all).
+        """
+        if self.view is None or self.scorer is None:
+            raise ValueError("call reset(env) before ranked_edits()")
+        bank = self.env.bank
+        if not np.array_equal(np.asarray(obs["assignment"]), bank.labels):
+            raise ValueError("obs is not the env's current observation (assignment differs)")
+        cand = self.view(obs)
+        allowed = np.concatenate([[0], self.rule.allowed_edits(bank.labels, self.env.max_size)])
+        mask = np.zeros(self.view.count, bool)
+        mask[allowed] = True
+        scores = self.scorer.scores(cand, mask)
+        return allowed[np.argsort(-scores[allowed], kind="stable")[: self.top_k]]
+
+    def act(self, observations: dict[str, Any], infos: dict[str, Any]) -> dict[str, Any]:
+        """Targets that realise the best improving ranked edit (everyone stays if none)."""
+        env = self.env
+        bank = env.bank
+        labels = bank.labels
+        targets = labels.copy()
+        if bank.k % self.every == 0 and env.agents:
+            edits = self.ranked_edits(observations[env.agents[0]])
+            edits = edits[edits != 0]
+            if edits.size:
+                d = edit_cost_changes(bank, edits)
+                j = int(np.argmin(d))
+                if d[j] < 0.0:
+                    targets = apply_edit(labels, int(edits[j]))
+        index = {a: i for i, a in enumerate(env.possible_agents)}
+        return {a: int(targets[index[a]]) for a in env.agents}
+
+
+def make_clustering_marl_learned(**options: Any) -> ClusteringLearnedPolicy:
+    """Registry factory of the learned policy of ``receiver_clustering_v1``.
+
+    Args:
+        **options: ``checkpoint``, ``top_k``, ``every``, ``swaps`` of
+            :class:`ClusteringLearnedPolicy`.
+
+    Raises:
+        ValueError: an unknown option (named, with the known ones) or a bad value.
+    """
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise ValueError(
+            f"the learned clustering policy has no option(s) {unknown}; "
+            f"its options: {', '.join(OPTIONS)}"
+        )
+    return ClusteringLearnedPolicy(**options)
