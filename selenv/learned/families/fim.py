@@ -1,0 +1,302 @@
+"""A learned selector for ``FIMSelection-v1`` that reaches ``swap``: policy picks, then swaps.
+
+``swap`` (greedy, then best-improvement 1-swap local search,
+:func:`selenv.agents.fim_solvers.swap_whitened`) is the strongest heuristic on
+``FIMSelection-v1``; a candidate-scoring policy played alone stops short of it. This agent
+uses the policy as a second starting point of the same local search:
+
+1. **policy start**: the policy (by default the shipped ``ppo_general`` checkpoint) picks the
+   remaining budget on a scratch copy of the env's gain state -- the observation it would see
+   after each of its own picks, its logits in numpy
+   (:meth:`~selenv.learned.rl.agent.SB3PolicyAgent.logits` with ``backend="numpy"``);
+2. **greedy start**: greedy's picks (Kirchner et al. 2020, Algorithm 1);
+3. each start is polished by best-improvement swaps (the move rule of ``swap``: every
+   (selected, unselected) pair, the best applied while it gains more than ``tol`` nats), and
+   the better of the two local optima is played (``starts="both"``, the default).
+
+The two starts usually end in the same local optimum; where they do not, the policy's is the
+better one about as often as not, so the pair is never below ``swap`` and sometimes above it.
+``starts="greedy"`` is exactly ``swap`` (the same moves in the same order), ``starts="policy"``
+the policy's start alone.
+
+The swap deltas are ``swap``'s, evaluated through the Schur complement of its
+determinant-lemma matrix (:func:`swap_deltas`): with the candidates whitened in the current
+information ``A = L L^T`` (``Z_k = G_k L^-T``), ``S_ii = Z_i Z_i^T``, ``S_jj = Z_j Z_j^T`` and
+``C_ij = Z_i Z_j^T``,
+
+``log det(A - Q_i + Q_j) - log det A
+= log det(I - S_ii) + log det(I + S_jj + C_ij^T (I - S_ii)^-1 C_ij)``,
+
+written out entry by entry for ``m <= 2`` rows per candidate (every Kirchner preset), so one
+pass over the ``K x U`` pairs is one matrix product and a few elementwise array operations
+instead of ``K U`` determinants of ``2m x 2m`` matrices.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from scipy.linalg import solve_triangular
+
+from selenv.agents.base import PlanAgent
+from selenv.agents.fim_solvers import greedy_whitened
+from selenv.core.information import information_matrix
+from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.families.fim.batched import FIMBatchState
+from selenv.families.fim.env import fim_observations
+
+__all__ = [
+    "DEFAULT_CHECKPOINT",
+    "STARTS",
+    "FIMPolicySwapAgent",
+    "make_fim_learned",
+    "polish",
+    "swap_deltas",
+    "whiten_in",
+]
+
+FIM_ENV_ID = "selenv/FIMSelection-v1"
+#: shipped checkpoint of the policy start (file name in ``checkpoints/``)
+DEFAULT_CHECKPOINT = "fim_selection_ppo_general.zip"
+#: the ``starts`` option: which starting selections the swap search polishes
+STARTS = ("both", "policy", "greedy")
+_ONE = np.zeros(1, dtype=np.intp)
+
+
+def swap_deltas(Z: FloatArray, sel: np.ndarray, uns: np.ndarray) -> FloatArray:
+    """``log det(A - Q_i + Q_j) - log det A`` for selected ``i`` and unselected ``j``, ``(K, U)``.
+
+    ``Z`` ``(N, m, d)``: the candidates whitened in the selection's information ``A = L L^T``
+    (``Z_k = G_k L^-T``), so ``S_ii = Z_i Z_i^T``, ``S_jj = Z_j Z_j^T``, ``C_ij = Z_i Z_j^T``
+    and the delta is the Schur complement form of the module docstring; closed forms for
+    ``m = 1`` and ``m = 2``, batched ``slogdet`` of the ``m x m`` complement otherwise. A pair
+    whose matrix is not positive definite (rounding on a degenerate pool) gets ``-inf``.
+    """
+    _, m, d = Z.shape
+    Zi, Zj = Z[sel], Z[uns]  # (K, m, d), (U, m, d)
+    K, U = len(sel), len(uns)
+    C = (Zi.reshape(K * m, d) @ Zj.reshape(U * m, d).T).reshape(K, m, U, m)
+    C = C.transpose(0, 2, 1, 3)  # C[k, u] = Z_i Z_j^T (K, U, m, m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if m == 1:
+            a = 1.0 - np.einsum("kd,kd->k", Zi[:, 0], Zi[:, 0])  # I - S_ii (K,)
+            s = np.einsum("ud,ud->u", Zj[:, 0], Zj[:, 0])  # S_jj (U,)
+            comp = 1.0 + s[None] + C[..., 0, 0] ** 2 / a[:, None]
+            out = np.log(a)[:, None] + np.log(comp)
+            ok = (a[:, None] > 0) & (comp > 0)
+        elif m == 2:
+            i0, i1, j0, j1 = Zi[:, 0], Zi[:, 1], Zj[:, 0], Zj[:, 1]
+            a00 = 1.0 - np.einsum("kd,kd->k", i0, i0)  # I - S_ii
+            a01 = -np.einsum("kd,kd->k", i0, i1)
+            a11 = 1.0 - np.einsum("kd,kd->k", i1, i1)
+            det_a = a00 * a11 - a01 * a01  # det(I - S_ii)
+            p, q, r = (x[:, None] / det_a[:, None] for x in (a11, -a01, a00))  # (I - S_ii)^-1
+            c00, c01, c10, c11 = C[..., 0, 0], C[..., 0, 1], C[..., 1, 0], C[..., 1, 1]
+            t00 = p * c00 * c00 + 2.0 * q * c00 * c10 + r * c10 * c10  # C^T (I - S_ii)^-1 C
+            t01 = p * c00 * c01 + q * (c00 * c11 + c10 * c01) + r * c10 * c11
+            t11 = p * c01 * c01 + 2.0 * q * c01 * c11 + r * c11 * c11
+            s00 = np.einsum("ud,ud->u", j0, j0)  # S_jj
+            s01 = np.einsum("ud,ud->u", j0, j1)
+            s11 = np.einsum("ud,ud->u", j1, j1)
+            det_c = (1.0 + s00 + t00) * (1.0 + s11 + t11) - (s01 + t01) ** 2
+            out = np.log(det_a)[:, None] + np.log(det_c)
+            ok = (det_a[:, None] > 0) & (a00[:, None] > 0) & (det_c > 0)
+        else:
+            eye = np.eye(m)
+            A = eye - Zi @ np.swapaxes(Zi, -1, -2)  # I - S_ii (K, m, m)
+            sign_a, log_a = np.linalg.slogdet(A)
+            X = np.linalg.solve(A[:, None], C)  # (I - S_ii)^-1 C
+            Sjj = Zj @ np.swapaxes(Zj, -1, -2)
+            sign_c, log_c = np.linalg.slogdet(eye + Sjj[None] + np.swapaxes(C, -1, -2) @ X)
+            out = log_a[:, None] + log_c
+            ok = (sign_a[:, None] > 0) & (sign_c > 0)
+    return np.where(ok, out, -np.inf)
+
+
+def whiten_in(Q0: FloatArray, G: FloatArray, sel: np.ndarray) -> FloatArray:
+    """``Z = G L^-T`` with ``L L^T = A = Q0 + sum_{k in sel} G_k^T G_k`` (eq. 2), ``(N, m, d)``.
+
+    Raises:
+        ValueError: ``A`` is not numerically positive definite.
+    """
+    N, m, d = G.shape
+    Gs = G[sel].reshape(-1, d)
+    L = cholesky_spd(Q0 + Gs.T @ Gs, "FIM")
+    Z = solve_triangular(L, G.reshape(N * m, d).T, lower=True, check_finite=False)  # L^-1 G^T
+    out: FloatArray = np.ascontiguousarray(Z.T).reshape(N, m, d)
+    return out
+
+
+def polish(
+    Q0: FloatArray,
+    G: FloatArray,
+    start: Any,
+    *,
+    max_rounds: int = 200,
+    tol: float = 1e-9,
+) -> tuple[np.ndarray, int]:
+    """Best-improvement 1-swap search from ``start``: ``swap``'s moves, ``(indices, rounds)``.
+
+    Each round scores every (selected, unselected) pair (:func:`swap_deltas`) and applies the
+    best (row-major first on ties, the selected slot replaced in place) if it gains more than
+    ``tol`` nats; the objective never decreases. ``rounds`` counts the passes made (the last
+    one finds no improving swap unless ``max_rounds`` stopped the search).
+
+    Args:
+        Q0: ``(d, d)`` SPD prior information (validated by the caller).
+        G: ``(N, m, d)`` whitened candidates.
+        start: ``B`` distinct candidate indices.
+        max_rounds: passes at most (>= 0).
+        tol: smallest gain (nats) a swap must make to be applied.
+    """
+    sel = np.array(start, dtype=np.intp)
+    N = G.shape[0]
+    rounds = 0
+    chosen = np.zeros(N, dtype=bool)
+    while rounds < max_rounds and 0 < sel.size < N:
+        rounds += 1
+        chosen[:] = False
+        chosen[sel] = True
+        uns = np.flatnonzero(~chosen)  # ascending, as swap's
+        delta = swap_deltas(whiten_in(Q0, G, sel), sel, uns)
+        i, j = np.unravel_index(int(np.argmax(delta)), delta.shape)
+        if delta[i, j] <= tol:
+            break
+        sel[i] = uns[j]
+    return sel, rounds
+
+
+def _check_count(value: object, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise ValueError(f"{name} must be an int >= 0, got {value!r}")
+    return int(value)
+
+
+class FIMPolicySwapAgent(PlanAgent):
+    """The policy's picks and greedy's, each polished by swaps; plays the better (module doc).
+
+    Args:
+        checkpoint: candidate-scoring checkpoint trained on ``FIMSelection-v1`` (default: the
+            shipped ``ppo_general``, :data:`DEFAULT_CHECKPOINT`).
+        starts: ``"both"`` (default), ``"policy"`` or ``"greedy"`` (exactly ``swap``).
+        max_rounds: swap passes per start at most (>= 0; 0 plays the start itself).
+        tol: smallest gain in nats a swap must make (finite, >= 0).
+
+    Raises:
+        ValueError: a bad option (named), or the checkpoint is missing, unreadable or was
+            trained on another env.
+    """
+
+    name = "ppo_swap"
+
+    def __init__(
+        self,
+        checkpoint: str | Path | None = None,
+        starts: str = "both",
+        max_rounds: int = 200,
+        tol: float = 1e-9,
+    ) -> None:
+        if starts not in STARTS:
+            raise ValueError(f"starts must be one of {', '.join(STARTS)}; got {starts!r}")
+        self.starts = starts
+        self.max_rounds = _check_count(max_rounds, "max_rounds")
+        if isinstance(tol, bool) or not isinstance(tol, int | float) or not 0 <= tol < math.inf:
+            raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
+        self.tol = float(tol)
+        self.policy = None
+        if starts != "greedy":
+            from selenv.learned.rl.agent import CHECKPOINT_DIR, SB3PolicyAgent
+
+            path = CHECKPOINT_DIR / DEFAULT_CHECKPOINT if checkpoint is None else checkpoint
+            self.policy = SB3PolicyAgent(path, env_id=FIM_ENV_ID)
+        elif checkpoint is not None:
+            raise ValueError("checkpoint is not used with starts='greedy' (no policy start)")
+
+    def reset(self, env: gym.Env[Any, Any], seed: int | None = None) -> None:
+        """Bind to a ``FIMSelection`` env with the log-det objective.
+
+        Raises:
+            ValueError: another env, or another objective (the swap deltas are log det's).
+        """
+        base = env.unwrapped
+        if not hasattr(base, "core") or not hasattr(base, "budget_left"):
+            raise ValueError(f"agent {self.name!r} plays FIMSelection envs, got {base!r}")
+        objective = getattr(base, "solver_objective", "logdet")
+        if objective != "logdet":
+            raise ValueError(
+                f"agent {self.name!r} supports objective='logdet' only, got {objective!r}; "
+                "use swap for the others"
+            )
+        super().reset(env, seed)
+        if self.policy is not None:
+            self.policy.reset(env, seed)
+
+    def plan(self, obs: Any, info: dict[str, Any]) -> list[int]:
+        """The better polished start on the candidates not yet selected (prior: the FIM now)."""
+        base = self.env.unwrapped
+        state = base.state  # type: ignore[attr-defined]
+        left = int(base.budget_left)  # type: ignore[attr-defined]
+        remaining = np.flatnonzero(~state.selected)
+        prior = state.information  # Q0 + FIM of the picks so far
+        G = np.asarray(state.G)[remaining]
+        starts = []
+        if self.starts != "policy":
+            starts.append(np.array(greedy_whitened(prior, G, left).indices, dtype=np.intp))
+        if self.starts != "greedy":
+            picks = self.policy_picks(obs, left)
+            starts.append(np.searchsorted(remaining, picks))
+        best, best_value = None, -math.inf
+        for start in starts:
+            sel, _ = polish(prior, G, start, max_rounds=self.max_rounds, tol=self.tol)
+            value = float(np.linalg.slogdet(information_matrix(prior, G, sel))[1])
+            if value > best_value:  # ties: the first start (greedy's)
+                best, best_value = sel, value
+        assert best is not None  # at least one start by construction
+        return [int(remaining[k]) for k in best]
+
+    def policy_picks(self, obs: Any, left: int) -> list[int]:
+        """The policy's next ``left`` picks (env indices), each on the observation it would see.
+
+        A scratch :class:`~selenv.families.fim.batched.FIMBatchState` replays the episode's
+        picks so far and then the policy's own, so the env itself is not stepped.
+        """
+        base = self.env.unwrapped
+        state, core = base.state, base.core  # type: ignore[attr-defined]
+        budget = int(base.budget)  # type: ignore[attr-defined]
+        G = np.asarray(state.G)
+        scratch = FIMBatchState(1, core.Q0, G.shape)
+        scratch.start(_ONE, G[None])
+        for k in state.order:
+            scratch.add(_ONE, np.array([k]))
+        features = np.asarray(obs["features"])[None]
+        picks: list[int] = []
+        assert self.policy is not None  # built unless starts == "greedy"
+        for step in range(left):
+            frac = np.array([(left - step) / budget])
+            batch = fim_observations(scratch.gains, scratch.Z, scratch.selected, features, frac)
+            view = {key: val[0] for key, val in batch.items()}
+            mask = ~scratch.selected[0]
+            j = int(np.argmax(self.policy.logits(view, {"action_mask": mask}, backend="numpy")))
+            picks.append(j)
+            scratch.add(_ONE, np.array([j]))
+        return picks
+
+
+def make_fim_learned(**options: Any) -> FIMPolicySwapAgent:
+    """Factory of the learned ``FIMSelection-v1`` selector (:class:`FIMPolicySwapAgent`).
+
+    Options: ``checkpoint`` (default: the shipped ``ppo_general``), ``starts="both"``,
+    ``max_rounds=200``, ``tol=1e-9``.
+
+    Raises:
+        ValueError: an unknown option (named, with the known ones) or a bad value.
+    """
+    known = ("checkpoint", "starts", "max_rounds", "tol")
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ValueError(f"unknown option(s) {unknown}; the options are {', '.join(known)}")
+    return FIMPolicySwapAgent(**options)

@@ -1,0 +1,184 @@
+"""The learned ``FIMSelection-v1`` selector: policy picks and greedy's, each polished by swaps."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import selenv  # noqa: F401
+from selenv.agents import make
+from selenv.agents.fim_solvers import greedy_whitened, swap_whitened
+from selenv.core.information import logdet_objective
+from selenv.learned.families.fim import (
+    FIMPolicySwapAgent,
+    make_fim_learned,
+    polish,
+    swap_deltas,
+    whiten_in,
+)
+
+FIM = "selenv/FIMSelection-v1"
+SEEDS = (3, 11, 29, 104)
+
+
+def _play(agent: Any, seed: int, **env_kw: Any) -> tuple[list[int], float, gym.Env[Any, Any]]:
+    """One episode of ``agent``; its picks in order and the final objective."""
+    env = gym.make(FIM, invalid_action="raise", **env_kw)
+    obs, info = env.reset(seed=seed)
+    agent.reset(env, seed=seed)
+    picks, done = [], False
+    while not done:
+        action = agent.act(obs, info)
+        picks.append(int(action))
+        obs, _, done, _, info = env.step(action)
+    return picks, float(info["objective"]), env
+
+
+def _pool(seed: int, m: int, N: int = 14, d: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(d, d))
+    return X @ X.T + d * np.eye(d), rng.normal(size=(N, m, d)) * rng.uniform(0.2, 1.5, (N, 1, 1))
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_swap_deltas_are_the_objective_differences(m: int) -> None:
+    """Each (i, j) entry is f(S - i + j) - f(S), recomputed by direct Cholesky log dets."""
+    Q0, G = _pool(m, m)
+    sel = np.array([0, 5, 9, 2])
+    uns = np.setdiff1d(np.arange(G.shape[0]), sel)
+    delta = swap_deltas(whiten_in(Q0, G, sel), sel, uns)
+    base = logdet_objective(Q0, G, sel)
+    ref = np.empty((sel.size, uns.size))
+    for a in range(sel.size):
+        for b, j in enumerate(uns):
+            swapped = sel.copy()
+            swapped[a] = j
+            ref[a, b] = logdet_objective(Q0, G, swapped) - base
+    np.testing.assert_allclose(delta, ref, rtol=1e-9, atol=1e-10)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("m", [1, 2])
+def test_polish_never_lowers_the_start(seed: int, m: int) -> None:
+    Q0, G = _pool(seed, m, N=20)
+    start = np.random.default_rng(seed).choice(20, size=5, replace=False)
+    sel, rounds = polish(Q0, G, start)
+    assert sorted(set(sel.tolist())) == sorted(sel.tolist()) and sel.size == 5
+    assert logdet_objective(Q0, G, sel) >= logdet_objective(Q0, G, start) - 1e-12
+    assert rounds >= 1
+    assert polish(Q0, G, start, max_rounds=0)[0].tolist() == list(start)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_polish_from_greedy_is_swap(seed: int) -> None:
+    """The same moves as swap_whitened: same picks in the same slots, same objective."""
+    Q0, G = _pool(seed + 50, 2, N=24)
+    start = greedy_whitened(Q0, G, 6)
+    sel, _ = polish(Q0, G, start.indices)
+    ref = swap_whitened(Q0, G, 6)
+    assert sel.tolist() == list(ref.indices)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_picks_are_a_valid_subset_of_the_budget(seed: int) -> None:
+    picks, value, env = _play(make_fim_learned(), seed)
+    base = env.unwrapped
+    assert len(picks) == base.budget == len(set(picks))
+    assert all(0 <= k < base.n for k in picks)
+    assert value == pytest.approx(logdet_objective(base.core.Q0, base.state.G, picks), abs=1e-9)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_policy_start_is_the_policy_playing_the_env(seed: int) -> None:
+    """The scratch rollout sees exactly the observations the env would show the policy."""
+    agent = make_fim_learned(starts="policy")
+    env = gym.make(FIM)
+    obs, info = env.reset(seed=seed)
+    agent.reset(env, seed=seed)
+    planned = agent.policy_picks(obs, env.unwrapped.budget_left)
+    played, done = [], False
+    while not done:
+        action = int(np.argmax(agent.policy.logits(obs, info, backend="numpy")))
+        played.append(action)
+        obs, _, done, _, info = env.step(action)
+    assert planned == played
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_swap_polish_never_lowers_the_policy_start(seed: int) -> None:
+    agent = make_fim_learned(starts="policy")
+    env = gym.make(FIM)
+    obs, _ = env.reset(seed=seed)
+    agent.reset(env, seed=seed)
+    base = env.unwrapped
+    start = agent.policy_picks(obs, base.budget_left)
+    Q0, G = base.core.Q0, np.asarray(base.state.G)
+    _, value, _ = _play(make_fim_learned(starts="policy"), seed)
+    assert value >= logdet_objective(Q0, G, start) - 1e-9
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_greedy_start_is_swap(seed: int) -> None:
+    """starts='greedy' plays exactly the swap agent's picks (the second formulation)."""
+    picks, value, _ = _play(make_fim_learned(starts="greedy"), seed)
+    ref_picks, ref_value, _ = _play(make("swap", FIM), seed)
+    assert picks == ref_picks
+    assert value == pytest.approx(ref_value, abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_both_starts_never_below_either(seed: int) -> None:
+    _, both, _ = _play(make_fim_learned(), seed)
+    _, greedy_start, _ = _play(make_fim_learned(starts="greedy"), seed)
+    _, policy_start, _ = _play(make_fim_learned(starts="policy"), seed)
+    assert both >= max(greedy_start, policy_start) - 1e-9
+
+
+def test_takes_over_mid_episode() -> None:
+    """Picks made before the agent's first plan stay in the prior; the rest fill the budget."""
+    env = gym.make(FIM, invalid_action="raise", budget=6)
+    obs, info = env.reset(seed=7)
+    greedy = make("greedy", FIM)
+    greedy.reset(env, seed=7)
+    first = []
+    for _ in range(2):
+        first.append(int(greedy.act(obs, info)))
+        obs, _, _, _, info = env.step(first[-1])
+    agent = make_fim_learned()
+    agent.reset(env, seed=7)
+    rest, done = [], False
+    while not done:
+        rest.append(int(agent.act(obs, info)))
+        obs, _, done, _, info = env.step(rest[-1])
+    assert len(rest) == 4 and not set(rest) & set(first) and len(set(rest)) == 4
+
+
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        ({"starts": "random"}, "starts"),
+        ({"max_rounds": -1}, "max_rounds"),
+        ({"max_rounds": True}, "max_rounds"),
+        ({"max_rounds": 2.5}, "max_rounds"),
+        ({"tol": math.nan}, "tol"),
+        ({"tol": -1e-3}, "tol"),
+        ({"tol": "small"}, "tol"),
+        ({"top_k": 3}, "top_k"),
+        ({"starts": "greedy", "checkpoint": "x.zip"}, "checkpoint"),
+        ({"checkpoint": "/nonexistent/policy.zip"}, "policy.zip"),
+    ],
+)
+def test_bad_options_are_value_errors_naming_them(options: dict[str, Any], named: str) -> None:
+    with pytest.raises(ValueError, match=named):
+        make_fim_learned(**options)
+
+
+def test_refuses_another_objective() -> None:
+    env = gym.make(FIM, objective="trace")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="objective='logdet' only"):
+        FIMPolicySwapAgent().reset(env, seed=0)
