@@ -10,12 +10,14 @@ import importlib
 import warnings
 
 import gymnasium as gym
+import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
 import selenv
-from selenv.agents import AGENTS, agents_for
+from selenv.agents import AGENTS, agents_for, make
 from selenv.bench import multiagent_modules
+from selenv.envs.actions import INVALID_ACTION_MODES
 from selenv.families import ALL_ENV_IDS, ENV_IDS, FAMILIES, family_spec
 from selenv.families.spec import FamilySpec, load_attr
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
@@ -29,15 +31,16 @@ def test_record_builds_both_versions_and_the_env(spec: FamilySpec) -> None:
     package = importlib.import_module(f"selenv.families.{spec.name}")
     assert package.SPEC is spec
     ids = [v.env_id for v in spec.versions]
-    assert spec.has_v0  # the four families of release 0.1
-    assert ids == [f"selenv/{spec.env_name}-v0", spec.current_id]
+    v0 = [f"selenv/{spec.env_name}-v0"] if spec.has_v0 else []  # a family added later has none
+    assert ids == [*v0, spec.current_id]
     assert spec.current_id in ENV_IDS and set(ids) <= set(ALL_ENV_IDS) <= set(gym.registry)
     assert all(family_spec(i) is spec for i in ids)
     env = gym.make(spec.current_id)
     assert isinstance(env.unwrapped, load_attr(spec.env_class))
     check_env(env.unwrapped, skip_render_check=True)
-    with pytest.warns(DeprecationWarning, match=spec.current_id):
-        gym.make(ids[0])
+    for old in v0:
+        with pytest.warns(DeprecationWarning, match=spec.current_id):
+            gym.make(old)
 
 
 @pytest.mark.parametrize("spec", FAMILIES, ids=IDS)
@@ -46,8 +49,8 @@ def test_record_registers_agents_views_checkpoint(spec: FamilySpec) -> None:
         assert module in importlib.sys.modules  # imported by selenv.agents
     assert {"random", "greedy"} & set(agents_for(spec.current_id))
     env = gym.make(spec.current_id)
-    for env_id in (spec.current_id, f"selenv/{spec.env_name}-v0"):
-        assert list(VIEWS[env_id]) == list(load_attr(spec.views))
+    for version in spec.versions:
+        assert list(VIEWS[version.env_id]) == list(load_attr(spec.views))
     view = view_for(spec.current_id, env)
     obs, _ = env.reset(seed=0)
     assert view.space(env.observation_space).contains(view(obs))
@@ -59,6 +62,34 @@ def test_record_registers_agents_views_checkpoint(spec: FamilySpec) -> None:
         module = importlib.import_module(spec.multiagent_module)
         assert callable(module.parallel_env) and module.__doc__
         assert spec.multiagent_module in multiagent_modules()
+
+
+@pytest.mark.parametrize("spec", FAMILIES, ids=IDS)
+def test_env_keeps_the_contract_the_bench_relies_on(spec: FamilySpec) -> None:
+    """Unknown keywords refused, every ``invalid_action`` mode taken, ``info["objective"]`` given.
+
+    ``selenv bench`` builds a family's env with ``invalid_action="raise"`` (a masked action
+    fails loudly) and compares agents on ``info["objective"]``; a family's own agent plays a
+    step of it without a masked action.
+    """
+    with pytest.raises(TypeError, match="no_such_keyword"):
+        gym.make(spec.current_id, no_such_keyword=1)
+    for mode in INVALID_ACTION_MODES:
+        gym.make(spec.current_id, invalid_action=mode).close()
+    with pytest.raises(ValueError, match="invalid_action"):
+        gym.make(spec.current_id, invalid_action="no_such_mode")
+    env = gym.make(spec.current_id, invalid_action="raise")
+    obs, info = env.reset(seed=0)
+    assert np.isfinite(float(info["objective"]))
+    name = next(n for n in ("greedy", "random") if n in agents_for(spec.current_id))
+    agent = make(name, spec.current_id)
+    agent.reset(env, seed=0)
+    obs, _, terminated, _, info = env.step(agent.act(obs, info))
+    assert np.isfinite(float(info["objective"]))
+    mask = np.asarray(env.unwrapped.action_masks(), dtype=bool)
+    if isinstance(env.action_space, gym.spaces.Discrete) and not (mask.all() or terminated):
+        with pytest.raises(ValueError, match="invalid"):
+            env.step(int(np.flatnonzero(~mask)[0]))
 
 
 def test_families_are_unique_and_in_selenv_list_order() -> None:
@@ -97,8 +128,6 @@ def test_moved_module_paths_still_import_with_a_warning() -> None:
 @pytest.mark.parametrize("spec", FAMILIES, ids=IDS)
 def test_every_current_env_observes_its_action_mask(spec: FamilySpec) -> None:
     """The README's promise: ``action_masks()``, ``info["action_mask"]``, ``obs["action_mask"]``."""
-    import numpy as np
-
     env = gym.make(spec.current_id)
     obs, info = env.reset(seed=1)
     mask = np.asarray(env.unwrapped.action_masks(), dtype=bool)

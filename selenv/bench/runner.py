@@ -259,6 +259,12 @@ def _build_env(env_id: str, env_kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
     try:
         return gym.make(env_id, **{**strict, **env_kwargs})
     except (TypeError, ValueError) as exc:
+        if strict and "invalid_action" not in env_kwargs and "'invalid_action'" in str(exc):
+            raise EnvKwargsError(  # a family's env must take it (docs: adding an env family)
+                f"cannot build {env_id}: selenv bench plays a family's env with "
+                f"invalid_action='raise' (a masked action fails loudly) and its env does not "
+                f"take that keyword ({exc}); see the guide 'adding an env family'"
+            ) from exc
         raise EnvKwargsError(f"cannot build {env_id} with env_kwargs {env_kwargs}: {exc}") from exc
 
 
