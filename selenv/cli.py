@@ -55,8 +55,9 @@ from typing import TYPE_CHECKING, Any, NoReturn
 import gymnasium as gym
 
 from selenv import __version__
-from selenv.agents import AGENTS, agents_for, parse_spec
+from selenv.agents import AGENTS, agents_for, default_agents, parse_spec
 from selenv.agents.base import unknown_agent_message
+from selenv.agents.learned import list_note
 from selenv.atomic import OutputBusyError, OutputLock, describe_os_error, probe_replaceable
 from selenv.atomic import write_json as atomic_write_json
 from selenv.exits import DeferredSignals, Terminated, end_startup, hold_signals, sigterm_raises
@@ -284,7 +285,11 @@ def cmd_list() -> int:
             print("  (no agents registered)")
         width = max((len(n) for n in names), default=0)
         for name in names:
-            desc = AGENTS[name][env_id].description
+            spec = AGENTS[name][env_id]
+            desc = spec.description
+            if spec.learned:
+                note = list_note(name, env_id)
+                desc = f"{desc}\n  {' ' * width}  -> {note}" if note else desc
             print(f"  {name.ljust(width)}  {desc}".rstrip())
     return 0
 
@@ -366,7 +371,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
             parse_spec(args.baseline)
         except ValueError as exc:
             return _error(f"--baseline: {exc}")
-    runs = sum(len(names) if names else len(agents_for(e)) for e in env_ids)
+    runs = sum(len(names) if names else len(default_agents(e)) for e in env_ids)
     args.max_episodes = args.max_episodes or MAX_EPISODES
     why = episodes_problem(args.episodes, args.max_episodes, runs=runs)
     if why is not None:

@@ -228,20 +228,25 @@ def test_readme_row_shows_each_difference_to_the_best_agent() -> None:
 
 
 def test_learned_marker_follows_the_layering() -> None:
-    """Every agent whose factory lives in ``selenv.learned`` is marked learned, and only those.
+    """The learned agents are exactly the policy records, their old names and ``learned``.
 
-    A new checkpoint-backed agent registered without ``learned=True`` would silently drop
-    out of the README's learned column; this keeps the marker and the layering together.
+    A checkpoint-backed agent registered anywhere else (without a record) would drop out of
+    the README's learned column and of ``learned``; every record's loader lives in
+    ``selenv.learned`` (above the families), and no other agent's factory does.
     """
-    marked, in_learned = set(), set()
-    for name, by_env in AGENTS.items():
+    from selenv.agents.learned import all_policies
+
+    records = all_policies()
+    names = {r.name for r in records} | {a for r in records for a in r.aliases} | {"learned"}
+    marked = {name for name, by_env in AGENTS.items() if any(s.learned for s in by_env.values())}
+    assert marked <= names
+    assert {r.name for r in records} <= marked
+    assert all(r.factory.startswith("selenv.learned.") for r in records)
+    for by_env in AGENTS.values():
         for spec in by_env.values():
-            if spec.learned:
-                marked.add(name)
             if isinstance(spec.factory, str) and spec.factory.startswith("selenv.learned."):
-                in_learned.add(name)
-    assert marked == in_learned
-    assert {"ppo", "cem", "ppo_top8", "ppo_search", "ppo_distilled"} <= marked
+                assert spec.learned, spec.name
+    assert {"ppo", "cem", "ppo_search", "ppo_distilled"} <= marked
     assert not {"greedy", "rollout", "fast_rollout", "swap"} & marked
 
 

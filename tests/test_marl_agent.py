@@ -21,7 +21,7 @@ def test_shared_ppo_acts_like_predict_for_acting_agents_and_passes_otherwise(
 ) -> None:
     env = fim_selection_v0.parallel_env(mode=mode)
     agent = make(name, MODULE)
-    assert isinstance(agent, SharedPPOPolicy)
+    assert isinstance(agent.inner, SharedPPOPolicy)  # the record's agent wraps the loader's
     policy = load_policy(agent.checkpoint, agent.metadata)
     observations, infos = env.reset(seed=4)
     agent.reset(env, seed=4)

@@ -2,8 +2,8 @@
 
 ``selenv.agents.make(name, env_id)`` builds one; ``AGENTS`` lists them; the solvers in
 :mod:`selenv.agents.fim_solvers` work on raw arrays without any env. Each family's agents live
-in its folder (its record's ``agent_modules``) and are imported here; the ``ppo`` agent of every
-family with a shipped checkpoint is registered from the record.
+in its folder (its record's ``agent_modules``) and are imported here; the learned agents are
+registered from the families' policy records (:mod:`selenv.agents.learned`).
 """
 
 from __future__ import annotations
@@ -16,10 +16,12 @@ from selenv.agents.base import (
     AgentSpec,
     PlanAgent,
     agents_for,
+    default_agents,
     make,
     parse_spec,
     register_agent,
 )
+from selenv.agents.learned import register_policies
 from selenv.agents.multiagent import RandomMaskedPolicy
 from selenv.families import FAMILIES
 
@@ -29,6 +31,7 @@ __all__ = [
     "AgentSpec",
     "PlanAgent",
     "agents_for",
+    "default_agents",
     "make",
     "parse_spec",
     "register_agent",
@@ -40,42 +43,5 @@ register_agent(AgentSpec("random", _MODULES, RandomMaskedPolicy, "uniform over e
 for _family in FAMILIES:
     for _module in _family.agent_modules:
         importlib.import_module(_module)  # registers the family's agents
-    if _family.checkpoint is not None:  # the learned policy lives above this layer: lazy
-        register_agent(
-            AgentSpec(
-                "ppo",
-                (_family.current_id,),
-                "selenv.learned.rl.agent:make_ppo_agent",
-                f"{_family.ppo_description} (checkpoints/{_family.checkpoint})",
-                kwargs={"env_id": _family.current_id},
-                all_versions=False,  # the shipped checkpoint was trained on this version
-                learned=True,
-            )
-        )
-    for _name, _file, _text in _family.more_policies:
-        register_agent(
-            AgentSpec(
-                _name,
-                (_family.current_id,),
-                "selenv.learned.rl.agent:make_ppo_agent",
-                f"{_text} (checkpoints/{_file})",
-                kwargs={"env_id": _family.current_id, "shipped": _file},
-                all_versions=False,
-                learned=True,
-            )
-        )
-# an RLlib-trained shared module (selenv.learned.rl.rllib_agent, lazy: selenv never imports ray)
-for _family in FAMILIES:
-    if _family.multiagent_module is not None:
-        register_agent(
-            AgentSpec(
-                "rllib",
-                (_family.multiagent_module,),
-                "selenv.learned.rl.rllib_agent:make_rllib_policy",
-                "RLlib-trained shared module on each agent's own candidate view "
-                "(rllib:path=runs/rllib_<env>/policy.json; selenv/train/train_rllib_marl.py)",
-                kwargs={"env_id": _family.multiagent_module},
-                all_versions=False,  # a shipped module was trained on the current version
-                learned=True,
-            )
-        )
+# the shipped learned policies: the families' PolicySpec records, their old names and `learned`
+register_policies()

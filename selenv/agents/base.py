@@ -35,6 +35,7 @@ __all__ = [
     "AgentSpec",
     "PlanAgent",
     "agents_for",
+    "default_agents",
     "make",
     "parse_spec",
     "register_agent",
@@ -102,6 +103,9 @@ class AgentSpec:
     #: not a heuristic or a search; ``scripts/bench_tables.py`` picks each env's best learned
     #: agent by it
     learned: bool = False
+    #: among the agents ``selenv bench`` runs when ``--agents`` is not given (``False``: a
+    #: deprecated name, a retired policy, or the record ``learned`` already plays)
+    default: bool = True
 
     def build(self, **kwargs: Any) -> Agent:
         """Instantiate the agent.
@@ -167,6 +171,11 @@ def agents_for(env_id: str) -> list[str]:
     ordered = [name for name in _ORDER.get(env_id, []) if env_id in AGENTS.get(name, {})]
     others = [n for n, by_env in AGENTS.items() if env_id in by_env and n not in ordered]
     return ordered + others
+
+
+def default_agents(env_id: str) -> list[str]:
+    """The agents ``selenv bench`` runs on ``env_id`` by default (:attr:`AgentSpec.default`)."""
+    return [n for n in agents_for(env_id) if AGENTS[n][env_id].default]
 
 
 def unknown_agent_message(names: str | list[str], env_ids: list[str] | tuple[str, ...]) -> str:

@@ -46,7 +46,7 @@ from typing import Any
 import gymnasium as gym
 from tqdm import tqdm
 
-from selenv.agents import AGENTS, Agent, agents_for, make, parse_spec
+from selenv.agents import AGENTS, Agent, agents_for, default_agents, make, parse_spec
 from selenv.agents.base import unknown_agent_message
 from selenv.bench.multiagent import (
     build_parallel_env,
@@ -227,7 +227,7 @@ def _check_agents(
 ) -> tuple[list[str], dict[str, str]]:
     """Return the agents to run and the inapplicable ones (name -> reason) to report."""
     if agent_names is None:
-        names = agents_for(env_id)
+        names = default_agents(env_id)
         if not names:
             raise BenchError(f"no registered agent applies to {env_id!r}")
         return names, {}

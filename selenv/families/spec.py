@@ -48,10 +48,15 @@ class FamilySpec:
         v0_presets: preset names that meant another preset in release 0.1 (``-v0`` maps them).
         views: ``"module:attr"`` of the family's candidate views, ``{name: factory(env)}``; the
             first is the default (the learned policies read the env through it).
-        checkpoint: file name of the shipped ``ppo`` policy in ``checkpoints/`` (``None``: none).
-        ppo_description: ``selenv list`` text of that policy.
-        more_policies: further shipped policies of the current version, each ``(agent name,
-            file name in checkpoints/, selenv list text)``; registered like ``ppo``.
+        checkpoint: file name in ``checkpoints/`` of the default weights of the family's
+            ``ppo`` loader (:class:`selenv.learned.rl.agent.SB3PolicyAgent` without
+            ``checkpoint=``) and the starting point of its expert-iteration trainers
+            (``None``: none).
+        policies: ``"module:attr"`` of the family's shipped learned policies, a tuple of
+            :class:`~selenv.families.policy.PolicySpec` records (torch-free; their loaders are
+            imported only when an agent is built). The agent registry, ``selenv list``, the
+            bench's defaults, ``learned`` and the docs' tables read them; no other place
+            declares a learned agent.
         agent_modules: modules whose import registers the family's agents.
         multiagent_module: the public PettingZoo module of the family (its current version),
             if any.
@@ -72,8 +77,7 @@ class FamilySpec:
     v0_presets: Mapping[str, str] = field(default_factory=dict)
     views: str = "selenv.envs.views:IDENTITY_VIEWS"
     checkpoint: str | None = None
-    ppo_description: str = ""
-    more_policies: tuple[tuple[str, str, str], ...] = ()
+    policies: str | None = None
     agent_modules: tuple[str, ...] = ()
     multiagent_module: str | None = None
     multiagent_v0: str | None = None

@@ -25,13 +25,13 @@ the weights-file limit ``MAX_WEIGHTS_BYTES`` of the loader if the file is larger
 from __future__ import annotations
 
 import json
-from importlib import resources
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from selenv.shipped import CHECKPOINT_PACKAGE, checkpoint_dir
 from selenv.untrusted import json_depth, read_text
 
 __all__ = [
@@ -49,7 +49,6 @@ __all__ = [
     "read_metadata",
 ]
 
-CHECKPOINT_PACKAGE = "selenv.checkpoints"
 
 #: Ceilings on what checkpoint metadata may ask a loader to build (read at call time, so a
 #: caller that trusts a larger file can raise an entry first):
@@ -93,19 +92,6 @@ def current_class_name(name: object) -> object:
     if isinstance(name, str) and name.startswith("learned."):
         return f"selenv.{name}"
     return name
-
-
-def checkpoint_dir() -> Path:
-    """The folder of the shipped checkpoints (a real directory: selenv is never zipped).
-
-    Raises:
-        RuntimeError: the package data is not on the file system (a zipped install).
-    """
-    root = resources.files(CHECKPOINT_PACKAGE)
-    path = Path(str(root))
-    if not path.is_dir():
-        raise RuntimeError(f"selenv's checkpoints are not a folder on disk: {root!r}")
-    return path
 
 
 def checkpoint_path(name: str) -> Path:

@@ -20,7 +20,7 @@ SPEC = FamilySpec(
     v0_kwargs={"preset": "paper", "obs_mask": False},
     views="selenv.families.clustering.view:VIEWS",
     checkpoint="receiver_clustering_ppo.zip",
-    ppo_description="edit-ranking policy, its top edit",
+    policies="selenv.families.clustering.policies:POLICIES",
     agent_modules=(
         "selenv.families.clustering.agents",
         "selenv.families.clustering.rollout",

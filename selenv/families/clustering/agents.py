@@ -314,15 +314,3 @@ register_agent(
         "single_cluster", _ID, _fixed("single_cluster"), "all in one cluster (unconstrained bound)"
     )
 )
-for _k in (4, 8):
-    register_agent(
-        AgentSpec(
-            f"ppo_top{_k}",
-            _ID,
-            "selenv.learned.rl.agent:make_ppo_agent",
-            f"edit-ranking policy's {_k} best edits costed, best improving one played",
-            kwargs={"env_id": CLUSTERING_ENV_ID, "verify_top_k": _k},
-            all_versions=False,
-            learned=True,
-        )
-    )

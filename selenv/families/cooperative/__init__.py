@@ -19,7 +19,7 @@ SPEC = FamilySpec(
     v0_kwargs={"preset": "dense"},
     views="selenv.families.cooperative.view:VIEWS",
     checkpoint="cl_scheduling_ppo.zip",
-    ppo_description="MaskablePPO pair-scoring policy",
+    policies="selenv.families.cooperative.policies:POLICIES",
     agent_modules=(
         "selenv.families.cooperative.agents",
         "selenv.families.cooperative.rollout",

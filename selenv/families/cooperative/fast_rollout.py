@@ -344,15 +344,3 @@ register_agent(
         "candidates batched: rollout's scores at a fraction of its time (no future noise)",
     )
 )
-# the learned scorer lives above this layer (it reads a checkpoint): registered lazily
-register_agent(
-    AgentSpec(
-        "cem",
-        (CL_ENV_ID,),
-        "selenv.learned.rl.cl_scorer:make_cl_cem",
-        "a one-filter-step lookahead of greedy plus a learned correction from 12 pair features, "
-        "trained by the cross-entropy method on episode returns (cem:checkpoint=...)",
-        all_versions=False,  # the shipped weights were trained on this version
-        learned=True,
-    )
-)

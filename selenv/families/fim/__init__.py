@@ -19,14 +19,7 @@ SPEC = FamilySpec(
     v0_presets={"example2": "example2_moving", "example3": "example3_moving"},
     views="selenv.families.fim.view:VIEWS",
     checkpoint="fim_selection_ppo.zip",
-    ppo_description="MaskablePPO candidate-scoring policy",
-    more_policies=(
-        (
-            "ppo_general",
-            "fim_selection_ppo_general.zip",
-            "one MaskablePPO policy for every preset and budget (d-independent invariant view)",
-        ),
-    ),
+    policies="selenv.families.fim.policies:POLICIES",
     agent_modules=(
         "selenv.families.fim.agents",
         "selenv.families.fim.multiagent_agents",

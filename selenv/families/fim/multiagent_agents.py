@@ -126,26 +126,3 @@ register_agent(
         "reference: centralized_greedy + swap search within each pool",
     )
 )
-
-# the shared learned policy lives above this layer: a lazy "module:attr" factory
-register_agent(
-    AgentSpec(
-        "ppo",
-        _FIM,
-        "selenv.learned.rl.marl:make_shared_ppo",
-        "shared (parameter-sharing) policy, each agent on its own observation "
-        "(checkpoints/fim_marl_ppo.zip)",
-        learned=True,
-    )
-)
-register_agent(
-    AgentSpec(
-        "ppo_independent",
-        _FIM,
-        "selenv.learned.rl.marl:make_shared_ppo",
-        "shared policy trained in independent mode, each agent on its own observation "
-        "(checkpoints/fim_marl_ppo_independent.zip)",
-        kwargs={"shipped": "fim_marl_ppo_independent.zip"},
-        learned=True,
-    )
-)

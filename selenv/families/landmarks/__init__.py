@@ -18,15 +18,7 @@ SPEC = FamilySpec(
     env_class="selenv.families.landmarks.env:LandmarkSelectionEnv",
     views="selenv.envs.views:IDENTITY_VIEWS",
     checkpoint="landmark_selection_ppo.zip",
-    ppo_description="MaskablePPO candidate-scoring policy",
-    more_policies=(
-        (
-            "ppo_distilled",
-            "landmark_selection_ppo_distilled.zip",
-            "MaskablePPO candidate-scoring policy distilled from fast_rollout "
-            "(320k labelled picks)",
-        ),
-    ),
+    policies="selenv.families.landmarks.policies:POLICIES",
     agent_modules=(
         "selenv.families.landmarks.agents",
         "selenv.families.landmarks.rollout",

@@ -208,15 +208,3 @@ register_agent(
         "(no future noise)",
     )
 )
-# the learned-prior version lives above this layer (it loads a policy): registered lazily
-register_agent(
-    AgentSpec(
-        "ppo_search",
-        (LANDMARK_ENV_ID,),
-        "selenv.learned.rl.search:make_landmark_ppo_search",
-        "fast_rollout on the shortlist the shipped ppo policy ranks first "
-        "(ppo_search:checkpoint=...)",
-        all_versions=False,  # the shipped checkpoint was trained on this version
-        learned=True,
-    )
-)
