@@ -35,6 +35,11 @@ Long runs lose at most one interval:
   completed iteration is saved as the ``.last`` pair (``"interrupted": "SIGINT"``) and
   :class:`TrainingInterrupted` / :class:`TrainingTerminated` (exit 130 / 143 through
   :func:`run_cli`) carry the one line naming the file and the ``--resume`` option.
+  ``--max-minutes M`` stops the same way at the first iteration boundary after ``M``
+  minutes (``"interrupted": "max-minutes"``, :class:`TrainingBudgetReached`, exit 75).
+* The run management (output lock, checkpoint pairs, random generators, the stop
+  exceptions, :func:`run_cli`, :func:`evaluate`) is the trainer base's
+  (:mod:`selenv.learned.trainer`); this module adds PPO's update step around SB3.
 * ``--resume PATH`` rebuilds the model from the options, loads the weights and the Adam state
   from ``PATH`` (tensors only, never SB3's unpickling ``load``), restores the step count, the
   update count, the training log and the ``random`` / ``numpy`` / ``torch`` generators, and
@@ -48,18 +53,12 @@ Long runs lose at most one interval:
 
 from __future__ import annotations
 
-import base64
-import contextlib
 import dataclasses
-import hashlib
 import itertools
 import json
 import os
-import random
-import sys
 import time
-import zipfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -76,16 +75,36 @@ from tqdm.auto import tqdm
 
 import selenv
 from selenv.agents import Agent
-from selenv.atomic import OutputBusyError, OutputLock, atomic_paths, write_json
-from selenv.bench.runner import AgentResult, run_episode
+from selenv.atomic import write_json
 from selenv.envs.resolved import resolved_env_config
-from selenv.exits import DeferredSignals, Terminated, UsageError, guarded_main
+from selenv.exits import Terminated, UsageError
 from selenv.learned.config import arg, check_outputs, usage_error
-from selenv.learned.resources import read_metadata
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
 from selenv.learned.rl.finetune import CriticWarmup, init_from_checkpoint
 from selenv.learned.rl.vec_env import make_native_vec_env
 from selenv.learned.tensor_load import load_tensors
+from selenv.learned.trainer import (
+    MAX_OPTIMIZER_BYTES,
+    RunStop,
+    TrainingBudgetReached,
+    TrainingInterrupted,
+    TrainingTerminated,
+    check_max_minutes,
+    evaluate,
+    file_sha256,
+    last_paths,
+    output_lock,
+    read_checkpoint_metadata,
+    read_resume_pair,
+    run_arg,
+    run_cli,
+    save_checkpoint,
+    verify_pair,
+)
+from selenv.learned.trainer import rng_state as _rng_state
+from selenv.learned.trainer import set_rng_state as _set_rng_state
+from selenv.learned.trainer import stop_exception as _stop_exception
+from selenv.learned.trainer import zip_member as _zip_member
 from selenv.untrusted import json_object
 
 #: the ``--vec-env`` choices
@@ -96,6 +115,7 @@ __all__ = [
     "VEC_ENVS",
     "PPOConfig",
     "TqdmCallback",
+    "TrainingBudgetReached",
     "TrainingInterrupted",
     "TrainingTerminated",
     "check_bounds",
@@ -128,7 +148,6 @@ LIMITS: dict[str, int] = {
     "hidden_width": 4096,
     "hidden_layers": 16,
 }
-MAX_OPTIMIZER_BYTES = 256 * 2**20
 
 
 @dataclass
@@ -219,6 +238,7 @@ class PPOConfig:
         "continue from this checkpoint (a .last.zip of an interrupted run, same options): "
         "weights, optimizer state, step count, training log and random generators",
     )
+    max_minutes: float | None = run_arg("max_minutes", None, unit="iteration boundaries")
     max_memory_gb: float = arg(
         8.0, "refuse a run whose estimated rollout-buffer plus minibatch memory exceeds this"
     )
@@ -241,13 +261,6 @@ def output_paths(cfg: PPOConfig) -> list[Path]:
     """The files a run writes: the checkpoint ``cfg.out`` and its ``.json`` metadata."""
     out = Path(cfg.out)
     return [out, out.with_suffix(".json")]
-
-
-def last_paths(out: str | Path) -> list[Path]:
-    """The periodic / interrupted checkpoint pair of ``out``: ``<stem>.last.zip`` and ``.json``."""
-    path = Path(out)
-    last = path.with_name(f"{path.stem}.last.zip")
-    return [last, last.with_suffix(".json")]
 
 
 def check_bounds(cfg: PPOConfig) -> None:
@@ -284,6 +297,7 @@ def check_bounds(cfg: PPOConfig) -> None:
         limit("--hidden (width)", width, "hidden_width")
     if cfg.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
+    check_max_minutes(cfg.max_minutes)
     if not cfg.max_memory_gb > 0:
         raise UsageError(f"--max-memory-gb must be > 0, got {cfg.max_memory_gb}")
 
@@ -342,188 +356,17 @@ def check_run_outputs(cfg: PPOConfig, prog: str) -> None:
     check_outputs(prog, output_paths(cfg), force=cfg.force, folders=folders)
 
 
-@contextlib.contextmanager
-def output_lock(out: str | Path, prog: str) -> Iterator[None]:
-    """Hold :class:`~selenv.atomic.OutputLock` on ``out`` for the block; busy: exit 2, one line."""
-    lock = OutputLock(out)
-    try:
-        lock.acquire()
-    except OutputBusyError as exc:
-        usage_error(prog, exc)
-    try:
-        yield
-    finally:
-        lock.release()
-
-
-# -- checkpoint pairs ----------------------------------------------------------------------------
-def file_sha256(path: str | Path) -> str:
-    """The hex SHA-256 of the file at ``path``."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def _named(exc: OSError, target: Path, temp: Path) -> OSError:
-    """``exc`` naming ``target`` instead of its temporary file."""
-    name = exc.filename
-    if name is None or str(name) == str(temp) or Path(str(name)).name.startswith("."):
-        name = str(target)
-    return type(exc)(exc.errno or 0, exc.strerror or str(exc), name)
-
-
-def save_checkpoint(
-    model: Any, meta: dict[str, Any], path: str | Path, *, exclude: list[str] | None = None
-) -> Path:
-    """Write the SB3 ``model`` to ``path`` (.zip) and ``meta`` to its ``.json``, as a pair.
-
-    Both files go to temporaries in the same folder first (``model.save``, then the JSON
-    with the zip's ``checkpoint_sha256``, which is also set in ``meta``); both are renamed
-    only when both are written and flushed. Any failure (``ENOSPC``, ``EFBIG``, an
-    interruption) leaves the previous pair byte-identical and no temporary behind; an
-    ``OSError`` is re-raised naming the target instead of the temporary. Returns ``path``.
-    """
-    target = Path(path)
-    json_path = target.with_suffix(".json")
-    try:
-        with atomic_paths([target, json_path]) as (tmp_zip, tmp_json):
-            try:
-                model.save(tmp_zip, exclude=exclude)
-            except RuntimeError as exc:  # torch reports some write failures this way
-                raise OSError(0, f"writing failed ({exc})", str(target)) from exc
-            meta["checkpoint_sha256"] = file_sha256(tmp_zip)
-            text = json.dumps(meta, indent=2) + "\n"
-            with open(tmp_json, "w", encoding="utf-8") as fh:
-                fh.write(text)
-    except OSError as exc:
-        which = json_path if exc.filename and str(exc.filename).endswith(".json") else target
-        raise _named(exc, which, which) from exc
-    return target
-
-
-def read_checkpoint_metadata(path: str | Path) -> dict[str, Any]:
-    """The JSON next to checkpoint ``path``, bounded in size and depth.
-
-    Raises:
-        ValueError: missing, or refused by :func:`selenv.learned.resources.read_metadata`
-            (too large, nested too deep, not JSON), or not an object.
-    """
-    json_path = Path(path).with_suffix(".json")
-    try:
-        meta = read_metadata(json_path, "checkpoint metadata")
-    except FileNotFoundError as exc:
-        raise ValueError(f"cannot read the metadata {json_path}: {exc}") from None
-    if not isinstance(meta, dict):
-        raise ValueError(f"{json_path} must hold a JSON object")
-    return meta
-
-
-def verify_pair(path: str | Path, meta: dict[str, Any]) -> None:
-    """Check that checkpoint ``path`` is the zip its metadata ``meta`` describes.
-
-    Metadata without ``checkpoint_sha256`` (written before it was recorded) is accepted.
-
-    Raises:
-        ValueError: the zip's SHA-256 differs from ``meta["checkpoint_sha256"]`` (a pair whose
-            halves come from different saves).
-    """
-    recorded = meta.get("checkpoint_sha256")
-    if recorded is None:
-        return
-    actual = file_sha256(path)
-    if actual != recorded:
-        json_path = Path(path).with_suffix(".json")
-        raise ValueError(
-            f"{path} and {json_path} do not match (mismatched pair): the metadata records "
-            f"sha256 {str(recorded)[:12]}..., the zip has {actual[:12]}...; use a checkpoint "
-            "and the metadata written with it"
-        )
-
-
-def _zip_member(path: Path, name: str, limit: int) -> bytes:
-    """Member ``name`` of the zip ``path``, at most ``limit`` bytes (``ValueError`` otherwise)."""
-    try:
-        with zipfile.ZipFile(path) as zf:
-            try:
-                info = zf.getinfo(name)
-            except KeyError:
-                raise ValueError(f"checkpoint {path} has no {name}") from None
-            if info.file_size > limit:
-                raise ValueError(f"checkpoint {path}: {name} is {info.file_size} bytes (> {limit})")
-            return zf.read(info)
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise ValueError(f"checkpoint {path} is not a readable zip file: {exc}") from exc
-
-
-# -- random generators ---------------------------------------------------------------------------
-def _b64(array: np.ndarray[Any, Any]) -> str:
-    return base64.b64encode(array.tobytes()).decode("ascii")
-
-
-def _unb64(text: str, dtype: Any) -> np.ndarray[Any, Any]:
-    return np.frombuffer(base64.b64decode(text, validate=True), dtype=dtype)
-
-
-def _rng_state() -> dict[str, Any]:
-    """The ``random``, ``numpy.random`` and ``torch`` generators' states, as JSON values.
-
-    The Mersenne-Twister words are base64 of little-endian ``uint32`` (a few KB in all).
-    """
-    version, internal, gauss = random.getstate()
-    name, keys, pos, has_gauss, cached = np.random.get_state(legacy=True)  # noqa: NPY002
-    return {
-        "python": [int(version), _b64(np.asarray(internal, dtype="<u4")), gauss],
-        "numpy": [
-            str(name),
-            _b64(np.asarray(keys, dtype="<u4")),
-            int(pos),
-            int(has_gauss),
-            float(cached),
-        ],
-        "torch": _b64(torch.get_rng_state().numpy()),
-    }
-
-
-def _set_rng_state(state: dict[str, Any]) -> None:
-    """Restore what :func:`_rng_state` recorded (``ValueError`` on a malformed record)."""
-    try:
-        version, internal, gauss = state["python"]
-        words = tuple(int(x) for x in _unb64(internal, "<u4"))
-        random.setstate((int(version), words, gauss))
-        name, keys, pos, has_gauss, cached = state["numpy"]
-        numpy_state = (str(name), _unb64(keys, "<u4").astype(np.uint32), pos, has_gauss, cached)
-        np.random.set_state(numpy_state)  # noqa: NPY002
-        raw = bytearray(base64.b64decode(state["torch"], validate=True))
-        torch.set_rng_state(torch.frombuffer(raw, dtype=torch.uint8))
-    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise ValueError(f"the checkpoint's random generator states are malformed: {exc}") from exc
-
-
-# -- interruptions -------------------------------------------------------------------------------
-class TrainingInterrupted(KeyboardInterrupt):
-    """SIGINT stopped training after the last completed iteration was saved (exit 130)."""
-
-    exit_code = 130
-
-
-class TrainingTerminated(Terminated):
-    """SIGTERM stopped training after the last completed iteration was saved (exit 143)."""
-
-    exit_code = 143
-
-
 class _CheckpointCallback(BaseCallback):
     """Iteration boundaries: periodic checkpoints, the training log, stop on a signal.
 
     At every rollout start (the previous update is complete) the step count, update count and
-    generator states are recorded, and a periodic checkpoint is written when ``every`` steps
-    passed since the last one; a pending signal makes the next step end training.
+    generator states are recorded, the wall-clock budget is checked, and a periodic checkpoint
+    is written when ``every`` steps passed since the last one; a pending signal or a spent
+    budget makes the next step end training.
     """
 
     def __init__(
-        self, every: int, save: Callable[[str | None], None], flag: DeferredSignals, log: list[Any]
+        self, every: int, save: Callable[[str | None], None], flag: RunStop, log: list[Any]
     ) -> None:
         super().__init__()
         self.every = every
@@ -540,6 +383,7 @@ class _CheckpointCallback(BaseCallback):
             "n_updates": int(getattr(self.model, "_n_updates", 0)),
             "rng": _rng_state(),
         }
+        self.flag.check_budget()  # a spent --max-minutes stops here, as a signal does
         if self.last_saved < 0:
             self.last_saved = n  # the start (or the resumed step): nothing new to save
         elif self.every and n - self.last_saved >= self.every and self.flag.signal is None:
@@ -581,33 +425,6 @@ class TqdmCallback(BaseCallback):
 
     def _on_training_end(self) -> None:
         self.bar.close()
-
-
-def evaluate(
-    make_env: Callable[[], gym.Env[Any, Any]], agents: dict[str, Agent], seeds: list[int]
-) -> dict[str, dict[str, Any]]:
-    """Each agent on one episode per seed: returns, final objectives, decision seconds.
-
-    Envs that count objective evaluations also give ``cost_evaluations_per_decision``.
-    """
-    out: dict[str, dict[str, Any]] = {}
-    for name, agent in agents.items():
-        env = make_env()
-        res = AgentResult(name)
-        for seed in seeds:
-            ret, obj = run_episode(env, agent, seed, res)
-            res.returns.append(ret)
-            res.final_objectives.append(obj)
-        env.close()
-        out[name] = {
-            "mean_return": round(float(np.mean(res.returns)), 5),
-            "mean_final_objective": round(float(np.mean(res.final_objectives)), 5),
-            "returns": [round(r, 5) for r in res.returns],
-            "decision_seconds_mean": res.decision_seconds / max(res.decisions, 1),
-        }
-        if res.cost_evaluations is not None:
-            out[name]["cost_evaluations_per_decision"] = res.cost_evaluations_per_decision
-    return out
 
 
 def evaluate_checkpoint(
@@ -847,7 +664,7 @@ def train(
     else:
         pretraining = pretrain(model) if pretrain is not None else None
     last_zip = last_paths(out)[0]
-    flag = DeferredSignals()
+    flag = RunStop(cfg.max_minutes)  # signals and --max-minutes: stop at a boundary
     curve = None
     if cfg.curve_every:
         curve = CurveRecorder(
@@ -954,29 +771,8 @@ def train(
 _NOT_SAVED = ["_last_obs", "_last_original_obs", "ep_info_buffer"]
 
 
-def _stop_exception(name: str, what: str) -> BaseException:
-    """The exception that ends a run stopped by signal ``name``, with its one line."""
-    if name == "SIGINT":
-        return TrainingInterrupted(f"interrupted (SIGINT): {what}")
-    return TrainingTerminated(f"terminated (SIGTERM): {what}")
-
-
 #: metadata that must agree between a resumed checkpoint and the options of the run
 _RESUME_KEYS = ("env_id", "env_kwargs", "view", "algorithm", "hidden", "activation")
-
-
-def read_resume_pair(path: Path) -> dict[str, Any]:
-    """The metadata of the ``--resume`` checkpoint ``path``, its pair verified.
-
-    Raises:
-        UsageError: ``"--resume <path>: <why>"`` for an unreadable or mismatched pair.
-    """
-    try:
-        meta = read_checkpoint_metadata(path)
-        verify_pair(path, meta)
-    except ValueError as exc:
-        raise UsageError(f"--resume {path}: {exc}") from None
-    return meta
 
 
 def _read_resume(cfg: PPOConfig, env_id: str, view: str) -> dict[str, Any]:
@@ -1055,28 +851,3 @@ def _restore(model: Any, venv: VecEnv, cfg: PPOConfig, meta: dict[str, Any]) -> 
         _set_rng_state(state["rng"])
     except (KeyError, ValueError) as exc:
         raise UsageError(f"--resume {path}: {exc}") from None
-
-
-def run_cli(main: Callable[..., Any], prog: str, argv: list[str] | None = None) -> int:
-    """Run a training script's ``main(argv)``; the exit code of :mod:`selenv.exits`.
-
-    A stopped run (:class:`TrainingInterrupted` / :class:`TrainingTerminated`) prints its
-    line (what was saved, how to resume) and returns 130 / 143; everything else as
-    :func:`selenv.exits.guarded_main` (usage 2, I/O failure 1, SIGINT 130, SIGTERM 143).
-    """
-    try:
-        return guarded_main(_unwrap_stops, prog, main, argv)
-    except _Stopped as stop:
-        print(f"{prog}: {stop.args[0]}", file=sys.stderr)
-        return int(stop.args[1])
-
-
-class _Stopped(Exception):
-    """(message, exit code) of a stopped run, carried past :func:`guarded_main`."""
-
-
-def _unwrap_stops(main: Callable[..., Any], argv: list[str] | None) -> Any:
-    try:
-        return main(argv)
-    except (TrainingInterrupted, TrainingTerminated) as exc:
-        raise _Stopped(str(exc), exc.exit_code) from None
