@@ -1,0 +1,155 @@
+"""Generate the learned-policy tables of the docs from the policy records and their standings.
+
+The records (:class:`selenv.families.policy.PolicySpec`, one ``policies`` module per family) and
+the standings in the checkpoint JSONs (``scripts/record_standings.py``) are the one source of
+the tables in ``docs/guide/choosing_learned.md``, between ``<!-- bench-table:start policies -->``
+and ``<!-- bench-table:end policies -->`` (the table of every shipped learned agent) and
+``<!-- bench-table:start deprecated -->`` / ``end`` (the old names and what replaces them)::
+
+    .venv/bin/python scripts/policy_tables.py --write   # rewrite the generated parts
+    .venv/bin/python scripts/policy_tables.py --check   # exit 1 if they disagree
+
+``tests/test_policy_tables.py`` runs the check, so the page cannot drift from the records.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from selenv.agents.learned import all_policies, resolve_learned
+from selenv.atomic import write_text
+from selenv.families.policy import METHODS, PolicySpec, Standing
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_tables import BenchTablesError, fill
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "guide" / "choosing_learned.md"
+COMMAND = ".venv/bin/python scripts/policy_tables.py --write"
+
+
+def _at_defaults(record: PolicySpec, env_id: str) -> list[Standing]:
+    mine = [s for s in record.standings() if s.env_id == env_id]
+    return sorted(mine, key=lambda s: (bool(s.env_kwargs), sorted(s.env_kwargs.items())))
+
+
+def _diff(s: Standing) -> str:
+    digits = 3 if abs(s.mean_difference) < 10 else 1
+    lo, hi = s.ci95
+    mark = "" if s.beats_baseline else " (not a win)"
+    where = "".join(f" at {k}={v}" for k, v in sorted(s.env_kwargs.items()))
+    return (
+        f"{s.mean_difference:+.{digits}f} [{lo:+.{digits}f}, {hi:+.{digits}f}]{mark}, "
+        f"{s.wins}/{s.ties}/{s.losses}{where}"
+    )
+
+
+def _share(s: Standing) -> str:
+    ref = s.reference
+    if ref is None:
+        return "-"
+    lo, hi = ref["share_ci95"]
+    return f"{100 * ref['share_of_edge']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
+
+
+def _valid(record: PolicySpec) -> str:
+    if not record.valid:
+        return "any"
+    return "; ".join(f"{k} in {', '.join(map(str, v))}" for k, v in record.valid.items())
+
+
+def policies_block() -> str:
+    """The table of every shipped learned agent, env by env, ``learned`` first."""
+    rows = [
+        "| env / module | agent | method | vs baseline on held-out seeds: mean [95 % CI], "
+        "W/T/L | decision time / baseline's | share of `rollout`'s edge | verified on |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    envs = list(dict.fromkeys(e for r in all_policies() for e in r.plays))
+    for env_id in envs:
+        chosen = resolve_learned(env_id)
+        first = f"`{env_id}`"
+        if chosen is not None:
+            rows.append(f"| {first} | **`learned`** | plays `{chosen[0].name}` | | | | |")
+            first = ""
+        for record in (r for r in all_policies() if env_id in r.plays):
+            standings = _at_defaults(record, env_id)
+            name = f"`{record.name}`" + (" (retired)" if record.retired else "")
+            method = METHODS[record.method].split(" (")[0]
+            if not standings:
+                rows.append(
+                    f"| {first} | {name} | {method} | not measured | | | {_valid(record)} |"
+                )
+                first = ""
+                continue
+            for s in standings:
+                rows.append(
+                    f"| {first} | {name} | {method} | {_diff(s)} vs `{s.baseline}` | "
+                    f"{s.decision_time_ratio:.1f}x | {_share(s)} | {_valid(record)} |"
+                )
+                first = name = method = ""
+    seeds = sorted({(s.seed, s.episodes) for r in all_policies() for s in r.standings()})
+    where = ", ".join(f"seeds {a}-{a + n - 1}" for a, n in seeds)
+    rows.append("")
+    rows.append(
+        f"Measured by `selenv bench` on {where} (never used in training or selection), at each "
+        "env's default keywords unless a keyword is named; decision times are ratios to the "
+        "baseline's in the same run."
+    )
+    return "\n".join(rows)
+
+
+def deprecated_block() -> str:
+    """The old names, what they now play, and the retired policies."""
+    rows = ["| old name | on | use instead |", "|---|---|---|"]
+    for record in all_policies():
+        for alias, options in record.aliases.items():
+            spelling = ":".join([record.name, *(f"{k}={v}" for k, v in options.items())])
+            rows.append(f"| `{alias}` | {', '.join(record.plays)} | `{spelling}` |")
+        if record.retired:
+            rows.append(
+                f"| `{record.name}` (shipped weights) | {', '.join(record.plays)} | "
+                f"{record.retired} |"
+            )
+    return "\n".join(rows)
+
+
+def expected(page: str | Path = PAGE) -> tuple[str, str]:
+    """The page's current text and the text the records give it."""
+    text = Path(page).read_text(encoding="utf-8")
+    blocks = {"policies": policies_block(), "deprecated": deprecated_block()}
+    return text, fill(text, blocks, str(page))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line: ``--write`` or ``--check`` (exit 0 agree / written, 1 differ, 2 error)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    mode = parser.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--write", action="store_true", help="rewrite the generated parts")
+    mode.add_argument("--check", action="store_true", help="exit 1 if they disagree")
+    parser.add_argument("--page", default=str(PAGE), help="the page to fill")
+    args = parser.parse_args(argv)
+    try:
+        old, new = expected(args.page)
+    except (BenchTablesError, OSError, ValueError) as exc:
+        print(f"policy_tables.py: {exc}", file=sys.stderr)
+        return 2
+    if args.check:
+        if old != new:
+            print(
+                f"{args.page}: generated part differs from the records; run {COMMAND}",
+                file=sys.stderr,
+            )
+            return 1
+        return 0
+    if old != new:
+        write_text(args.page, new)
+        print(f"wrote {args.page}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
