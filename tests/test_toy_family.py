@@ -206,7 +206,8 @@ def test_an_env_without_invalid_action_is_refused_in_one_line(
     rc, stdout, stderr, _ = run_bench(src, tmp_path)
     assert rc == 2, stdout + stderr
     lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and "invalid_action" in lines[0] and "adding" in lines[0], stderr
+    assert len(lines) == 1 and "invalid_action='raise'" in lines[0], stderr
+    assert "adding an env family" in lines[0] and "--env-kwargs" not in lines[0], stderr
 
 
 def test_the_one_line_edit_and_the_guide_reader() -> None:

@@ -260,7 +260,7 @@ def _build_env(env_id: str, env_kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
         return gym.make(env_id, **{**strict, **env_kwargs})
     except (TypeError, ValueError) as exc:
         if strict and "invalid_action" not in env_kwargs and "'invalid_action'" in str(exc):
-            raise EnvKwargsError(  # a family's env must take it (docs: adding an env family)
+            raise BenchError(  # not the user's keywords: a family's env must take it
                 f"cannot build {env_id}: selenv bench plays a family's env with "
                 f"invalid_action='raise' (a masked action fails loudly) and its env does not "
                 f"take that keyword ({exc}); see the guide 'adding an env family'"
@@ -387,7 +387,7 @@ def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any]) -> None:
     """Build (and close) the bench's env once: bad keywords fail before anything runs.
 
     Raises:
-        BenchError: unknown env or module.
+        BenchError: unknown env or module, or a family's env without ``invalid_action``.
         EnvKwargsError: the constructor rejected ``env_kwargs``.
     """
     build, _ = _env_factory(env_id, check_env_id(env_id), dict(env_kwargs))
