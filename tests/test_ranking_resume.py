@@ -24,12 +24,13 @@ import numpy as np
 import pytest
 import torch
 
+from selenv.learned.rl import distill
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.expert import LANDMARK_ID
 from selenv.learned.rl.ranking import RankingData, load_labels, save_labels
 from selenv.learned.rl.safe_load import read_weights
 from selenv.learned.rl.training import run_cli
-from selenv.train import train_cl_expert, train_clustering_dagger, train_landmark_expert
+from selenv.train import train_clustering_dagger, train_landmark_expert
 
 ROOT = Path(__file__).resolve().parents[1]
 PROG = "prog"
@@ -100,7 +101,7 @@ def test_sigint_in_a_fit_keeps_the_epoch_and_resumes_bit_identically(
 ) -> None:
     out = tmp_path / "p.zip"
     last = _last(out)
-    _signal_in_fit(monkeypatch, train_cl_expert, fit_seed=1, sig=signal.SIGINT)  # round 1
+    _signal_in_fit(monkeypatch, distill, fit_seed=1, sig=signal.SIGINT)  # round 1
     code = _run(train_landmark_expert.main, ["--out", str(out), *LM_ARGS])
     assert code == 130
     line = _stop_line(capsys)
@@ -182,7 +183,7 @@ def _fork_run(argv: list[str], patch: Callable[[], None], err: Path) -> int:
 
 def _block_in_round1_fit(ready: Path) -> None:
     """Patch: after round 1's first fit epoch (its .last written), wait to be killed."""
-    real = train_cl_expert.fit_ranking
+    real = distill.fit_ranking
 
     def fit(policy: Any, data: Any, **kw: Any) -> Any:
         after = kw["after_epoch"]
@@ -197,7 +198,7 @@ def _block_in_round1_fit(ready: Path) -> None:
 
         return real(policy, data, **{**kw, "after_epoch": hook})
 
-    train_cl_expert.fit_ranking = fit
+    distill.fit_ranking = fit
 
 
 def _long_round1_collection(ready: Path) -> None:
@@ -306,7 +307,7 @@ def test_dagger_stops_after_an_epoch_and_resumes_bit_identically(
     assert reference["complete"] is True and not _last(ref).exists()
     out = tmp_path / "d.zip"
     last = _last(out)
-    _signal_in_fit(monkeypatch, train_clustering_dagger, fit_seed=1, sig=signal.SIGTERM)
+    _signal_in_fit(monkeypatch, distill, fit_seed=1, sig=signal.SIGTERM)
     assert _run(train_clustering_dagger.main, [f"--out={out}", *DAG_ARGS]) == 143
     assert _stop_line(capsys) == (
         f"{PROG}: terminated (SIGTERM): saved the labels and the fit after 2 of 3 epochs as "

@@ -24,6 +24,9 @@ labelling abandons the labels (the workers stop; nothing is kept); during the fi
 epoch completes and the state is saved (``"complete": false``, ``"interrupted"``); the command
 exits 130 / 143 with one line naming ``--resume <out stem>.last.zip``, which continues with the
 same options to the weights of an uninterrupted run (other options are refused, exit 2).
+``--max-minutes M`` stops the same way after the labels are collected or after a fit epoch
+(``"interrupted": "max-minutes"``, exit 75). The collection and the fit are the DAgger loop's
+(:mod:`selenv.learned.rl.distill`), one round of it.
 
 The shipped ``checkpoints/receiver_clustering_ppo.zip`` is one such round on the ranking-trained
 policy: ``configs/receiver_clustering_ppo.toml`` (its header gives both commands).
@@ -31,7 +34,6 @@ policy: ``configs/receiver_clustering_ppo.toml`` (its header gives both commands
 
 from __future__ import annotations
 
-import copy
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -43,10 +45,11 @@ import torch
 from gymnasium import spaces
 
 from selenv.atomic import write_json
-from selenv.exits import DeferredSignals, Terminated, UsageError
+from selenv.exits import Terminated, UsageError
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.candidate_policy import make_ppo
+from selenv.learned.rl.distill import FREE_OPTIONS, Progress, collected, fit_round, save_state
 from selenv.learned.rl.edit_policy import (
     SCORERS,
     edit_model_from_checkpoint,
@@ -55,31 +58,29 @@ from selenv.learned.rl.edit_policy import (
 )
 from selenv.learned.rl.ranking import (
     FitState,
-    RankingData,
     check_ranking_sizes,
     collect_clustering_ranking,
-    fit_ranking,
     fit_state_path,
     load_labels,
     read_fit_state,
     read_resume,
-    save_labels,
-    save_resumable,
 )
 from selenv.learned.rl.safe_load import model_from_checkpoint, read_weights
-from selenv.learned.rl.training import (
-    _rng_state,
-    _set_rng_state,
-    _stop_exception,
-    evaluate_checkpoint,
+from selenv.learned.rl.training import evaluate_checkpoint
+from selenv.learned.rl.views import CandidateViewWrapper, view_for
+from selenv.learned.trainer import (
+    RunStop,
+    check_run_options,
     last_paths,
     output_lock,
     read_checkpoint_metadata,
+    run_arg,
     run_cli,
     save_checkpoint,
+    set_rng_state,
+    stop_exception,
     verify_pair,
 )
-from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.untrusted import json_object
 
 ENV_ID = "selenv/ReceiverClustering-v1"
@@ -148,6 +149,7 @@ class Config:
         "continue an interrupted run (same options) from its <out stem>.last.zip: the labels "
         "collected, the weights, the fit epoch and its optimizer",
     )
+    max_minutes: float | None = run_arg("max_minutes", None, unit="a fit epoch")
 
 
 def fresh_model(
@@ -214,6 +216,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     cfg = parse_args(argv)
     check_ranking_sizes(cfg)  # every size in range and under its ceiling, before any work
     prog = f"python -m {SCRIPT}"
+    check_run_options(cfg, prog)
     last = last_paths(cfg.out)[0]
     if cfg.resume:
         if not Path(cfg.resume).is_file():
@@ -239,18 +242,7 @@ def state_files(out: str | Path) -> list[Path]:
 
 
 #: options that may differ between an interrupted run and its --resume
-_FREE = (
-    "out",
-    "force",
-    "progress",
-    "eval_episodes",
-    "eval_seed",
-    "verify_top_k",
-    "baselines",
-    "resume",
-    "checkpoint_every",
-    "allow_large",
-)
+_FREE = (*FREE_OPTIONS, "verify_top_k", "baselines")
 
 
 def _run(cfg: Config) -> dict[str, Any]:
@@ -278,7 +270,8 @@ def _run(cfg: Config) -> dict[str, Any]:
     if meta.get("env_id") != ENV_ID:
         raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {meta.get('env_id')!r}")
     torch.set_num_threads(1)
-    start = time.perf_counter()
+    flag = RunStop(cfg.max_minutes)  # signals and the budget, checked at the safe points
+    started = time.perf_counter()
     last = last_paths(out)[0]
     labels_file = state_files(out)[2]
     data = None
@@ -297,7 +290,7 @@ def _run(cfg: Config) -> dict[str, Any]:
             )
         except (KeyboardInterrupt, Terminated) as exc:
             name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
-            raise _stop_exception(
+            raise stop_exception(
                 name, "while collecting the labels: nothing complete to keep; run it again"
             ) from None
     # weights read safely (never SB3's load(), which unpickles the zip), onto a fresh model
@@ -311,82 +304,39 @@ def _run(cfg: Config) -> dict[str, Any]:
         meta = {**meta, "architecture": architecture}
     meta = {**meta, "dagger": asdict(cfg), "metrics": None}
     meta.pop("checkpoint_sha256", None)  # the source's: replaced by the new zip's
-    flag = DeferredSignals()
-    wall_before = 0.0
-    fit_state: FitState | None = FitState(0, {})
-    labels: list[dict[str, Any]] = []
+    run = Progress(fit=FitState(0, {}))
     if resumed is not None:
         space = cast(spaces.Dict, env.observation_space)
         rows = {k: tuple(sp.shape or ()) for k, sp in space.spaces.items()}
-        data, labels, fit_state, wall_before = _restore(cfg, resumed, model, rows, labels_file)
+        run = _restore(cfg, resumed, model, rows, labels_file)
+    run.start = started  # the wall time counts the collection
 
     def save(interrupted: str | None, fit: FitState | None) -> None:
-        snap = copy.deepcopy(meta)
-        snap["complete"] = False
-        snap["resume_state"] = {
-            "rounds_done": 0,
-            "labels": labels,
-            "rng": _rng_state(),
-            "wall_seconds": round(wall_before + time.perf_counter() - start, 1),
-        }
-        if interrupted is not None:
-            snap["interrupted"] = interrupted
-        save_resumable(model, snap, last, fit)
+        save_state(model, meta, run, last, interrupted, fit)
 
-    def stop(name: str, state: FitState | None) -> BaseException:
-        done = state.epochs_done if state is not None else 0
-        return _stop_exception(
+    def stop(name: str) -> BaseException:
+        return stop_exception(
             name,
-            f"saved the labels and the fit after {done} of {cfg.epochs} epochs as {last} "
-            f"(+ .json); continue with the same command and --resume {last}",
+            f"saved the labels and the fit after {run.epochs_done} of {cfg.epochs} epochs as "
+            f"{last} (+ .json); continue with the same command and --resume {last}",
         )
 
-    assert data is not None
-    if resumed is None:
-        with flag:
-            sha = save_labels(data, labels_file)
-            labels.append({"round": 0, "states": len(data), "sha256": sha})
-            save(flag.signal, fit_state)  # labels collected: a resume fits them
-        if flag.signal is not None:
-            raise stop(flag.signal, fit_state)
-
-    def after_epoch(state: FitState) -> bool:
-        nonlocal fit_state
-        fit_state = state
-        every = cfg.checkpoint_every
-        if flag.signal is None and every and state.epochs_done % every == 0:
-            if state.epochs_done < cfg.epochs:
-                save(None, state)
-        return flag.signal is not None
-
+    if data is not None:  # labels collected: a resume fits them
+        name = collected(data, labels_file, 0, run, flag, save)
+        if name is not None:
+            raise stop(name)
     with flag:
-        fit = fit_ranking(
-            model.policy,
-            data,
-            epochs=cfg.epochs,
-            learning_rate=cfg.learning_rate,
-            temperature=cfg.temperature,
-            seed=cfg.seed,
-            progress=cfg.progress,
-            start=fit_state,
-            after_epoch=after_epoch,
+        fit = fit_round(
+            cfg, model, run.parts[0], run, seed=cfg.seed, flag=flag, save=save, stop=stop
         )
-        if fit["epochs_done"] < cfg.epochs:  # stopped by a signal after a completed epoch
-            name = flag.signal or "SIGINT"
-            save(name, fit_state)
-            raise stop(name, fit_state)
-        meta["dagger"] = {
-            **asdict(cfg),
-            **fit,
-            "wall_seconds": round(wall_before + time.perf_counter() - start, 1),
-        }
+        meta["dagger"] = {**asdict(cfg), **fit, "wall_seconds": run.wall()}
         meta["complete"] = True
         json_path = out.with_suffix(".json")
         save_checkpoint(model, meta, out)  # zip + JSON as an atomic pair
         for stale in state_files(out):  # superseded by the result
             stale.unlink(missing_ok=True)
     if flag.signal is not None:
-        raise _stop_exception(
+        raise stop_exception(
             flag.signal,
             f"training had completed: saved {out} (+ .json); its evaluation was skipped",
         )
@@ -404,7 +354,7 @@ def _run(cfg: Config) -> dict[str, Any]:
             )
         except (KeyboardInterrupt, Terminated) as exc:
             name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
-            raise _stop_exception(
+            raise stop_exception(
                 name, f"during the evaluation: {out} (+ .json) is complete, without metrics"
             ) from None
         write_json(json_path, meta)
@@ -419,7 +369,7 @@ def _restore(
     model: Any,
     rows: dict[str, tuple[int, ...]],
     labels_file: Path,
-) -> tuple[RankingData, list[dict[str, Any]], FitState | None, float]:
+) -> Progress:
     """Labels, weights, fit state and generators of ``cfg.resume`` (``UsageError`` if bad)."""
     path = Path(cfg.resume)
     state = meta["resume_state"]
@@ -436,18 +386,24 @@ def _restore(
         )
         fit = read_fit_state(path, state.get("fit"))
         model.policy.load_state_dict(read_weights(path), strict=True)
-        _set_rng_state(state["rng"])
+        set_rng_state(state["rng"])
     except (ValueError, RuntimeError, KeyError, TypeError) as exc:
         raise UsageError(f"--resume {path}: {exc}") from None
     wall = state.get("wall_seconds")
-    return data, labels, fit, float(wall) if isinstance(wall, int | float) else 0.0
+    return Progress(
+        labels=labels,
+        parts=[data],
+        fit=fit,
+        epochs_done=fit.epochs_done if fit is not None else 0,
+        wall_before=float(wall) if isinstance(wall, int | float) else 0.0,
+    )
 
 
 def cli() -> None:
     """Console-script entry point (same options as ``main``).
 
     Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM.
+    130 / 143 after SIGINT / SIGTERM, 75 at ``--max-minutes``.
     """
     raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 

@@ -1,6 +1,7 @@
 """Expert iteration on ``LandmarkSelection-v1``: distil the landmark ``rollout`` reference.
 
-The same DAgger loop as :mod:`selenv.train.train_cl_expert`, with
+The same DAgger loop (:mod:`selenv.learned.rl.distill`) as
+:mod:`selenv.train.train_cl_expert`, with
 :func:`selenv.learned.rl.expert.collect_landmark_rollout_labels`: every pick is labelled by the
 landmark ``rollout`` (top-4 K-subsets by one-step gain plus brute force's own, 10 future
 filter updates of brute force on the forecast covariances); a landmark's label is the best
@@ -11,7 +12,7 @@ checkpoint and keeps its view; the result is benchmarked against ``brute_force``
     python -m selenv.train.train_landmark_expert   # -> runs/train_landmark_expert/policy.zip
 
 Stops and resumes as :mod:`selenv.train.train_cl_expert` does (``--checkpoint-every``,
-``--resume``, ``<out stem>.last.zip``).
+``--max-minutes``, ``--resume``, ``<out stem>.last.zip``).
 
 ``--labeller fast_rollout`` labels with the same lookahead on a shortlist of 6 landmarks
 (:mod:`selenv.families.landmarks.fast_rollout`), 11-15x cheaper per label.
@@ -32,18 +33,14 @@ from typing import Any
 
 from selenv.learned.config import arg, parse_config
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
+from selenv.learned.rl.distill import check_expert_outputs, expert_outputs, run_expert_iteration
 from selenv.learned.rl.expert import (
     LANDMARK_ID,
     LANDMARK_LABELLERS,
     collect_landmark_rollout_labels,
 )
 from selenv.learned.rl.ranking import check_ranking_sizes
-from selenv.learned.rl.training import output_lock, run_cli
-from selenv.train.train_cl_expert import (
-    check_expert_outputs,
-    expert_outputs,
-    run_expert_iteration,
-)
+from selenv.learned.trainer import output_lock, run_arg, run_cli
 
 SCRIPT = "selenv.train.train_landmark_expert"
 
@@ -108,6 +105,9 @@ class Config:
         "continue an interrupted run (same options) from its <out stem>.last.zip or a round "
         "checkpoint <out>_round<r>.zip: weights, labels so far, round, fit epoch and optimizer",
     )
+    max_minutes: float | None = run_arg(
+        "max_minutes", None, unit="a collection, a fit epoch or a round"
+    )
 
 
 def parse_args(argv: list[str] | None = None) -> Config:
@@ -140,7 +140,7 @@ def cli() -> None:
     """Console-script entry point (same options as ``main``).
 
     Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM.
+    130 / 143 after SIGINT / SIGTERM, 75 at ``--max-minutes``.
     """
     raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
 
