@@ -83,7 +83,7 @@ def test_stop_exception_for_the_budget_names_it_and_exits_75(tmp_path: Path) -> 
 
 
 # -- bad values on every trainer's command line --------------------------------------------------
-SCRIPTS = ["train_fim_ppo"]
+SCRIPTS = ["train_fim_ppo", "train_cl_expert", "train_landmark_expert", "train_clustering_dagger"]
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -154,3 +154,54 @@ def _keeping(save: Callable[..., Path], step: int) -> Callable[..., Path]:
         return out
 
     return saving
+
+
+# -- expert iteration and the DAgger round: the budget at a fit epoch, resumed bit for bit ------
+#: a tiny expert-iteration run: 2 rounds of 6 labelled picks, 3 fit epochs
+LM_ARGS = ["--rounds", "2", "--states-per-round", "6", "--horizon", "1", "--workers", "1",
+           "--epochs", "3", "--eval-episodes", "0", "--no-progress"]  # fmt: skip
+#: a tiny DAgger round on a 9-receiver clustering: 8 labelled states, 3 fit epochs
+DAG_ARGS = ['--env-kwargs={"n_agents": 9, "horizon": 10}', "--states=8", "--epochs=3",
+            "--workers=1", "--no-progress", "--eval-episodes=0", "--label-every=2"]  # fmt: skip
+
+
+def test_expert_iteration_budget_stops_mid_fit_and_resumes_bit_identically(
+    tmp_path: Path, minutes: list[int]
+) -> None:
+    from selenv.train import train_landmark_expert
+
+    ref = tmp_path / "ref.zip"
+    train_landmark_expert.main(["--out", str(ref), *LM_ARGS])
+    out = tmp_path / "p.zip"
+    last = last_paths(out)[0]
+    del minutes[:]  # reads: the start, round 0's labels, then one per fit epoch
+    with pytest.raises(TrainingBudgetReached) as exc:
+        train_landmark_expert.main(["--out", str(out), *LM_ARGS, "--max-minutes", "3"])
+    assert str(exc.value) == (
+        "stopped at its --max-minutes budget: saved the last completed step (round 0's labels "
+        f"collected, 2 of 3 fit epochs) as {last} (+ .json); continue with the same command "
+        f"and --resume {last}"
+    )
+    meta = _meta(last)
+    assert meta["interrupted"] == BUDGET and meta["resume_state"]["fit"]["epochs_done"] == 2
+    assert meta["expert_iteration"]["max_minutes"] == 3
+    resumed = train_landmark_expert.main(["--out", str(out), *LM_ARGS, "--resume", str(last)])
+    assert resumed["complete"] is True and len(resumed["expert_iteration"]["rounds_log"]) == 2
+    assert _same_weights(out, ref) and not last.exists()
+
+
+def test_dagger_budget_after_the_labels_and_resume(tmp_path: Path, minutes: list[int]) -> None:
+    from selenv.train import train_clustering_dagger
+
+    ref = tmp_path / "ref.zip"
+    train_clustering_dagger.main([f"--out={ref}", *DAG_ARGS])
+    out = tmp_path / "d.zip"
+    last = last_paths(out)[0]
+    del minutes[:]  # reads: the start, the labels collected, then one per fit epoch
+    with pytest.raises(TrainingBudgetReached, match=r"after 1 of 3 epochs"):
+        train_clustering_dagger.main([f"--out={out}", *DAG_ARGS, "--max-minutes=2"])
+    meta = _meta(last)
+    assert meta["interrupted"] == BUDGET and meta["resume_state"]["fit"]["epochs_done"] == 1
+    final = train_clustering_dagger.main([f"--out={out}", *DAG_ARGS, f"--resume={last}"])
+    assert final["dagger"]["epochs_done"] == 3
+    assert _same_weights(out, ref) and not last.exists()
