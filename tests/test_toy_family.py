@@ -46,7 +46,8 @@ PER_FAMILY_TESTS = sorted(
 def guide_files(text: str, folder: str = FAMILY_DIR) -> dict[str, str]:
     """``{file name: source}`` of the guide's code blocks captioned ``<folder>/<file>``.
 
-    A MyST ``{code-block}`` carries its options (``:caption: path``) on its first lines.
+    A MyST ``{code-block}`` carries its options (``:caption: path``, the path in backticks or
+    not) on its first lines.
     """
     files: dict[str, str] = {}
     for info, _line, src in fenced_blocks(text):
@@ -57,7 +58,7 @@ def guide_files(text: str, folder: str = FAMILY_DIR) -> dict[str, str]:
         while lines and (match := re.match(r"^:(\w+):\s*(.*)$", lines[0].strip())):
             options[match[1]] = match[2].strip()
             lines.pop(0)
-        caption = options.get("caption", "")
+        caption = options.get("caption", "").strip("`")
         if caption.startswith(folder + "/"):
             files[caption.removeprefix(folder + "/")] = "".join(lines).lstrip("\n")
     return files
@@ -221,6 +222,10 @@ def test_the_one_line_edit_and_the_guide_reader() -> None:
     assert [ast.unparse(e) for e in tree.body[-1].value.elts] == ["a.SPEC", "b.SPEC", "toy.SPEC"]  # type: ignore[attr-defined]
     with pytest.raises(AssertionError, match="step 3"):
         add_family_line("FAMILIES = ()\n", "toy")
-    text = "```{code-block} python\n:caption: selenv/families/toy/x.py\n\nX = 1\n```\n"
-    assert guide_files(text) == {"x.py": "X = 1\n"}
+    text = "```{code-block} python\n:caption: `selenv/families/toy/x.py`\n\nX = 1\n```\n"
+    assert (
+        guide_files(text)
+        == {"x.py": "X = 1\n"}
+        == guide_files(text.replace("`selenv/families/toy/x.py`", "selenv/families/toy/x.py"))
+    )
     assert guide_files(text.replace("toy/", "other/")) == {}
