@@ -83,7 +83,14 @@ def test_stop_exception_for_the_budget_names_it_and_exits_75(tmp_path: Path) -> 
 
 
 # -- bad values on every trainer's command line --------------------------------------------------
-SCRIPTS = ["train_fim_ppo", "train_cl_expert", "train_landmark_expert", "train_clustering_dagger"]
+#: every trainer with --max-minutes, and the name of its --out
+SCRIPTS = {
+    "train_fim_ppo": "p.zip",
+    "train_cl_expert": "p.zip",
+    "train_landmark_expert": "p.zip",
+    "train_clustering_dagger": "p.zip",
+    "train_cl_cem": "s.json",
+}
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -95,7 +102,7 @@ def test_bad_max_minutes_is_a_one_line_usage_error(
 
     module = importlib.import_module(f"selenv.train.{script}")
     with pytest.raises(SystemExit) as exc:
-        module.main([f"--out={tmp_path / 'p.zip'}", f"--max-minutes={value}"])
+        module.main([f"--out={tmp_path / SCRIPTS[script]}", f"--max-minutes={value}"])
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and len(err.splitlines()) == 1, err
     assert "--max-minutes" in err and value in err
@@ -205,3 +212,34 @@ def test_dagger_budget_after_the_labels_and_resume(tmp_path: Path, minutes: list
     final = train_clustering_dagger.main([f"--out={out}", *DAG_ARGS, f"--resume={last}"])
     assert final["dagger"]["epochs_done"] == 3
     assert _same_weights(out, ref) and not last.exists()
+
+
+# -- the cross-entropy method: the budget after a generation -------------------------------------
+CEM_TINY = ["--env-kwargs", '{"horizon": 8}', "--generations", "2", "--population", "3",
+            "--elite", "1", "--train-episodes", "2", "--workers", "1", "--eval-episodes", "0",
+            "--no-progress", "--horizon", "0", "--init-std", "50"]  # fmt: skip
+
+
+def test_cem_budget_keeps_the_generation_and_resumes_to_the_same_theta(
+    tmp_path: Path, minutes: list[int]
+) -> None:
+    from selenv.learned.rl.cl_scorer import read_scorer
+    from selenv.train import train_cl_cem
+
+    whole = tmp_path / "whole.json"
+    train_cl_cem.main(["--out", str(whole), *CEM_TINY])
+    out = tmp_path / "part.json"
+    state = train_cl_cem.state_path(out)
+    del minutes[:]  # reads: the start, then one per completed generation
+    with pytest.raises(
+        TrainingBudgetReached, match=f"keeps generation 1; continue with --resume {state}"
+    ):
+        train_cl_cem.main(["--out", str(out), *CEM_TINY, "--max-minutes", "1"])
+    saved = json.loads(state.read_text())
+    assert saved["interrupted"] == BUDGET and saved["state"]["generation"] == 1
+    assert not out.exists()
+    data = train_cl_cem.main(["--out", str(out), *CEM_TINY, "--resume", str(state)])
+    assert data["training"]["generations"] == 2
+    assert "max_minutes" not in data["training"]["options"]  # a run option, not the method's
+    assert read_scorer(out)["theta"].tolist() == read_scorer(whole)["theta"].tolist()
+    assert not state.exists()

@@ -19,9 +19,11 @@ history), and with ``--eval-episodes`` the bench JSON ``<out stem>.bench.json`` 
 Stopping and resuming: the search state ``<out stem>.last.json`` (the options, the sampling
 distribution, the sampler's generator state, the history) is written atomically after every
 generation; SIGINT / SIGTERM stop after the generation in progress is abandoned (exit 130 /
-143, the last completed generation kept) and ``--resume <out stem>.last.json`` with the same
-options continues to the same result as an uninterrupted run. The state file is removed when
-the run completes.
+143, the last completed generation kept), ``--max-minutes M`` stops after the first
+generation that ends past ``M`` minutes (``"interrupted": "max-minutes"`` in the state, exit
+75), and ``--resume <out stem>.last.json`` with the same options continues to the same result
+as an uninterrupted run. The state file is removed when the run completes. The run
+management (lock, stops, exit codes) is the trainer base's (:mod:`selenv.learned.trainer`).
 """
 
 from __future__ import annotations
@@ -41,7 +43,15 @@ from selenv.exits import Terminated, UsageError, check_size
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
 from selenv.learned.resources import read_metadata
 from selenv.learned.rl.cem import CEMSettings, cem_generation, new_state, state_from_json
-from selenv.learned.rl.training import _stop_exception, output_lock, run_cli
+from selenv.learned.trainer import (
+    BUDGET,
+    RunStop,
+    check_run_options,
+    output_lock,
+    run_arg,
+    run_cli,
+    stop_exception,
+)
 from selenv.parallel.executors import max_pool_workers
 from selenv.untrusted import json_object
 
@@ -90,6 +100,7 @@ class Config:
     resume: str = arg(
         "", "continue an interrupted run (same options) from its <out stem>.last.json"
     )
+    max_minutes: float | None = run_arg("max_minutes", None, unit="a generation")
 
 
 #: options that may differ between an interrupted run and its resumption
@@ -102,6 +113,7 @@ _FREE = (
     "resume",
     "workers",
     "allow_large",
+    "max_minutes",
 )
 
 
@@ -131,6 +143,7 @@ def _check(cfg: Config, prog: str) -> dict[str, Any]:
     """Validate the options before any work (exit 2, one line); the env keyword arguments."""
     if Path(cfg.out).suffix != ".json":
         usage_error(prog, f"--out must end in .json, got {cfg.out!r}")
+    check_run_options(cfg, prog)
     for name, low in (
         ("generations", 1),
         ("population", 2),
@@ -269,6 +282,7 @@ def _run(cfg: Config, argv: list[str] | None) -> dict[str, Any]:
     init = (kwargs, cfg.horizon, cfg.top_k, seeds, cfg.param_scale)
     last = state_path(out)
     started = time.perf_counter()
+    budget = RunStop(cfg.max_minutes)  # signals raise here (a generation is abandoned)
     ctx = multiprocessing.get_context("spawn")
     with ctx.Pool(cfg.workers, initializer=_init_worker, initargs=init) as pool:
         while state.generation < cfg.generations:
@@ -283,10 +297,14 @@ def _run(cfg: Config, argv: list[str] | None) -> dict[str, Any]:
                     else "no generation was completed"
                 )
                 signal = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
-                raise _stop_exception(
+                raise stop_exception(
                     signal, f"{kept}; continue with --resume {last} and the same options"
                 ) from None
-            write_json(last, {"script": SCRIPT, "options": options, "state": state.to_json()})
+            saved = {"script": SCRIPT, "options": options, "state": state.to_json()}
+            spent = state.generation < cfg.generations and budget.check_budget()
+            if spent:
+                saved["interrupted"] = BUDGET
+            write_json(last, saved)
             if cfg.progress:
                 rec = state.history[-1]
                 print(
@@ -295,6 +313,13 @@ def _run(cfg: Config, argv: list[str] | None) -> dict[str, Any]:
                     f"{rec['elite_value']:.5f} ({time.perf_counter() - t0:.0f} s)",
                     file=sys.stderr,
                     flush=True,
+                )
+            if spent:
+                pool.terminate()
+                raise stop_exception(
+                    BUDGET,
+                    f"{last} keeps generation {state.generation}; continue with --resume {last} "
+                    "and the same options",
                 )
         final_value = float(pool.map(_evaluate, [np.asarray(state.mean)])[0])
     theta = (cfg.param_scale * np.asarray(state.mean)).tolist()
@@ -322,7 +347,7 @@ def _run(cfg: Config, argv: list[str] | None) -> dict[str, Any]:
     write_json(out, data)
     last.unlink(missing_ok=True)
     if cfg.eval_episodes:
-        from selenv.train.train_cl_expert import evaluate_with_bench
+        from selenv.learned.rl.distill import evaluate_with_bench
 
         agents = f"greedy,rollout,fast_rollout,cem:checkpoint={out}"
         bench = evaluate_with_bench(out, cfg, ENV_ID, "greedy", agents)
