@@ -276,3 +276,20 @@ def test_outside_its_verified_configurations_a_policy_warns_in_one_line() -> Non
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         own.reset(outside, seed=0)  # the user's own file: no claim about where it is valid
+
+
+def _default_env(env_id: str) -> Any:
+    if env_id.startswith("selenv/"):
+        return gym.make(env_id)
+    import importlib
+
+    return importlib.import_module(env_id).parallel_env()
+
+
+def test_every_record_is_valid_at_its_envs_defaults() -> None:
+    """The standings are measured at the defaults: a record never warns there."""
+    from selenv.agents.learned import env_parameters
+
+    for record in all_policies():
+        for env_id in record.plays:
+            assert record.outside(env_parameters(_default_env(env_id))) == {}, record.name

@@ -21,7 +21,7 @@ POLICIES = (
         trainer="python -m selenv.train.train_clustering_dagger --config "
         "configs/receiver_clustering_ppo.toml",
         budget="8 cost evaluations per decision",
-        valid={"preset": ("paper",), "n_agents": (30,)},
+        valid={"preset": ("paper", "multipath"), "n_agents": (30,)},  # trained, verified
         aliases={"ppo_top8": {}, "ppo_top4": {"verify_top_k": 4}},
     ),
     PolicySpec(
