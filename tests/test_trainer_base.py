@@ -243,3 +243,53 @@ def test_cem_budget_keeps_the_generation_and_resumes_to_the_same_theta(
     assert "max_minutes" not in data["training"]["options"]  # a run option, not the method's
     assert read_scorer(out)["theta"].tolist() == read_scorer(whole)["theta"].tolist()
     assert not state.exists()
+
+
+# -- the surrogate fit: the budget after an epoch ------------------------------------------------
+SUR_TINY = ["--hidden", "8", "--patience", "1000", "--tensorboard-dir", "", "--no-progress",
+            "--epochs", "6"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def surrogate_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from selenv.learned.surrogate_data import generate_dataset, save_dataset
+
+    ds = generate_dataset(300, seed=3, workers=1, progress=False)
+    return save_dataset(ds, tmp_path_factory.mktemp("data") / "d.npz")
+
+
+@pytest.mark.parametrize("value", ["0", "-2", "nan", "inf", "soon"])
+def test_surrogate_bad_max_minutes_is_a_one_line_usage_error(
+    value: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from selenv.train import train_surrogate
+
+    with pytest.raises(SystemExit) as exc:
+        train_surrogate.cli([f"--out={tmp_path / 's.pt'}", f"--max-minutes={value}"])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1, err
+    assert "--max-minutes" in err and value in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_surrogate_budget_keeps_the_best_weights_and_resumes_to_the_same_fit(
+    tmp_path: Path, minutes: list[int], surrogate_data: Path
+) -> None:
+    from selenv.train import train_surrogate
+
+    argv = ["--data", str(surrogate_data), *SUR_TINY]
+    ref = tmp_path / "ref.pt"
+    train_surrogate.main([*argv, "--out", str(ref)])
+    out = tmp_path / "b.pt"
+    del minutes[:]  # reads: the start, then one per epoch
+    meta = train_surrogate.main([*argv, "--out", str(out), "--max-minutes", "2"])
+    assert meta["complete"] is False and meta["interrupted"] == BUDGET
+    assert meta["training"]["epochs_run"] == 2 and train_surrogate._exit_code(meta) == 75
+    state = tmp_path / "b.resume.pt"
+    meta = train_surrogate.main([*argv, "--out", str(out), "--resume", str(state)])
+    assert meta["complete"] is True and meta["training"]["epochs_run"] == 6
+    from selenv.learned.surrogates import Surrogate
+
+    got, want = (Surrogate.load(p).net.state_dict() for p in (out, ref))
+    assert want and set(got) == set(want) and all(torch.equal(got[k], want[k]) for k in want)
+    assert not state.exists()

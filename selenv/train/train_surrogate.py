@@ -38,7 +38,8 @@ Nothing a run produces is lost or half-written:
   second signal abandons at once (outputs untouched). ``--checkpoint-every K`` writes the
   resume state every K epochs; ``--resume <out>.resume.pt`` (same options) continues with the
   weights, optimiser, schedule, batch order (RNG), epoch count and best-so-far, and ends with
-  the same weights as an uninterrupted run;
+  the same weights as an uninterrupted run; ``--max-minutes M`` stops the same way after the
+  first epoch that ends past ``M`` minutes (``"interrupted": "max-minutes"``, exit 75);
 * a failed write (full disk, file-size limit) is one line and exit code 1; usage errors
   (bad options, an unreadable or oversized ``--data``, a bad ``--resume``) are one line and
   exit code 2, found before any work; another run writing the same ``--out`` is exit 2;
@@ -98,6 +99,13 @@ from selenv.learned.surrogates import (
     n_parameters,
 )
 from selenv.learned.tensor_load import load_tensors
+from selenv.learned.trainer import (
+    BUDGET,
+    RunStop,
+    TrainingBudgetReached,
+    check_max_minutes,
+    run_arg,
+)
 from selenv.parallel import make_executor
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.untrusted import NotParsedError, loads_json
@@ -118,7 +126,7 @@ _BYTES_PER_ROW = 4096
 RESUME_FREE = frozenset({
     "out", "force", "progress", "tensorboard_dir", "torch_threads", "checkpoint_every",
     "resume", "max_samples", "max_epochs", "max_width", "max_batch_size", "workers",
-    "executor", "address", "save_data",
+    "executor", "address", "save_data", "max_minutes",
 })  # fmt: skip
 #: test hook: called with the number of epochs done after each epoch (None: nothing)
 _after_epoch: Callable[[int], None] | None = None
@@ -186,6 +194,7 @@ class Config:
         "continue the run whose resume state is this file (<out>.resume.pt; same options; "
         "the outputs may exist)",
     )
+    max_minutes: float | None = run_arg("max_minutes", None, unit="an epoch")
     # ceilings (bounded work, checked before anything runs)
     max_samples: int = arg(MAX_ROWS, "ceiling of --samples and of the rows of a --data file")
     max_epochs: int = arg(10_000, "ceiling of --epochs")
@@ -363,6 +372,7 @@ def check_config(cfg: Config) -> None:
     """
     if cfg.kind not in KINDS:
         raise UsageError(f"--kind must be one of {KINDS}, got {cfg.kind!r}")
+    check_max_minutes(cfg.max_minutes)
     if cfg.method not in METHODS:
         raise UsageError(f"--method must be one of {METHODS}, got {cfg.method}")
     if cfg.objective_loss and (cfg.kind, cfg.method) != ("lpecmv", 3):
@@ -612,6 +622,8 @@ def fit(
             _after_epoch(epoch + 1)
         if not improved and epoch - best_epoch >= cfg.patience:
             break  # early stopping: the run is complete
+        if isinstance(stop, RunStop) and epoch + 1 < cfg.epochs:
+            stop.check_budget()  # a spent --max-minutes stops here, as a signal does
         if stop is not None and stop.signal is not None:
             interrupted, blob = stop.signal, state(epoch + 1)
             break
@@ -667,6 +679,8 @@ def _check_resume(cfg: Config, state: dict[str, Any], stamp: dict[str, Any]) -> 
 
 
 def _stop_line(sig: str) -> str:
+    if sig == BUDGET:
+        return "stopped at its --max-minutes budget"
     return "interrupted (SIGINT)" if sig == "SIGINT" else f"terminated ({sig})"
 
 
@@ -756,7 +770,7 @@ def _run(
     log_dir = Path(cfg.tensorboard_dir) / f"surrogate_{name}_{cfg.seed}_{int(time.time())}"
     writer = SummaryWriter(str(log_dir)) if cfg.tensorboard_dir else None
     state_path = resume_path(cfg)
-    with DeferredSignals() as stop:
+    with RunStop(cfg.max_minutes) as stop:
         result = fit(
             cfg, sur.net, (Xt, Yt, Xv, Yv), loss_fn, optim, batch_size, name, writer,
             stop=stop, resume=resume, checkpoint=lambda blob: write_bytes(state_path, blob),
@@ -833,7 +847,8 @@ def _run(
 
 def _exit_code(meta: dict[str, Any]) -> int:
     sig = meta.get("interrupted")
-    return {"SIGINT": 130, "SIGTERM": 143}.get(str(sig), 0) if sig else 0
+    codes = {"SIGINT": 130, "SIGTERM": 143, BUDGET: TrainingBudgetReached.exit_code}
+    return codes.get(str(sig), 0) if sig else 0
 
 
 def _cli_main(argv: list[str] | None = None) -> int:
@@ -850,7 +865,8 @@ def cli(argv: list[str] | None = None) -> None:
 
     Exit codes: 0 done; 2 a usage error or an output another run is writing (one line);
     1 a failed write or a worker that died (one line); 130 / 143 stopped by SIGINT / SIGTERM
-    (the best weights so far and the resume state saved, one line).
+    (the best weights so far and the resume state saved, one line); 75 stopped by
+    ``--max-minutes`` (the same, resumable).
     """
     sys.exit(guarded_main(_cli_main, PROG, argv))
 
