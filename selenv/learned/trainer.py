@@ -58,6 +58,7 @@ from selenv.learned.resources import read_metadata
 __all__ = [
     "BUDGET",
     "MAX_OPTIMIZER_BYTES",
+    "RESUME_FREE",
     "RUN_HELP",
     "RunStop",
     "TrainingBudgetReached",
@@ -67,6 +68,7 @@ __all__ = [
     "check_run_options",
     "clock",
     "evaluate",
+    "evaluation_stops",
     "file_sha256",
     "last_paths",
     "output_lock",
@@ -76,6 +78,7 @@ __all__ = [
     "run_arg",
     "run_cli",
     "save_checkpoint",
+    "save_final",
     "set_rng_state",
     "stop_exception",
     "verify_pair",
@@ -83,6 +86,19 @@ __all__ = [
 ]
 
 MAX_OPTIMIZER_BYTES = 256 * 2**20
+#: the run options a resumed run may change (how long and where it runs, what it writes);
+#: every other option must be the stopped run's
+RESUME_FREE = (
+    "out",
+    "force",
+    "progress",
+    "eval_episodes",
+    "eval_seed",
+    "resume",
+    "checkpoint_every",
+    "allow_large",
+    "max_minutes",
+)
 #: the name a stop on the wall-clock budget records (``"interrupted"`` in the ``.last`` JSON)
 BUDGET = "max-minutes"
 
@@ -401,6 +417,37 @@ def stop_exception(name: str, what: str) -> BaseException:
     if name == "SIGINT":
         return TrainingInterrupted(f"interrupted (SIGINT): {what}")
     return TrainingTerminated(f"terminated (SIGTERM): {what}")
+
+
+def save_final(
+    model: Any, meta: dict[str, Any], out: Path, stale: list[Path], flag: RunStop
+) -> None:
+    """Write the complete checkpoint pair ``out``, then remove the run's resume files ``stale``.
+
+    Signals are held while the files are written; one that arrived meanwhile (or before)
+    ends the run now, the result saved, its evaluation skipped.
+    """
+    with flag:
+        save_checkpoint(model, meta, out)
+        for path in stale:  # superseded by the result
+            path.unlink(missing_ok=True)
+    if flag.signal is not None:
+        raise stop_exception(
+            flag.signal,
+            f"training had completed: saved {out} (+ .json); its evaluation was skipped",
+        )
+
+
+@contextlib.contextmanager
+def evaluation_stops(out: Path) -> Iterator[None]:
+    """A SIGINT / SIGTERM during the held-out evaluation of ``out``: the run's stop line."""
+    try:
+        yield
+    except (KeyboardInterrupt, Terminated) as exc:
+        name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
+        raise stop_exception(
+            name, f"during the evaluation: {out} (+ .json) is complete, without metrics"
+        ) from None
 
 
 def read_resume_pair(path: Path) -> dict[str, Any]:

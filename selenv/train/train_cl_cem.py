@@ -45,6 +45,7 @@ from selenv.learned.resources import read_metadata
 from selenv.learned.rl.cem import CEMSettings, cem_generation, new_state, state_from_json
 from selenv.learned.trainer import (
     BUDGET,
+    RESUME_FREE,
     RunStop,
     check_run_options,
     output_lock,
@@ -104,17 +105,7 @@ class Config:
 
 
 #: options that may differ between an interrupted run and its resumption
-_FREE = (
-    "out",
-    "force",
-    "progress",
-    "eval_episodes",
-    "eval_seed",
-    "resume",
-    "workers",
-    "allow_large",
-    "max_minutes",
-)
+_FREE = (*RESUME_FREE, "workers")
 
 
 def state_path(out: str | Path) -> Path:

@@ -41,15 +41,21 @@ from pathlib import Path
 from typing import Any, cast
 
 import gymnasium as gym
-import torch
 from gymnasium import spaces
 
 from selenv.atomic import write_json
 from selenv.exits import Terminated, UsageError
 from selenv.learned.config import arg, check_outputs, parse_config, usage_error
-from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.candidate_policy import make_ppo
-from selenv.learned.rl.distill import FREE_OPTIONS, Progress, collected, fit_round, save_state
+from selenv.learned.rl.distill import (
+    FREE_OPTIONS,
+    Progress,
+    collected,
+    fit_round,
+    read_run_inputs,
+    save_state,
+)
 from selenv.learned.rl.edit_policy import (
     SCORERS,
     edit_model_from_checkpoint,
@@ -63,7 +69,6 @@ from selenv.learned.rl.ranking import (
     fit_state_path,
     load_labels,
     read_fit_state,
-    read_resume,
 )
 from selenv.learned.rl.safe_load import model_from_checkpoint, read_weights
 from selenv.learned.rl.training import evaluate_checkpoint
@@ -71,17 +76,15 @@ from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.learned.trainer import (
     RunStop,
     check_run_options,
+    evaluation_stops,
     last_paths,
     output_lock,
-    read_checkpoint_metadata,
     run_arg,
     run_cli,
-    save_checkpoint,
+    save_final,
     set_rng_state,
     stop_exception,
-    verify_pair,
 )
-from selenv.untrusted import json_object
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 SCRIPT = "selenv.train.train_clustering_dagger"
@@ -254,22 +257,7 @@ def _run(cfg: Config) -> dict[str, Any]:
         raise UsageError(f"--scorer must be one of {['checkpoint', *SCORERS]}, got {cfg.scorer!r}")
     if cfg.edit_rank < 1:
         raise UsageError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
-    if cfg.checkpoint_every < 0:
-        raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
-    try:  # size and nesting bounded before parsing
-        kwargs = json_object(cfg.env_kwargs, "--env-kwargs")
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    ours = {k: v for k, v in asdict(cfg).items() if k not in _FREE}
-    resumed = (
-        read_resume(cfg.resume, env_id=ENV_ID, block="dagger", ours=ours) if cfg.resume else None
-    )
-    meta = load_metadata(cfg.checkpoint)
-    if Path(cfg.checkpoint).with_suffix(".json").is_file():  # refuse a mismatched pair
-        verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
-    if meta.get("env_id") != ENV_ID:
-        raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {meta.get('env_id')!r}")
-    torch.set_num_threads(1)
+    kwargs, resumed, meta = read_run_inputs(cfg, ENV_ID, "dagger", _FREE)
     flag = RunStop(cfg.max_minutes)  # signals and the budget, checked at the safe points
     started = time.perf_counter()
     last = last_paths(out)[0]
@@ -329,21 +317,14 @@ def _run(cfg: Config) -> dict[str, Any]:
         fit = fit_round(
             cfg, model, run.parts[0], run, seed=cfg.seed, flag=flag, save=save, stop=stop
         )
-        meta["dagger"] = {**asdict(cfg), **fit, "wall_seconds": run.wall()}
-        meta["complete"] = True
-        json_path = out.with_suffix(".json")
-        save_checkpoint(model, meta, out)  # zip + JSON as an atomic pair
-        for stale in state_files(out):  # superseded by the result
-            stale.unlink(missing_ok=True)
-    if flag.signal is not None:
-        raise stop_exception(
-            flag.signal,
-            f"training had completed: saved {out} (+ .json); its evaluation was skipped",
-        )
+    meta["dagger"] = {**asdict(cfg), **fit, "wall_seconds": run.wall()}
+    meta["complete"] = True
+    json_path = out.with_suffix(".json")
+    save_final(model, meta, out, state_files(out), flag)  # zip + JSON as an atomic pair
     if cfg.eval_episodes:
         eval_kwargs = meta.get("eval_env_kwargs", kwargs)
         ks = [int(k) for k in cfg.verify_top_k.split(",") if k.strip()]
-        try:
+        with evaluation_stops(out):
             meta["metrics"] = evaluate_checkpoint(
                 out,
                 env_id=ENV_ID,
@@ -352,11 +333,6 @@ def _run(cfg: Config) -> dict[str, Any]:
                 baselines=cfg.baselines,
                 policy_variants={f"ppo_top{k}": {"verify_top_k": k} for k in ks},
             )
-        except (KeyboardInterrupt, Terminated) as exc:
-            name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
-            raise stop_exception(
-                name, f"during the evaluation: {out} (+ .json) is complete, without metrics"
-            ) from None
         write_json(json_path, meta)
         summary = {k: v["mean_final_objective"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_final_objective": summary}, indent=2))

@@ -53,14 +53,16 @@ from selenv.learned.rl.ranking import (
 from selenv.learned.rl.safe_load import model_from_checkpoint, read_weights
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.learned.trainer import (
+    RESUME_FREE,
     RunStop,
     TrainingInterrupted,
     TrainingTerminated,
     check_max_minutes,
+    evaluation_stops,
     last_paths,
     read_checkpoint_metadata,
     rng_state,
-    save_checkpoint,
+    save_final,
     set_rng_state,
     stop_exception,
     verify_pair,
@@ -76,24 +78,15 @@ __all__ = [
     "expert_outputs",
     "fit_round",
     "labels_path",
+    "read_run_inputs",
     "round_path",
     "run_expert_iteration",
     "save_state",
     "state_files",
 ]
 
-#: options that may differ between an interrupted run and its --resume
-FREE_OPTIONS = (
-    "out",
-    "force",
-    "progress",
-    "eval_episodes",
-    "eval_seed",
-    "resume",
-    "checkpoint_every",
-    "allow_large",
-    "max_minutes",
-)
+#: options that may differ between an interrupted run and its --resume: the run options
+FREE_OPTIONS = RESUME_FREE
 
 #: keys of the starting checkpoint's metadata that describe it rather than the new weights
 #: (its results and its own expert iteration): kept under ``initialised_from``
@@ -282,6 +275,37 @@ def fit_round(
 
 
 # -- expert iteration ----------------------------------------------------------------------------
+def read_run_inputs(
+    cfg: Any, env_id: str, block: str, free: tuple[str, ...]
+) -> tuple[dict[str, Any], dict[str, Any] | None, dict[str, Any]]:
+    """The env keywords, the ``--resume`` metadata (or ``None``) and the starting checkpoint's.
+
+    ``cfg.checkpoint_every`` must be >= 0; ``cfg.env_kwargs`` a JSON object (bounded); a
+    ``cfg.resume`` checkpoint's ``meta[block]`` must equal this run's options except
+    ``free``; ``cfg.checkpoint`` must be a matched pair of ``env_id``. Sets torch's threads
+    to 1 (the fit is small).
+
+    Raises:
+        UsageError: naming the option (exit 2).
+        ValueError: ``cfg.checkpoint`` is a mismatched pair or of another env.
+    """
+    if cfg.checkpoint_every < 0:
+        raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
+    try:  # size and nesting bounded before parsing
+        kwargs = json_object(cfg.env_kwargs, "--env-kwargs")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    ours = {k: v for k, v in asdict(cfg).items() if k not in free}
+    resumed = read_resume(cfg.resume, env_id=env_id, block=block, ours=ours) if cfg.resume else None
+    src = load_metadata(cfg.checkpoint)
+    if Path(cfg.checkpoint).with_suffix(".json").is_file():  # refuse a mismatched pair
+        verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
+    if src.get("env_id") != env_id:
+        raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {src.get('env_id')!r}")
+    torch.set_num_threads(1)
+    return kwargs, resumed, src
+
+
 def evaluate_with_bench(
     checkpoint: Path,
     cfg: Any,
@@ -348,24 +372,7 @@ def run_expert_iteration(
     check_expert_outputs(cfg, prog)
     if cfg.rounds < 1:
         raise UsageError(f"--rounds must be >= 1, got {cfg.rounds}")
-    if cfg.checkpoint_every < 0:
-        raise UsageError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
-    try:  # size and nesting bounded before parsing
-        kwargs = json_object(cfg.env_kwargs, "--env-kwargs")
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    ours = {k: v for k, v in asdict(cfg).items() if k not in FREE_OPTIONS}
-    resumed = (
-        read_resume(cfg.resume, env_id=env_id, block="expert_iteration", ours=ours)
-        if cfg.resume
-        else None
-    )
-    src = load_metadata(cfg.checkpoint)
-    if Path(cfg.checkpoint).with_suffix(".json").is_file():  # refuse a mismatched pair
-        verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
-    if src.get("env_id") != env_id:
-        raise ValueError(f"--checkpoint {cfg.checkpoint} was trained on {src.get('env_id')!r}")
-    torch.set_num_threads(1)
+    kwargs, resumed, src = read_run_inputs(cfg, env_id, "expert_iteration", FREE_OPTIONS)
     flag = RunStop(getattr(cfg, "max_minutes", None))  # the budget counts from here
     started = time.perf_counter()
     env = gym.make(env_id, **kwargs)
@@ -427,23 +434,10 @@ def run_expert_iteration(
         raise stop(name) from None
     meta["expert_iteration"]["wall_seconds"] = run.wall()
     meta["complete"] = True
-    with flag:
-        save_checkpoint(model, meta, out)
-        for stale in [*last_paths(out), fit_state_path(last)]:  # superseded by the result
-            stale.unlink(missing_ok=True)
-    if flag.signal is not None:
-        raise stop_exception(
-            flag.signal,
-            f"training had completed: saved {out} (+ .json); its evaluation was skipped",
-        )
+    save_final(model, meta, out, [*last_paths(out), fit_state_path(last)], flag)
     if cfg.eval_episodes:
-        try:
+        with evaluation_stops(out):
             bench = evaluate_with_bench(out, cfg, env_id, baseline)
-        except (KeyboardInterrupt, Terminated) as exc:
-            name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
-            raise stop_exception(
-                name, f"during the evaluation: {out} (+ .json) is complete, without metrics"
-            ) from None
         meta["metrics"] = {
             "command": bench["command"],
             "results": bench["results"],

@@ -77,7 +77,7 @@ import selenv
 from selenv.agents import Agent
 from selenv.atomic import write_json
 from selenv.envs.resolved import resolved_env_config
-from selenv.exits import Terminated, UsageError
+from selenv.exits import UsageError
 from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.rl.candidate_policy import ALGORITHMS, CandidateScorer, make_ppo, obs_layout
 from selenv.learned.rl.finetune import CriticWarmup, init_from_checkpoint
@@ -91,6 +91,7 @@ from selenv.learned.trainer import (
     TrainingTerminated,
     check_max_minutes,
     evaluate,
+    evaluation_stops,
     file_sha256,
     last_paths,
     output_lock,
@@ -747,7 +748,7 @@ def train(
     # 5. evaluate the saved checkpoint (round trip through the agent) against the baselines
     if cfg.eval_episodes:
         seeds = [cfg.eval_seed + e for e in range(cfg.eval_episodes)]
-        try:
+        with evaluation_stops(out):
             meta["metrics"] = evaluate_checkpoint(
                 out,
                 env_id=env_id,
@@ -756,11 +757,6 @@ def train(
                 baselines=cfg.baselines,
                 policy_variants=policy_variants,
             )
-        except (KeyboardInterrupt, Terminated) as exc:
-            name = "SIGINT" if isinstance(exc, KeyboardInterrupt) else "SIGTERM"
-            raise _stop_exception(
-                name, f"during the evaluation: {out} (+ .json) is complete, without metrics"
-            ) from None
         write_json(json_path, meta)
         summary = {k: v["mean_return"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_return": summary, "wall_seconds": round(wall, 1)}, indent=2))
