@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from selenv.agents import AGENTS, parse_spec
+from selenv.agents.learned import learned_target
 from selenv.atomic import atomic_paths
 from selenv.bench import AgentResult, EnvBenchResult, format_table
 from selenv.bench.report import column_decimals, decimals_for, format_fixed, format_ms
@@ -54,7 +55,9 @@ README_BLOCK = ""
 #: the page's provenance block
 RUN_BLOCK = "run"
 
-_MARKER = re.compile(r"<!-- bench-table:(start|end)(?: (\S+))? -->")
+def _marker(tag: str) -> re.Pattern[str]:
+    """The markers ``<!-- TAG:start [NAME] -->`` / ``<!-- TAG:end [NAME] -->``."""
+    return re.compile(rf"<!-- {re.escape(tag)}:(start|end)(?: (\S+))? -->")
 
 
 class BenchTablesError(ValueError):
@@ -182,16 +185,19 @@ class Picks:
 
 
 def picks(result: EnvBenchResult) -> Picks:
-    """The best agent by mean return, ``greedy``, the best learned agent and the reference.
+    """The best agent by mean return, ``greedy``, the learned agent and the reference.
 
-    The best learned agent is the learned one (:func:`is_learned`) of largest mean return, the
-    first on a tie, as :attr:`EnvBenchResult.best_agent` breaks ties.
+    The learned agent is ``learned`` (the recommended one) where it ran, else the learned one
+    (:func:`is_learned`) of largest mean return, the first on a tie, as
+    :attr:`EnvBenchResult.best_agent` breaks ties.
     """
     ran = {n: r for n, r in result.agents.items() if r.skipped is None}
     best = result.best_agent
     if best is None:
         raise BenchTablesError(f"bench JSON {result.env_id}: no agent ran")
     learned = [n for n in ran if is_learned(n, result.env_id)]
+    if "learned" in ran:  # the recommended learned agent, whatever the others did
+        learned = ["learned"]
     return Picks(
         best=best,
         greedy="greedy" if "greedy" in ran else None,
@@ -224,6 +230,8 @@ def _cell(result: EnvBenchResult, name: str | None, best: str, *, named: bool) -
         return ""
     ms = format_ms(result.agents[name].decision_seconds_mean)
     text = f"{difference(result, name, best)} ({ms} ms)"
+    if name == "learned" and (target := learned_target(result.env_id)):
+        return f"`learned` (`{target}`): {text}"
     return f"`{name}`: {text}" if named else text
 
 
@@ -264,7 +272,7 @@ def readme_block(doc: dict[str, Any]) -> str:
     rows = [readme_row(env_result(env)) for env in doc["results"]]
     return "\n".join(
         [
-            "| env | best agent: mean return (decision) | `greedy` | best learned agent "
+            "| env | best agent: mean return (decision) | `greedy` | `learned` "
             f"| `{REFERENCE}` (reference) | random |",
             "|---|---|---|---|---|---|",
             *rows,
@@ -298,7 +306,7 @@ def page_blocks(doc: dict[str, Any]) -> dict[str, str]:
 # ---------------------------------------------------------------- markers
 
 
-def fill(text: str, blocks: dict[str, str], where: str) -> str:
+def fill(text: str, blocks: dict[str, str], where: str, tag: str = "bench-table") -> str:
     """``text`` with the content between each pair of markers replaced by ``blocks[name]``.
 
     Raises:
@@ -309,9 +317,9 @@ def fill(text: str, blocks: dict[str, str], where: str) -> str:
     pos = 0
     seen: set[str] = set()
     open_name: str | None = None
-    for m in _MARKER.finditer(text):
+    for m in _marker(tag).finditer(text):
         kind, name = m.group(1), m.group(2) or ""
-        label = f"'<!-- bench-table:{kind}{' ' + name if name else ''} -->'"
+        label = f"'<!-- {tag}:{kind}{' ' + name if name else ''} -->'"
         if kind == "start":
             if open_name is not None:
                 raise BenchTablesError(f"{where}: {label} inside an open block")

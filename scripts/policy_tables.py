@@ -2,9 +2,10 @@
 
 The records (:class:`selenv.families.policy.PolicySpec`, one ``policies`` module per family) and
 the standings in the checkpoint JSONs (``scripts/record_standings.py``) are the one source of
-the tables in ``docs/guide/choosing_learned.md``, between ``<!-- bench-table:start policies -->``
-and ``<!-- bench-table:end policies -->`` (the table of every shipped learned agent) and
-``<!-- bench-table:start deprecated -->`` / ``end`` (the old names and what replaces them)::
+the tables in ``docs/guide/choosing_learned.md``, between ``<!-- policy-table:start policies -->``
+and ``<!-- policy-table:end policies -->`` (the table of every shipped learned agent) and
+``<!-- policy-table:start deprecated -->`` / ``end`` (the old names and what replaces them), and
+of the README's ``learned`` block (what ``learned`` plays on each env, and its standing)::
 
     .venv/bin/python scripts/policy_tables.py --write   # rewrite the generated parts
     .venv/bin/python scripts/policy_tables.py --check   # exit 1 if they disagree
@@ -28,6 +29,9 @@ from bench_tables import BenchTablesError, fill
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "guide" / "choosing_learned.md"
+README = ROOT / "README.md"
+#: the marker tag: ``<!-- policy-table:start NAME -->`` ... ``<!-- policy-table:end NAME -->``
+TAG = "policy-table"
 COMMAND = ".venv/bin/python scripts/policy_tables.py --write"
 
 
@@ -117,11 +121,39 @@ def deprecated_block() -> str:
     return "\n".join(rows)
 
 
-def expected(page: str | Path = PAGE) -> tuple[str, str]:
-    """The page's current text and the text the records give it."""
-    text = Path(page).read_text(encoding="utf-8")
-    blocks = {"policies": policies_block(), "deprecated": deprecated_block()}
-    return text, fill(text, blocks, str(page))
+def readme_block() -> str:
+    """The README's block: per env and module, what ``learned`` plays and how it stands."""
+    rows = [
+        "| env / module | `learned` plays | vs baseline on held-out seeds: mean [95 % CI], "
+        "W/T/L (seeds) | decision time / baseline's |",
+        "|---|---|---|---|",
+    ]
+    envs = list(dict.fromkeys(e for r in all_policies() for e in r.plays))
+    for env_id in envs:
+        chosen = resolve_learned(env_id)
+        if chosen is None:
+            rows.append(f"| `{env_id}` | none yet | | |")
+            continue
+        record, standing = chosen
+        rows.append(
+            f"| `{env_id}` | `{record.name}` ({METHODS[record.method].split(' (')[0]}) | "
+            f"{_diff(standing)} ({standing.episodes}) vs `{standing.baseline}` | "
+            f"{standing.decision_time_ratio:.1f}x |"
+        )
+    return "\n".join(rows)
+
+
+def expected(page: str | Path = PAGE, readme: str | Path = README) -> dict[Path, tuple[str, str]]:
+    """Each target file -> (its current text, the text the records give it)."""
+    targets = {
+        Path(page): {"policies": policies_block(), "deprecated": deprecated_block()},
+        Path(readme): {"learned": readme_block()},
+    }
+    out = {}
+    for path, blocks in targets.items():
+        text = path.read_text(encoding="utf-8")
+        out[path] = (text, fill(text, blocks, str(path), tag=TAG))
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -130,24 +162,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("--write", action="store_true", help="rewrite the generated parts")
     mode.add_argument("--check", action="store_true", help="exit 1 if they disagree")
-    parser.add_argument("--page", default=str(PAGE), help="the page to fill")
+    parser.add_argument("--page", default=str(PAGE), help="the choosing page to fill")
+    parser.add_argument("--readme", default=str(README), help="the README to fill")
     args = parser.parse_args(argv)
     try:
-        old, new = expected(args.page)
+        texts = expected(args.page, args.readme)
     except (BenchTablesError, OSError, ValueError) as exc:
         print(f"policy_tables.py: {exc}", file=sys.stderr)
         return 2
+    differ = {path: new for path, (old, new) in texts.items() if old != new}
     if args.check:
-        if old != new:
+        for path in differ:
             print(
-                f"{args.page}: generated part differs from the records; run {COMMAND}",
-                file=sys.stderr,
+                f"{path}: generated part differs from the records; run {COMMAND}", file=sys.stderr
             )
-            return 1
-        return 0
-    if old != new:
-        write_text(args.page, new)
-        print(f"wrote {args.page}")
+        return 1 if differ else 0
+    for path, new in differ.items():
+        write_text(path, new)
+        print(f"wrote {path}")
     return 0
 
 
