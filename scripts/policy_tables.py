@@ -41,14 +41,9 @@ def _at_defaults(record: PolicySpec, env_id: str) -> list[Standing]:
 
 
 def _diff(s: Standing) -> str:
-    digits = 3 if abs(s.mean_difference) < 10 else 1
-    lo, hi = s.ci95
     mark = "" if s.beats_baseline else " (not a win)"
     where = "".join(f" at {k}={v}" for k, v in sorted(s.env_kwargs.items()))
-    return (
-        f"{s.mean_difference:+.{digits}f} [{lo:+.{digits}f}, {hi:+.{digits}f}]{mark}, "
-        f"{s.wins}/{s.ties}/{s.losses}{where}"
-    )
+    return f"{s.difference_text()}{mark}, {s.wins}/{s.ties}/{s.losses}{where}"
 
 
 def _share(s: Standing) -> str:

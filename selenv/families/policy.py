@@ -82,14 +82,19 @@ class Standing:
 
     def summary(self) -> str:
         """``+0.035 [+0.025, +0.045] vs greedy (28/0/2, 30 seeds), 8.1x its decision time``."""
-        digits = 3 if abs(self.mean_difference) < 10 else 1
-        lo, hi = self.ci95
         return (
-            f"{self.mean_difference:+.{digits}f} [{lo:+.{digits}f}, {hi:+.{digits}f}] vs "
+            f"{self.difference_text()} vs "
             f"{self.baseline} ({self.wins}/{self.ties}/{self.losses}, {self.episodes} seeds"
             f"{_kwargs_text(self.env_kwargs)}), {self.decision_time_ratio:.1f}x its decision time"
             + self.reference_text()
         )
+
+    def difference_text(self) -> str:
+        """``+0.035 [+0.025, +0.045]``: the mean difference and its CI, 3 decimals below 1."""
+        size = abs(self.mean_difference)
+        digits = 3 if size < 1 else 2 if size < 100 else 1
+        lo, hi = self.ci95
+        return f"{self.mean_difference:+.{digits}f} [{lo:+.{digits}f}, {hi:+.{digits}f}]"
 
     def reference_text(self) -> str:
         """``; 88 % [56, 137] of rollout's edge at 1/5 of its decision time`` (or empty)."""
