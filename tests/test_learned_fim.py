@@ -95,7 +95,7 @@ def test_picks_are_a_valid_subset_of_the_budget(seed: int) -> None:
 @pytest.mark.parametrize("seed", SEEDS)
 def test_policy_start_is_the_policy_playing_the_env(seed: int) -> None:
     """The scratch rollout sees exactly the observations the env would show the policy."""
-    agent = make_fim_learned(starts="policy")
+    agent = make_fim_learned(starts="policy", policy_pool=0)
     env = gym.make(FIM)
     obs, info = env.reset(seed=seed)
     agent.reset(env, seed=seed)
@@ -106,6 +106,19 @@ def test_policy_start_is_the_policy_playing_the_env(seed: int) -> None:
         played.append(action)
         obs, _, done, _, info = env.step(action)
     assert planned == played
+
+
+@pytest.mark.parametrize("pool", [5, 12, 64])
+def test_policy_pool_picks_among_the_best_scored(pool: int) -> None:
+    agent = make_fim_learned(starts="policy", policy_pool=pool)
+    env = gym.make(FIM)
+    obs, info = env.reset(seed=8)
+    agent.reset(env, seed=8)
+    left = env.unwrapped.budget_left
+    logits = agent.policy.logits(obs, info, backend="numpy")
+    best = set(np.argsort(-logits, kind="stable")[: max(pool, left)].tolist())
+    picks = agent.policy_picks(obs, left)
+    assert len(set(picks)) == left and set(picks) <= best
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -164,6 +177,8 @@ def test_takes_over_mid_episode() -> None:
         ({"max_rounds": -1}, "max_rounds"),
         ({"max_rounds": True}, "max_rounds"),
         ({"max_rounds": 2.5}, "max_rounds"),
+        ({"policy_pool": -4}, "policy_pool"),
+        ({"policy_pool": "all"}, "policy_pool"),
         ({"tol": math.nan}, "tol"),
         ({"tol": -1e-3}, "tol"),
         ({"tol": "small"}, "tol"),

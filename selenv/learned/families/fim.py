@@ -48,6 +48,7 @@ from selenv.core.information import information_matrix
 from selenv.core.linalg import FloatArray, cholesky_spd
 from selenv.families.fim.batched import FIMBatchState
 from selenv.families.fim.env import fim_observations
+from selenv.learned.rl.agent import CHECKPOINT_DIR, SB3PolicyAgent
 
 __all__ = [
     "DEFAULT_CHECKPOINT",
@@ -185,6 +186,9 @@ class FIMPolicySwapAgent(PlanAgent):
         starts: ``"both"`` (default), ``"policy"`` or ``"greedy"`` (exactly ``swap``).
         max_rounds: swap passes per start at most (>= 0; 0 plays the start itself).
         tol: smallest gain in nats a swap must make (finite, >= 0).
+        policy_pool: ``M > 0`` lets the policy start pick from the ``M`` open candidates the
+            policy scores highest at the decision (its features then describe that sub-pool;
+            default 64, a third of the default pool); 0: from every open candidate.
 
     Raises:
         ValueError: a bad option (named), or the checkpoint is missing, unreadable or was
@@ -199,6 +203,7 @@ class FIMPolicySwapAgent(PlanAgent):
         starts: str = "both",
         max_rounds: int = 200,
         tol: float = 1e-9,
+        policy_pool: int = 64,
     ) -> None:
         if starts not in STARTS:
             raise ValueError(f"starts must be one of {', '.join(STARTS)}; got {starts!r}")
@@ -207,10 +212,9 @@ class FIMPolicySwapAgent(PlanAgent):
         if isinstance(tol, bool) or not isinstance(tol, int | float) or not 0 <= tol < math.inf:
             raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
         self.tol = float(tol)
-        self.policy = None
+        self.policy_pool = _check_count(policy_pool, "policy_pool")
+        self.policy: SB3PolicyAgent | None = None
         if starts != "greedy":
-            from selenv.learned.rl.agent import CHECKPOINT_DIR, SB3PolicyAgent
-
             path = CHECKPOINT_DIR / DEFAULT_CHECKPOINT if checkpoint is None else checkpoint
             self.policy = SB3PolicyAgent(path, env_id=FIM_ENV_ID)
         elif checkpoint is not None:
@@ -261,27 +265,33 @@ class FIMPolicySwapAgent(PlanAgent):
     def policy_picks(self, obs: Any, left: int) -> list[int]:
         """The policy's next ``left`` picks (env indices), each on the observation it would see.
 
-        A scratch :class:`~selenv.families.fim.batched.FIMBatchState` replays the episode's
-        picks so far and then the policy's own, so the env itself is not stepped.
+        The policy plays on a scratch :class:`~selenv.families.fim.batched.FIMBatchState` (the
+        env is not stepped) whose prior is the information now and whose pool is every
+        candidate not yet selected, or with ``policy_pool = M > 0`` the ``M`` of them the
+        policy scores highest now (one forward pass over the pool).
         """
         base = self.env.unwrapped
-        state, core = base.state, base.core  # type: ignore[attr-defined]
+        state = base.state  # type: ignore[attr-defined]
         budget = int(base.budget)  # type: ignore[attr-defined]
-        G = np.asarray(state.G)
-        scratch = FIMBatchState(1, core.Q0, G.shape)
-        scratch.start(_ONE, G[None])
-        for k in state.order:
-            scratch.add(_ONE, np.array([k]))
-        features = np.asarray(obs["features"])[None]
-        picks: list[int] = []
         assert self.policy is not None  # built unless starts == "greedy"
+        pool = np.flatnonzero(~state.selected)
+        if 0 < self.policy_pool < pool.size:
+            mask = ~state.selected
+            logits = self.policy.logits(obs, {"action_mask": mask}, backend="numpy")
+            top = np.argsort(-logits[pool], kind="stable")[: max(self.policy_pool, left)]
+            pool = np.sort(pool[top])
+        G = np.asarray(state.G)[pool]
+        scratch = FIMBatchState(1, state.information, G.shape)
+        scratch.start(_ONE, G[None])
+        features = np.asarray(obs["features"])[pool][None]
+        picks: list[int] = []
         for step in range(left):
             frac = np.array([(left - step) / budget])
             batch = fim_observations(scratch.gains, scratch.Z, scratch.selected, features, frac)
             view = {key: val[0] for key, val in batch.items()}
             mask = ~scratch.selected[0]
             j = int(np.argmax(self.policy.logits(view, {"action_mask": mask}, backend="numpy")))
-            picks.append(j)
+            picks.append(int(pool[j]))
             scratch.add(_ONE, np.array([j]))
         return picks
 
@@ -290,12 +300,12 @@ def make_fim_learned(**options: Any) -> FIMPolicySwapAgent:
     """Factory of the learned ``FIMSelection-v1`` selector (:class:`FIMPolicySwapAgent`).
 
     Options: ``checkpoint`` (default: the shipped ``ppo_general``), ``starts="both"``,
-    ``max_rounds=200``, ``tol=1e-9``.
+    ``max_rounds=200``, ``tol=1e-9``, ``policy_pool=64``.
 
     Raises:
         ValueError: an unknown option (named, with the known ones) or a bad value.
     """
-    known = ("checkpoint", "starts", "max_rounds", "tol")
+    known = ("checkpoint", "starts", "max_rounds", "tol", "policy_pool")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown}; the options are {', '.join(known)}")
