@@ -95,7 +95,7 @@ def test_picks_are_a_valid_subset_of_the_budget(seed: int) -> None:
 @pytest.mark.parametrize("seed", SEEDS)
 def test_policy_start_is_the_policy_playing_the_env(seed: int) -> None:
     """The scratch rollout sees exactly the observations the env would show the policy."""
-    agent = make_fim_learned(starts="policy", policy_pool=0)
+    agent = make_fim_learned(starts="policy", policy_steps=0)
     env = gym.make(FIM)
     obs, info = env.reset(seed=seed)
     agent.reset(env, seed=seed)
@@ -106,6 +106,25 @@ def test_policy_start_is_the_policy_playing_the_env(seed: int) -> None:
         played.append(action)
         obs, _, done, _, info = env.step(action)
     assert planned == played
+
+
+@pytest.mark.parametrize("steps", [1, 2, 4])
+def test_policy_steps_then_greedy(steps: int) -> None:
+    """The first ``steps`` picks are the policy's own rollout's, the rest greedy's after them."""
+    env = gym.make(FIM)
+    obs, _ = env.reset(seed=5)
+    full = make_fim_learned(starts="policy", policy_steps=0)
+    full.reset(env, seed=5)
+    agent = make_fim_learned(starts="policy", policy_steps=steps)
+    agent.reset(env, seed=5)
+    base = env.unwrapped
+    picks = agent.policy_picks(obs, base.budget_left)
+    assert picks[:steps] == full.policy_picks(obs, base.budget_left)[:steps]
+    state = base.state
+    Q = state.information + sum(state.G[k].T @ state.G[k] for k in picks[:steps])
+    rest = np.setdiff1d(np.arange(base.n), picks[:steps])
+    greedy = greedy_whitened(Q, np.asarray(state.G)[rest], base.budget - steps)
+    assert picks[steps:] == [int(rest[k]) for k in greedy.indices]
 
 
 @pytest.mark.parametrize("pool", [5, 12, 64])
@@ -178,6 +197,8 @@ def test_takes_over_mid_episode() -> None:
         ({"max_rounds": True}, "max_rounds"),
         ({"max_rounds": 2.5}, "max_rounds"),
         ({"policy_pool": -4}, "policy_pool"),
+        ({"policy_steps": -1}, "policy_steps"),
+        ({"policy_steps": 1.0}, "policy_steps"),
         ({"policy_pool": "all"}, "policy_pool"),
         ({"tol": math.nan}, "tol"),
         ({"tol": -1e-3}, "tol"),

@@ -5,17 +5,21 @@
 ``FIMSelection-v1``; a candidate-scoring policy played alone stops short of it. This agent
 uses the policy as a second starting point of the same local search:
 
-1. **policy start**: the policy (by default the shipped ``ppo_general`` checkpoint) picks the
-   remaining budget on a scratch copy of the env's gain state -- the observation it would see
-   after each of its own picks, its logits in numpy
-   (:meth:`~selenv.learned.rl.agent.SB3PolicyAgent.logits` with ``backend="numpy"``);
+1. **policy start**: the policy (by default the shipped ``ppo_general`` checkpoint) makes the
+   first ``policy_steps`` picks (default 2) on a scratch copy of the env's gain state -- the
+   observation it would see after each of its own picks, its logits in numpy
+   (:meth:`~selenv.learned.rl.agent.SB3PolicyAgent.logits` with ``backend="numpy"``) -- and
+   greedy completes the budget;
 2. **greedy start**: greedy's picks (Kirchner et al. 2020, Algorithm 1);
 3. each start is polished by best-improvement swaps (the move rule of ``swap``: every
    (selected, unselected) pair, the best applied while it gains more than ``tol`` nats), and
    the better of the two local optima is played (``starts="both"``, the default).
 
-The two starts usually end in the same local optimum; where they do not, the policy's is the
-better one about as often as not, so the pair is never below ``swap`` and sometimes above it.
+The greedy start polished is ``swap``'s result, so the agent is never below ``swap``; the
+policy start leads to another local optimum on some problems, and the agent plays it where it
+is the better one. Where the policy start's search reaches a selection on greedy's search
+path, it stops (from there it would end where greedy's did).
+
 ``starts="greedy"`` is exactly ``swap`` (the same moves in the same order), ``starts="policy"``
 the policy's start alone.
 
@@ -139,13 +143,15 @@ def polish(
     *,
     max_rounds: int = 200,
     tol: float = 1e-9,
+    visited: set[frozenset[int]] | None = None,
+    stop_at: set[frozenset[int]] | None = None,
 ) -> tuple[np.ndarray, int]:
     """Best-improvement 1-swap search from ``start``: ``swap``'s moves, ``(indices, rounds)``.
 
     Each round scores every (selected, unselected) pair (:func:`swap_deltas`) and applies the
     best (row-major first on ties, the selected slot replaced in place) if it gains more than
     ``tol`` nats; the objective never decreases. ``rounds`` counts the passes made (the last
-    one finds no improving swap unless ``max_rounds`` stopped the search).
+    one finds no improving swap unless ``max_rounds`` or ``stop_at`` stopped the search).
 
     Args:
         Q0: ``(d, d)`` SPD prior information (validated by the caller).
@@ -153,12 +159,20 @@ def polish(
         start: ``B`` distinct candidate indices.
         max_rounds: passes at most (>= 0).
         tol: smallest gain (nats) a swap must make to be applied.
+        visited: if given, every selection the search passes through is added to it.
+        stop_at: selections at which the search stops (e.g. another search's ``visited``:
+            from there it would follow that search's moves to the same local optimum).
     """
     sel = np.array(start, dtype=np.intp)
     N = G.shape[0]
     rounds = 0
     chosen = np.zeros(N, dtype=bool)
     while rounds < max_rounds and 0 < sel.size < N:
+        key = frozenset(sel.tolist())
+        if stop_at is not None and key in stop_at:
+            break
+        if visited is not None:
+            visited.add(key)
         rounds += 1
         chosen[:] = False
         chosen[sel] = True
@@ -186,9 +200,11 @@ class FIMPolicySwapAgent(PlanAgent):
         starts: ``"both"`` (default), ``"policy"`` or ``"greedy"`` (exactly ``swap``).
         max_rounds: swap passes per start at most (>= 0; 0 plays the start itself).
         tol: smallest gain in nats a swap must make (finite, >= 0).
+        policy_steps: picks the policy makes before greedy completes the policy start
+            (default 2; 0: the policy makes every pick).
         policy_pool: ``M > 0`` lets the policy start pick from the ``M`` open candidates the
-            policy scores highest at the decision (its features then describe that sub-pool;
-            default 64, a third of the default pool); 0: from every open candidate.
+            policy scores highest at the decision (its features then describe that sub-pool);
+            0 (default): from every open candidate.
 
     Raises:
         ValueError: a bad option (named), or the checkpoint is missing, unreadable or was
@@ -203,7 +219,8 @@ class FIMPolicySwapAgent(PlanAgent):
         starts: str = "both",
         max_rounds: int = 200,
         tol: float = 1e-9,
-        policy_pool: int = 64,
+        policy_pool: int = 0,
+        policy_steps: int = 2,
     ) -> None:
         if starts not in STARTS:
             raise ValueError(f"starts must be one of {', '.join(STARTS)}; got {starts!r}")
@@ -213,6 +230,7 @@ class FIMPolicySwapAgent(PlanAgent):
             raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
         self.tol = float(tol)
         self.policy_pool = _check_count(policy_pool, "policy_pool")
+        self.policy_steps = _check_count(policy_steps, "policy_steps")
         self.policy: SB3PolicyAgent | None = None
         if starts != "greedy":
             path = CHECKPOINT_DIR / DEFAULT_CHECKPOINT if checkpoint is None else checkpoint
@@ -254,8 +272,13 @@ class FIMPolicySwapAgent(PlanAgent):
             picks = self.policy_picks(obs, left)
             starts.append(np.searchsorted(remaining, picks))
         best, best_value = None, -math.inf
-        for start in starts:
-            sel, _ = polish(prior, G, start, max_rounds=self.max_rounds, tol=self.tol)
+        path: set[frozenset[int]] = set()  # greedy's search path: a policy start that joins it
+        for start in starts:  # ends where greedy's does, so its search stops there
+            first = best is None
+            sel, _ = polish(
+                prior, G, start, max_rounds=self.max_rounds, tol=self.tol,
+                visited=path if first else None, stop_at=None if first else path,
+            )  # fmt: skip
             value = float(np.linalg.slogdet(information_matrix(prior, G, sel))[1])
             if value > best_value:  # ties: the first start (greedy's)
                 best, best_value = sel, value
@@ -285,12 +308,17 @@ class FIMPolicySwapAgent(PlanAgent):
         scratch.start(_ONE, G[None])
         features = np.asarray(obs["features"])[pool][None]
         picks: list[int] = []
+        steps = left if self.policy_steps == 0 else min(self.policy_steps, left)
         for step in range(left):
-            frac = np.array([(left - step) / budget])
-            batch = fim_observations(scratch.gains, scratch.Z, scratch.selected, features, frac)
-            view = {key: val[0] for key, val in batch.items()}
             mask = ~scratch.selected[0]
-            j = int(np.argmax(self.policy.logits(view, {"action_mask": mask}, backend="numpy")))
+            if step < steps:
+                frac = np.array([(left - step) / budget])
+                batch = fim_observations(scratch.gains, scratch.Z, scratch.selected, features, frac)
+                view = {key: val[0] for key, val in batch.items()}
+                logits = self.policy.logits(view, {"action_mask": mask}, backend="numpy")
+                j = int(np.argmax(logits))
+            else:  # greedy completes the start: the largest gain (Algorithm 1, line 4)
+                j = int(np.argmax(np.where(mask, scratch.gains[0], -np.inf)))
             picks.append(int(pool[j]))
             scratch.add(_ONE, np.array([j]))
         return picks
@@ -300,12 +328,12 @@ def make_fim_learned(**options: Any) -> FIMPolicySwapAgent:
     """Factory of the learned ``FIMSelection-v1`` selector (:class:`FIMPolicySwapAgent`).
 
     Options: ``checkpoint`` (default: the shipped ``ppo_general``), ``starts="both"``,
-    ``max_rounds=200``, ``tol=1e-9``, ``policy_pool=64``.
+    ``max_rounds=200``, ``tol=1e-9``, ``policy_steps=2``, ``policy_pool=0``.
 
     Raises:
         ValueError: an unknown option (named, with the known ones) or a bad value.
     """
-    known = ("checkpoint", "starts", "max_rounds", "tol", "policy_pool")
+    known = ("checkpoint", "starts", "max_rounds", "tol", "policy_pool", "policy_steps")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown}; the options are {', '.join(known)}")
