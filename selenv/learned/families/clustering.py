@@ -10,21 +10,22 @@ from them as the module's ``greedy``
 (:class:`~selenv.families.clustering.multiagent_agents.ClusteringGreedyPolicy`) is built from
 the single-agent greedy:
 
-1. every ``every`` steps, the policy scores every edit (no-op, moves, swaps) of the current
-   clustering;
-2. among the no-op and the edits the module's resolution rule always carries out
-   (:meth:`ClusteringGreedyPolicy.allowed_edits
+1. every ``every`` steps, the policy scores the no-op and the edits the module's resolution
+   rule always carries out (:meth:`ClusteringGreedyPolicy.allowed_edits
    <selenv.families.clustering.multiagent_agents.ClusteringGreedyPolicy.allowed_edits>`:
-   every allowed move, and a swap only when both clusters have room), its ``top_k``
-   highest-scoring ones are costed exactly (Algorithm 1, one evaluation per edit, the no-op
-   free);
+   every allowed move, and a swap only when both clusters have room), the set greedy
+   searches; for the per-candidate MLP of the shipped checkpoint (a DeepSets context over the
+   allowed candidates) only those rows are scored, in numpy;
+2. its ``top_k`` highest-scoring edits are costed exactly (Algorithm 1, one evaluation per
+   edit, the no-op free);
 3. the lowest-cost one is played if it lowers ``J``, by the receivers concerned (the mover
    answers its target label, both swapped receivers answer each other's label); everyone
    else stays.
 
-When greedy's best edit is among the ``top_k``, this is greedy's joint action; with ``top_k``
-at least the number of allowed edits it is greedy itself, at every step instead of every
-fifth. The decision costs at most ``top_k`` cost evaluations instead of one per allowed edit.
+When greedy's best edit is among the ``top_k``, this is greedy's joint action at that step;
+with ``top_k`` at least the number of allowed edits, the policy is the module's
+``greedy:every=<every>``. A decision costs at most ``top_k`` cost evaluations instead of one
+per allowed edit.
 
 :func:`make_clustering_marl_learned` is the factory the agent registry calls.
 """
