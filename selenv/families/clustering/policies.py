@@ -25,6 +25,19 @@ POLICIES = (
         aliases={"ppo_top8": {}, "ppo_top4": {"verify_top_k": 4}},
     ),
     PolicySpec(
+        name="ppo",
+        plays=(_MODULE,),
+        factory="selenv.learned.families.clustering:make_clustering_marl_learned",
+        checkpoint="receiver_clustering_ppo.zip",
+        method="distillation",
+        description="the ReceiverClustering-v1 edit ranking on the joint state: its 8 best edits "
+        "costed, the best improving one played by the receivers concerned (ppo:top_k=K)",
+        trainer="python -m selenv.train.train_clustering_dagger --config "
+        "configs/receiver_clustering_ppo.toml",
+        budget="8 cost evaluations per decision",
+        valid={"preset": ("paper", "multipath"), "n_agents": (30,)},
+    ),
+    PolicySpec(
         name="rllib",
         plays=(_MODULE,),
         factory="selenv.learned.rl.rllib_agent:make_rllib_policy",

@@ -41,7 +41,7 @@ POLICIES = (
         "on its own observation",
         trainer="python -m selenv.train.train_fim_marl --config configs/fim_marl_ppo.toml",
         budget="one forward pass per acting agent per step",
-        valid={"mode": ("cooperative",)},
+        valid={"mode": ("cooperative", "independent")},  # trained cooperative, verified both
     ),
     PolicySpec(
         name="ppo_independent",
@@ -68,6 +68,6 @@ POLICIES = (
         trainer="python -m selenv.train.train_rllib_marl --config "
         "configs/rllib_fim_selection_v0.toml",
         budget="one forward pass per acting agent per step",
-        valid={"mode": ("cooperative",)},
+        valid={"mode": ("cooperative", "independent")},  # trained cooperative, verified both
     ),
 )
