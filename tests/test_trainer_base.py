@@ -86,6 +86,10 @@ def test_stop_exception_for_the_budget_names_it_and_exits_75(tmp_path: Path) -> 
 #: every trainer with --max-minutes, and the name of its --out
 SCRIPTS = {
     "train_fim_ppo": "p.zip",
+    "train_cl_ppo": "p.zip",
+    "train_landmark_ppo": "p.zip",
+    "train_clustering_ppo": "p.zip",
+    "train_fim_marl": "p.zip",
     "train_cl_expert": "p.zip",
     "train_landmark_expert": "p.zip",
     "train_clustering_dagger": "p.zip",

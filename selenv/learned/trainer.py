@@ -41,8 +41,9 @@ import sys
 import time
 import zipfile
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import gymnasium as gym
 import numpy as np
@@ -52,7 +53,7 @@ from selenv.agents import Agent
 from selenv.atomic import OutputBusyError, OutputLock, atomic_paths
 from selenv.bench.runner import AgentResult, run_episode
 from selenv.exits import DeferredSignals, Terminated, UsageError, guarded_main
-from selenv.learned.config import arg, usage_error
+from selenv.learned.config import arg, parse_config, usage_error
 from selenv.learned.resources import read_metadata
 
 __all__ = [
@@ -61,6 +62,7 @@ __all__ = [
     "RESUME_FREE",
     "RUN_HELP",
     "RunStop",
+    "Script",
     "TrainingBudgetReached",
     "TrainingInterrupted",
     "TrainingTerminated",
@@ -105,14 +107,11 @@ BUDGET = "max-minutes"
 # -- run options ---------------------------------------------------------------------------------
 #: the meaning of each shared run option; ``{unit}`` is the trainer's safe point
 RUN_HELP: dict[str, str] = {
-    "out": "the trained checkpoint; its metadata goes next to it as .json",
     "force": "overwrite existing outputs of --out",
-    "resume": "continue an interrupted or budget-stopped run (same options) from its "
-    "<out stem>.last checkpoint",
-    "seed": "seed of the run (its random generators and episodes)",
-    "checkpoint_every": "{unit} between periodic checkpoints <out stem>.last (0: none; a signal "
-    "or --max-minutes always saves one)",
-    "progress": "show a tqdm bar",
+    "resume": "continue a run stopped by a signal or --max-minutes (same options) from its {unit}",
+    "checkpoint_every": "{unit} between periodic checkpoints <out stem>.last, removed when the "
+    "run completes (0: none; a signal or --max-minutes always saves one)",
+    "progress": "show tqdm bars",
     "eval_episodes": "held-out episodes on which the result is evaluated (0: none)",
     "eval_seed": "seed of the first held-out episode (then +1, +2, ...)",
     "max_minutes": "wall-clock budget in minutes: at the first safe point ({unit}) after it, "
@@ -124,8 +123,9 @@ RUN_HELP: dict[str, str] = {
 def run_arg(name: str, default: Any, *, unit: str = "iterations", note: str = "") -> Any:
     """A shared run option ``name`` as a config field: ``default`` and :data:`RUN_HELP`'s text.
 
-    ``unit`` names the trainer's safe point (``"fit epochs"``, ``"environment steps"``);
-    ``note`` is appended to the help (what the option means for this trainer in particular).
+    ``unit`` fills the text's ``{unit}``: the trainer's safe point (``"fit epochs"``,
+    ``"environment steps"``; for ``resume``, the state file); ``note`` is appended to the
+    help (what the option means for this trainer in particular).
 
     Raises:
         KeyError: ``name`` is not a shared option.
@@ -162,6 +162,43 @@ def check_run_options(cfg: Any, prog: str) -> None:
                 raise UsageError(f"{option} must be >= 0, got {value}")
     except UsageError as exc:
         usage_error(prog, exc)
+
+
+@dataclass(frozen=True)
+class Script:
+    """A training script's command line: its module, its config dataclass and its doc.
+
+    ``Script("selenv.train.train_cl_ppo", Config, __doc__)`` gives the script its
+    :meth:`parse` (``--config FILE`` and the options, usage errors exit 2), its :attr:`prog`
+    (how messages name it) and :meth:`command` (its console-script entry point, with the
+    exit codes of :func:`run_cli`).
+    """
+
+    name: str
+    config: type
+    doc: str | None
+
+    @property
+    def prog(self) -> str:
+        """``python -m <module>``: the program named in messages."""
+        return f"python -m {self.name}"
+
+    def parse(self, argv: list[str] | None = None) -> Any:
+        """The run's config from ``argv`` (``None``: ``sys.argv``) and ``--config FILE``."""
+        return parse_config(self.config, argv, (self.doc or "").split("\n")[0], script=self.name)
+
+    def cli(self, main: Callable[..., Any]) -> NoReturn:
+        """Run ``main(None)`` as a command: exit 0, 2 (usage), 1 (I/O), 130 / 143 / 75 (stops)."""
+        raise SystemExit(run_cli(main, self.prog))
+
+    def command(self, main: Callable[..., Any]) -> Callable[[], NoReturn]:
+        """The console-script entry point of ``main`` (:meth:`cli` on ``sys.argv``)."""
+
+        def cli() -> NoReturn:
+            """Run the script on ``sys.argv``; exit codes of :func:`run_cli`."""
+            self.cli(main)
+
+        return cli
 
 
 # -- stopping: signals and the wall-clock budget -------------------------------------------------

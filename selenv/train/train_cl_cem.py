@@ -72,7 +72,7 @@ class Config:
     """Every field is a ``--kebab-case`` option."""
 
     out: str = arg("runs/train_cl_cem/scorer.json", "the trained checkpoint (.json)")
-    force: bool = arg(False, "overwrite existing outputs of --out")
+    force: bool = run_arg("force", False)
     env_kwargs: str = arg(
         "{}", "JSON object of gymnasium.make keyword arguments ({}: the benchmark preset)"
     )
@@ -92,14 +92,14 @@ class Config:
     train_seed: int = arg(5_000_000, "seed of the first training episode (>= 10**6)")
     seed: int = arg(0, "seed of the sampler")
     workers: int = arg(2, "evaluation processes")
-    eval_episodes: int = arg(30, "held-out episodes of the selenv bench evaluation (0: none)")
-    eval_seed: int = arg(1000, "seed of the first held-out episode")
+    eval_episodes: int = run_arg("eval_episodes", 30, note="by selenv bench")
+    eval_seed: int = run_arg("eval_seed", 1000)
     progress: bool = arg(True, "print one line per generation")
     allow_large: bool = arg(
         False, "lift the ceilings of the sizes (selenv.train.train_cl_cem.CEILINGS)"
     )
-    resume: str = arg(
-        "", "continue an interrupted run (same options) from its <out stem>.last.json"
+    resume: str = run_arg(
+        "resume", "", unit="<out stem>.last.json", note="the search state after a generation"
     )
     max_minutes: float | None = run_arg("max_minutes", None, unit="a generation")
 

@@ -48,24 +48,24 @@ Stopping and resuming (a stopped run loses at most the step in progress):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-from selenv.learned.config import arg, parse_config
+from selenv.learned.config import arg
 from selenv.learned.rl import distill
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.distill import (
+    ExpertConfig,
     check_expert_outputs,
     evaluate_with_bench,
     expert_outputs,
+    expert_run,
     labels_path,
     round_path,
     run_expert_iteration,
     state_files,
 )
 from selenv.learned.rl.expert import CL_ID, collect_cl_rollout_labels
-from selenv.learned.rl.ranking import check_ranking_sizes
-from selenv.learned.trainer import output_lock, run_arg, run_cli
+from selenv.learned.trainer import Script
 
 __all__ = [
     "Config",
@@ -88,86 +88,41 @@ _FREE = distill.FREE_OPTIONS
 
 
 @dataclass
-class Config:
-    """Every field is a ``--kebab-case`` option."""
+class Config(ExpertConfig):
+    """The options of :class:`~selenv.learned.rl.distill.ExpertConfig`, CL defaults."""
 
-    checkpoint: str = arg(str(DEFAULT_CHECKPOINTS[CL_ID]), "starting weights (a .zip)")
-    out: str = arg(
-        "runs/train_cl_expert/policy.zip",
-        "the trained checkpoint (.zip); also writes its .json, <out>_round<r>.zip/.json per "
-        "round and <out>.bench.json",
-    )
-    force: bool = arg(False, "overwrite existing outputs of --out")
+    checkpoint: str = str(DEFAULT_CHECKPOINTS[CL_ID])
+    out: str = "runs/train_cl_expert/policy.zip"
     env_kwargs: str = arg(
         "{}", "JSON object of gymnasium.make keyword arguments ({}: the benchmark preset)"
     )
     view: str = arg(
         "cl_pairs_fused_top3", "candidate view: the labeller's candidate set (stop + top-3 by gain)"
     )
-    rounds: int = arg(3, "DAgger rounds (round 0 follows the labeller, later ones the policy)")
-    states_per_round: int = arg(1500, "labelled decisions collected per round")
     top_k: int = arg(3, "the labeller (the bench's rollout reference) scores stop and its top-k")
-    horizon: int = arg(5, "filter steps the labeller simulates after the current one")
-    explore: float = arg(0.05, "random action probability on the labelling trajectories")
-    epochs: int = arg(20, "epochs of the ranking fit (ListNet) per round")
-    learning_rate: float = arg(5e-4, "Adam learning rate of the ranking fit")
-    temperature: float = arg(
-        0.1, "temperature T of the ListNet targets softmax(-dJ / (T * spread of dJ))"
-    )
-    workers: int = arg(2, "labelling worker processes")
-    seed: int = arg(0, "seed of the labelling episodes (round r: 100 * seed + r) and the fit")
-    progress: bool = arg(True, "show tqdm bars")
-    eval_episodes: int = arg(
-        30, "held-out episodes of the selenv bench evaluation after training (0: none)"
-    )
-    eval_seed: int = arg(1000, "seed of the first held-out episode (then +1, +2, ...)")
-    checkpoint_every: int = arg(
-        5,
-        "fit epochs between the periodic state <out stem>.last.zip (+ .json) within a round; it "
-        "is also written after every collection and round, and on SIGINT / SIGTERM (0: only "
-        "then)",
-    )
-    allow_large: bool = arg(
-        False,
-        "lift the ceilings of --rounds (100), --states-per-round / --states (10^6), --epochs "
-        "(10,000) and --eval-episodes (100,000)",
-    )
-    resume: str = arg(
-        "",
-        "continue an interrupted run (same options) from its <out stem>.last.zip or a round "
-        "checkpoint <out>_round<r>.zip: weights, labels so far, round, fit epoch and optimizer",
-    )
-    max_minutes: float | None = run_arg(
-        "max_minutes", None, unit="a collection, a fit epoch or a round"
-    )
 
 
-def parse_args(argv: list[str] | None = None) -> Config:
-    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
-    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+RUN = Script(SCRIPT, Config, __doc__)
 
 
-def outputs(cfg: Config) -> list[Path]:
-    """The files the run writes."""
-    return expert_outputs(cfg)
+#: the run's :class:`Config` from the command line (and ``--config FILE``)
+parse_args = RUN.parse
+
+
+#: the files the run writes
+outputs = expert_outputs
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit (per round), save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
-    check_ranking_sizes(cfg)  # every size in range and under its ceiling, before any work
-    check_expert_outputs(cfg, f"python -m {SCRIPT}")
-    with output_lock(cfg.out, f"python -m {SCRIPT}"):  # one run per --out
+    with expert_run(cfg, RUN.prog):  # sizes and outputs checked, one run per --out
         return run_expert_iteration(cfg, argv, CL_ID, collect_cl_rollout_labels, SCRIPT, "greedy")
 
 
-def cli() -> None:
-    """Console-script entry point (same options as ``main``).
-
-    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM, 75 at ``--max-minutes``.
-    """
-    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
+#: the console script: ``main`` with the exit codes of :func:`selenv.learned.trainer.run_cli`
+#: (0; 2 usage error or busy ``--out``; 1 I/O failure; 130 / 143 / 75 stopped and saved)
+cli = RUN.command(main)
 
 
 if __name__ == "__main__":

@@ -45,11 +45,12 @@ from gymnasium import spaces
 
 from selenv.atomic import write_json
 from selenv.exits import Terminated, UsageError
-from selenv.learned.config import arg, check_outputs, parse_config, usage_error
-from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
+from selenv.learned.config import arg, check_outputs, usage_error
+from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.candidate_policy import make_ppo
 from selenv.learned.rl.distill import (
     FREE_OPTIONS,
+    FitOptions,
     Progress,
     collected,
     fit_round,
@@ -75,12 +76,12 @@ from selenv.learned.rl.training import evaluate_checkpoint
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.learned.trainer import (
     RunStop,
+    Script,
     check_run_options,
     evaluation_stops,
     last_paths,
     output_lock,
     run_arg,
-    run_cli,
     save_final,
     set_rng_state,
     stop_exception,
@@ -91,8 +92,8 @@ SCRIPT = "selenv.train.train_clustering_dagger"
 
 
 @dataclass
-class Config:
-    """Every field is a ``--kebab-case`` option."""
+class Config(FitOptions):
+    """The fit options of :class:`~selenv.learned.rl.distill.FitOptions`, and the round's."""
 
     checkpoint: str = arg(
         str(DEFAULT_CHECKPOINTS[ENV_ID]), "the policy to improve (a ReceiverClustering-v1 .zip)"
@@ -101,7 +102,7 @@ class Config:
         "runs/train_clustering_dagger/policy.zip",
         "the improved checkpoint (.zip); its metadata goes next to it as .json",
     )
-    force: bool = arg(False, "overwrite an existing --out (.zip or .json)")
+    force: bool = run_arg("force", False)
     env_kwargs: str = arg(
         "{}",
         "JSON object of gymnasium.make keyword arguments of the labelling episodes ({}: "
@@ -116,17 +117,9 @@ class Config:
     explore: float = arg(0.05, "random edit probability on the labelling trajectories")
     label_every: int = arg(5, "a state is labelled every k-th filter step")
     epochs: int = arg(10, "epochs of the ranking fit (ListNet)")
-    learning_rate: float = arg(5e-4, "Adam learning rate of the ranking fit")
-    temperature: float = arg(
-        0.1, "temperature T of the ListNet targets softmax(-dJ / (T * spread of dJ))"
-    )
-    workers: int = arg(2, "labelling worker processes")
     seed: int = arg(1, "seed of the labelling episodes and the fit")
-    progress: bool = arg(True, "show tqdm bars")
-    eval_episodes: int = arg(
-        10, "held-out episodes on which the saved checkpoint is evaluated (0: none)"
-    )
-    eval_seed: int = arg(10_000, "seed of the first held-out episode (then +1, +2, ...)")
+    eval_episodes: int = run_arg("eval_episodes", 10, note="the saved checkpoint, reloaded")
+    eval_seed: int = run_arg("eval_seed", 10_000)
     verify_top_k: str = arg("4,8", "evaluated variants ppo_topK: comma-separated K (empty: none)")
     baselines: str = arg("ga", "comma-separated registered agents evaluated next to the policy")
     scorer: str = arg(
@@ -136,23 +129,25 @@ class Config:
         "checkpoint's behaviour)",
     )
     edit_rank: int = arg(16, "rank k of a fresh factorised scorer (with --scorer factorised)")
-    checkpoint_every: int = arg(
+    checkpoint_every: int = run_arg(
+        "checkpoint_every",
         1,
-        "fit epochs between the periodic state <out stem>.last.zip (+ .json, .labels.npz, "
-        ".fit.pt); it is also written once the labels are collected and on SIGINT / SIGTERM "
-        "(0: only then)",
+        unit="fit epochs",
+        note="<out stem>.last.zip (+ .json, .labels.npz, .fit.pt) is also written once the "
+        "labels are collected",
     )
-    allow_large: bool = arg(
-        False,
-        "lift the ceilings of --rounds (100), --states-per-round / --states (10^6), --epochs "
-        "(10,000) and --eval-episodes (100,000)",
-    )
-    resume: str = arg(
+    resume: str = run_arg(
+        "resume",
         "",
-        "continue an interrupted run (same options) from its <out stem>.last.zip: the labels "
-        "collected, the weights, the fit epoch and its optimizer",
+        unit="<out stem>.last.zip",
+        note="the labels collected, the weights, the fit epoch and its optimizer",
     )
-    max_minutes: float | None = run_arg("max_minutes", None, unit="a fit epoch")
+    max_minutes: float | None = run_arg(
+        "max_minutes", None, unit="the labels collected or a fit epoch"
+    )
+
+
+RUN = Script(SCRIPT, Config, __doc__)
 
 
 def fresh_model(
@@ -203,9 +198,8 @@ def fresh_model(
     return model, architecture
 
 
-def parse_args(argv: list[str] | None = None) -> Config:
-    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
-    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+#: the run's :class:`Config` from the command line (and ``--config FILE``)
+parse_args = RUN.parse
 
 
 def outputs(cfg: Config) -> list[Path]:
@@ -218,7 +212,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Collect, fit, save, evaluate; return the new checkpoint's metadata."""
     cfg = parse_args(argv)
     check_ranking_sizes(cfg)  # every size in range and under its ceiling, before any work
-    prog = f"python -m {SCRIPT}"
+    prog = RUN.prog
     check_run_options(cfg, prog)
     last = last_paths(cfg.out)[0]
     if cfg.resume:
@@ -257,7 +251,7 @@ def _run(cfg: Config) -> dict[str, Any]:
         raise UsageError(f"--scorer must be one of {['checkpoint', *SCORERS]}, got {cfg.scorer!r}")
     if cfg.edit_rank < 1:
         raise UsageError(f"--edit-rank must be >= 1, got {cfg.edit_rank}")
-    kwargs, resumed, meta = read_run_inputs(cfg, ENV_ID, "dagger", _FREE)
+    kwargs, resumed, meta = read_run_inputs(cfg, ENV_ID, "dagger", _FREE, load=load_metadata)
     flag = RunStop(cfg.max_minutes)  # signals and the budget, checked at the safe points
     started = time.perf_counter()
     last = last_paths(out)[0]
@@ -375,13 +369,9 @@ def _restore(
     )
 
 
-def cli() -> None:
-    """Console-script entry point (same options as ``main``).
-
-    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM, 75 at ``--max-minutes``.
-    """
-    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
+#: the console script: ``main`` with the exit codes of :func:`selenv.learned.trainer.run_cli`
+#: (0; 2 usage error or busy ``--out``; 1 I/O failure; 130 / 143 / 75 stopped and saved)
+cli = RUN.command(main)
 
 
 if __name__ == "__main__":

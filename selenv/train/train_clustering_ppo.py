@@ -39,24 +39,22 @@ followed by one DAgger round (:mod:`selenv.train.train_clustering_dagger`,
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
 from selenv.exits import check_size
-from selenv.learned.config import arg, parse_config
+from selenv.learned.config import arg
 from selenv.learned.rl.edit_policy import SCORERS, scorer_policy_kwargs
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
 from selenv.learned.rl.training import (
     PPOConfig,
-    check_run_outputs,
-    output_lock,
     output_paths,
-    run_cli,
+    ppo_run,
     train,
 )
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
+from selenv.learned.trainer import Script
 from selenv.parallel.executors import max_pool_workers
 
 ENV_ID = "selenv/ReceiverClustering-v1"
@@ -124,30 +122,30 @@ class Config(PPOConfig):
     edit_rank: int = arg(16, "rank k of the factorised scorer's bilinear source-target term")
 
 
+RUN = Script(SCRIPT, Config, __doc__)
+
+
 def make_env(kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
     """One training env: edit encoding, in the edits-as-candidates view."""
     env = gym.make(ENV_ID, **{**kwargs, "action_mode": "edit"})
     return CandidateViewWrapper(env, view_for(ENV_ID, env))
 
 
-def parse_args(argv: list[str] | None = None) -> Config:
-    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
-    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+#: the run's :class:`Config` from the command line (and ``--config FILE``)
+parse_args = RUN.parse
 
 
-def outputs(cfg: Config) -> list[Path]:
-    """The files the run writes."""
-    return output_paths(cfg)
+#: the files the run writes: the checkpoint and its JSON
+outputs = output_paths
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
-    prog = f"python -m {SCRIPT}"
+    prog = RUN.prog
     check_size("--rank-workers", cfg.rank_workers, low=1, high=max_pool_workers(),
                note=" (labelling processes on this machine)")  # fmt: skip
-    check_run_outputs(cfg, prog)
-    with output_lock(cfg.out, prog):  # one run per --out
+    with ppo_run(cfg, prog):  # options and outputs checked, one run per --out
         if cfg.scorer not in SCORERS:
             raise ValueError(f"--scorer must be one of {list(SCORERS)}, got {cfg.scorer!r}")
         if cfg.edit_rank < 1:
@@ -203,13 +201,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         )
 
 
-def cli() -> None:
-    """Console-script entry point (same options as ``main``).
-
-    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM (the last completed iteration saved, see ``--resume``).
-    """
-    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
+#: the console script: ``main`` with the exit codes of :func:`selenv.learned.trainer.run_cli`
+#: (0; 2 usage error or busy ``--out``; 1 I/O failure; 130 / 143 / 75 stopped and saved)
+cli = RUN.command(main)
 
 
 if __name__ == "__main__":

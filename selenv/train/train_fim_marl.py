@@ -28,19 +28,19 @@ import numpy as np
 
 from selenv.atomic import write_json
 from selenv.families.fim.agents import CooperativeGreedyPolicy
-from selenv.learned.config import arg, check_outputs, parse_config, usage_error
+from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.rl.marl import SharedPolicyEnv
 from selenv.learned.rl.safe_load import load_policy
 from selenv.learned.rl.training import (
     PPOConfig,
-    check_run_outputs,
     output_lock,
     output_paths,
+    ppo_run,
     read_checkpoint_metadata,
-    run_cli,
     train,
     verify_pair,
 )
+from selenv.learned.trainer import Script
 from selenv.multiagent import fim_selection_v0
 
 ENV_ID = "selenv.multiagent.fim_selection_v0"
@@ -77,6 +77,9 @@ class Config(PPOConfig):
     )
 
 
+RUN = Script(SCRIPT, Config, __doc__)
+
+
 def play(policy: Any, kwargs: dict[str, Any], mode: str, seed: int) -> float:
     """Final fusion-centre objective of one episode; ``policy`` is a model or greedy."""
     penv = fim_selection_v0.parallel_env(mode=mode, **kwargs)
@@ -95,9 +98,8 @@ def play(policy: Any, kwargs: dict[str, Any], mode: str, seed: int) -> float:
     return float(info["objective"])
 
 
-def parse_args(argv: list[str] | None = None) -> Config:
-    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
-    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+#: the run's :class:`Config` from the command line (and ``--config FILE``)
+parse_args = RUN.parse
 
 
 def outputs(cfg: Config) -> list[Path]:
@@ -108,7 +110,7 @@ def outputs(cfg: Config) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train the shared policy, save it, compare it with the greedy schemes; return metadata."""
     cfg = parse_args(argv)
-    prog = f"python -m {SCRIPT}"
+    prog = RUN.prog
     if cfg.eval_only:  # re-evaluate the checkpoint at --out, rewrite its metrics
         if not Path(cfg.out).is_file():
             usage_error(prog, f"--eval-only: no checkpoint {cfg.out}")
@@ -120,8 +122,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 usage_error(prog, exc)
             kwargs = meta["env_kwargs"]  # what the checkpoint was trained on
             return _evaluate(cfg, kwargs, meta)
-    check_run_outputs(cfg, prog)
-    with output_lock(cfg.out, prog):  # one run per --out
+    with ppo_run(cfg, prog):  # options and outputs checked, one run per --out
         kwargs = cfg.kwargs()
         meta = train(
             dataclasses.replace(cfg, eval_episodes=0),
@@ -165,13 +166,9 @@ def _evaluate(cfg: Config, kwargs: dict[str, Any], meta: dict[str, Any]) -> dict
     return meta
 
 
-def cli() -> None:
-    """Console-script entry point (same options as ``main``).
-
-    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM.
-    """
-    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
+#: the console script: ``main`` with the exit codes of :func:`selenv.learned.trainer.run_cli`
+#: (0; 2 usage error or busy ``--out``; 1 I/O failure; 130 / 143 / 75 stopped and saved)
+cli = RUN.command(main)
 
 
 if __name__ == "__main__":

@@ -22,24 +22,23 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
 from selenv.exits import UsageError
 from selenv.families.fim.view import WIDTH as INVARIANT_WIDTH
-from selenv.learned.config import arg, parse_config
+from selenv.learned.config import arg
 from selenv.learned.rl.mixture import MIXTURES, EnvMixture, parse_mixture
 from selenv.learned.rl.training import (
     PPOConfig,
     check_run_outputs,
     output_lock,
     output_paths,
-    run_cli,
     train,
 )
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
+from selenv.learned.trainer import Script
 
 ENV_ID = "selenv/FIMSelection-v1"
 #: the candidate views this script trains with
@@ -74,20 +73,21 @@ class Config(PPOConfig):
     )
 
 
-def parse_args(argv: list[str] | None = None) -> Config:
-    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
-    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+RUN = Script(SCRIPT, Config, __doc__)
 
 
-def outputs(cfg: Config) -> list[Path]:
-    """The files the run writes."""
-    return output_paths(cfg)
+#: the run's :class:`Config` from the command line (and ``--config FILE``)
+parse_args = RUN.parse
+
+
+#: the files the run writes: the checkpoint and its JSON
+outputs = output_paths
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
-    prog = f"python -m {SCRIPT}"
+    prog = RUN.prog
     check_run_outputs(cfg, prog)
     if cfg.view not in VIEW_NAMES:
         raise UsageError(f"--view must be one of {list(VIEW_NAMES)}, got {cfg.view!r}")
@@ -143,13 +143,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         )
 
 
-def cli() -> None:
-    """Console-script entry point (same options as ``main``).
-
-    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM (the last completed iteration saved, see ``--resume``).
-    """
-    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
+#: the console script: ``main`` with the exit codes of :func:`selenv.learned.trainer.run_cli`
+#: (0; 2 usage error or busy ``--out``; 1 I/O failure; 130 / 143 / 75 stopped and saved)
+cli = RUN.command(main)
 
 
 if __name__ == "__main__":

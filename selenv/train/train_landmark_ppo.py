@@ -16,20 +16,18 @@ after expert iteration (:mod:`selenv.train.train_landmark_expert`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
-from selenv.learned.config import arg, parse_config
+from selenv.learned.config import arg
 from selenv.learned.rl.training import (
     PPOConfig,
-    check_run_outputs,
-    output_lock,
     output_paths,
-    run_cli,
+    ppo_run,
     train,
 )
+from selenv.learned.trainer import Script
 
 ENV_ID = "selenv/LandmarkSelection-v1"
 SCRIPT = "selenv.train.train_landmark_ppo"
@@ -61,22 +59,21 @@ class Config(PPOConfig):
     baselines: str = "brute_force,vns,greedy,random"
 
 
-def parse_args(argv: list[str] | None = None) -> Config:
-    """The run's :class:`Config` from the command line (and ``--config FILE``)."""
-    return parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+RUN = Script(SCRIPT, Config, __doc__)
 
 
-def outputs(cfg: Config) -> list[Path]:
-    """The files the run writes."""
-    return output_paths(cfg)
+#: the run's :class:`Config` from the command line (and ``--config FILE``)
+parse_args = RUN.parse
+
+
+#: the files the run writes: the checkpoint and its JSON
+outputs = output_paths
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, save, evaluate; return the checkpoint's metadata."""
     cfg = parse_args(argv)
-    prog = f"python -m {SCRIPT}"
-    check_run_outputs(cfg, prog)
-    with output_lock(cfg.out, prog):  # one run per --out
+    with ppo_run(cfg, RUN.prog):  # options and outputs checked, one run per --out
         kwargs = cfg.kwargs()
         return train(
             cfg,
@@ -89,13 +86,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         )
 
 
-def cli() -> None:
-    """Console-script entry point (same options as ``main``).
-
-    Exit code 0 after a run, 2 on a usage error or a busy ``--out``, 1 on an I/O failure,
-    130 / 143 after SIGINT / SIGTERM (the last completed iteration saved, see ``--resume``).
-    """
-    raise SystemExit(run_cli(main, f"python -m {SCRIPT}"))
+#: the console script: ``main`` with the exit codes of :func:`selenv.learned.trainer.run_cli`
+#: (0; 2 usage error or busy ``--out``; 1 I/O failure; 130 / 143 / 75 stopped and saved)
+cli = RUN.command(main)
 
 
 if __name__ == "__main__":

@@ -181,7 +181,7 @@ class Config:
     )
     force: bool = arg(False, "overwrite existing outputs (--out .pt / .json, --save-data)")
     tensorboard_dir: str = arg("runs", "TensorBoard log folder (empty: no TensorBoard logs)")
-    progress: bool = arg(True, "show tqdm bars")
+    progress: bool = run_arg("progress", True)
     torch_threads: int = arg(1, "torch CPU threads of this process")
     # interruptions and resuming
     checkpoint_every: int = arg(

@@ -18,12 +18,13 @@ uninterrupted run, bit for bit.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import shlex
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -36,12 +37,13 @@ from gymnasium import spaces
 from selenv.atomic import write_json
 from selenv.envs.resolved import resolved_env_config
 from selenv.exits import Terminated, UsageError
-from selenv.learned.config import check_outputs, usage_error
+from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.rl.agent import load_metadata
 from selenv.learned.rl.expert import CL_ID
 from selenv.learned.rl.ranking import (
     FitState,
     RankingData,
+    check_ranking_sizes,
     fit_ranking,
     fit_state_path,
     load_labels,
@@ -60,8 +62,10 @@ from selenv.learned.trainer import (
     check_max_minutes,
     evaluation_stops,
     last_paths,
+    output_lock,
     read_checkpoint_metadata,
     rng_state,
+    run_arg,
     save_final,
     set_rng_state,
     stop_exception,
@@ -71,11 +75,14 @@ from selenv.untrusted import json_object
 
 __all__ = [
     "FREE_OPTIONS",
+    "ExpertConfig",
+    "FitOptions",
     "Progress",
     "check_expert_outputs",
     "collected",
     "evaluate_with_bench",
     "expert_outputs",
+    "expert_run",
     "fit_round",
     "labels_path",
     "read_run_inputs",
@@ -99,6 +106,62 @@ _NOT_INHERITED = (
     "metrics",
     "resume_state",
 )
+
+
+# -- options -------------------------------------------------------------------------------------
+@dataclass
+class FitOptions:
+    """The options of every distillation script: the ranking fit and the run (``--kebab-case``)."""
+
+    epochs: int = arg(20, "epochs of the ranking fit (ListNet) per round")
+    learning_rate: float = arg(5e-4, "Adam learning rate of the ranking fit")
+    temperature: float = arg(
+        0.1, "temperature T of the ListNet targets softmax(-dJ / (T * spread of dJ))"
+    )
+    workers: int = arg(2, "labelling worker processes")
+    progress: bool = run_arg("progress", True)
+    allow_large: bool = arg(
+        False,
+        "lift the ceilings of --rounds (100), --states-per-round / --states (10^6), --epochs "
+        "(10,000) and --eval-episodes (100,000)",
+    )
+    max_minutes: float | None = run_arg(
+        "max_minutes", None, unit="a collection, a fit epoch or a round"
+    )
+
+
+@dataclass
+class ExpertConfig(FitOptions):
+    """The options of an expert-iteration script; a script's ``Config`` sets its defaults."""
+
+    checkpoint: str = arg("", "starting weights (a .zip)")
+    out: str = arg(
+        "runs/expert/policy.zip",
+        "the trained checkpoint (.zip); also writes its .json, <out>_round<r>.zip/.json per "
+        "round and <out>.bench.json",
+    )
+    force: bool = run_arg("force", False)
+    env_kwargs: str = arg("{}", "JSON object of gymnasium.make keyword arguments")
+    rounds: int = arg(3, "DAgger rounds (round 0 follows the labeller, later ones the policy)")
+    states_per_round: int = arg(1500, "labelled decisions collected per round")
+    top_k: int = arg(3, "the labeller scores its top-k candidates")
+    horizon: int = arg(5, "filter steps the labeller simulates after the current one")
+    explore: float = arg(0.05, "random action probability on the labelling trajectories")
+    seed: int = arg(0, "seed of the labelling episodes (round r: 100 * seed + r) and the fit")
+    eval_episodes: int = run_arg("eval_episodes", 30, note="by selenv bench")
+    eval_seed: int = run_arg("eval_seed", 1000)
+    checkpoint_every: int = run_arg(
+        "checkpoint_every",
+        5,
+        unit="fit epochs",
+        note="<out stem>.last.zip (+ .json) is also written after every collection and round",
+    )
+    resume: str = run_arg(
+        "resume",
+        "",
+        unit="<out stem>.last.zip or a round checkpoint <out>_round<r>.zip",
+        note="weights, labels so far, round, fit epoch and optimizer",
+    )
 
 
 # -- files ---------------------------------------------------------------------------------------
@@ -164,6 +227,15 @@ def check_expert_outputs(cfg: Any, prog: str) -> None:
             f"{last}, or pass --force to start over",
         )
     check_outputs(prog, [*expert_outputs(cfg), *state_files(cfg)], force=cfg.force)
+
+
+@contextlib.contextmanager
+def expert_run(cfg: Any, prog: str) -> Iterator[None]:
+    """Check an expert-iteration run's sizes and outputs (exit 2), then hold the ``--out`` lock."""
+    check_ranking_sizes(cfg)  # every size in range and under its ceiling, before any work
+    check_expert_outputs(cfg, prog)
+    with output_lock(cfg.out, prog):  # one run per --out
+        yield
 
 
 # -- the loop's steps ----------------------------------------------------------------------------
@@ -276,14 +348,19 @@ def fit_round(
 
 # -- expert iteration ----------------------------------------------------------------------------
 def read_run_inputs(
-    cfg: Any, env_id: str, block: str, free: tuple[str, ...]
+    cfg: Any,
+    env_id: str,
+    block: str,
+    free: tuple[str, ...],
+    *,
+    load: Callable[[Any], dict[str, Any]] = load_metadata,
 ) -> tuple[dict[str, Any], dict[str, Any] | None, dict[str, Any]]:
     """The env keywords, the ``--resume`` metadata (or ``None``) and the starting checkpoint's.
 
     ``cfg.checkpoint_every`` must be >= 0; ``cfg.env_kwargs`` a JSON object (bounded); a
     ``cfg.resume`` checkpoint's ``meta[block]`` must equal this run's options except
     ``free``; ``cfg.checkpoint`` must be a matched pair of ``env_id``. Sets torch's threads
-    to 1 (the fit is small).
+    to 1 (the fit is small). ``load`` reads the starting checkpoint's metadata.
 
     Raises:
         UsageError: naming the option (exit 2).
@@ -297,7 +374,7 @@ def read_run_inputs(
         raise UsageError(str(exc)) from None
     ours = {k: v for k, v in asdict(cfg).items() if k not in free}
     resumed = read_resume(cfg.resume, env_id=env_id, block=block, ours=ours) if cfg.resume else None
-    src = load_metadata(cfg.checkpoint)
+    src = load(cfg.checkpoint)
     if Path(cfg.checkpoint).with_suffix(".json").is_file():  # refuse a mismatched pair
         verify_pair(cfg.checkpoint, read_checkpoint_metadata(cfg.checkpoint))
     if src.get("env_id") != env_id:

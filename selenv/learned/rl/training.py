@@ -53,12 +53,13 @@ Long runs lose at most one interval:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -128,6 +129,7 @@ __all__ = [
     "last_paths",
     "output_lock",
     "output_paths",
+    "ppo_run",
     "read_checkpoint_metadata",
     "run_cli",
     "save_checkpoint",
@@ -184,15 +186,13 @@ class PPOConfig:
     )
     # outputs
     out: str = arg("", "checkpoint path (.zip); its metadata goes next to it as .json")
-    force: bool = arg(False, "overwrite an existing --out (.zip or .json)")
+    force: bool = run_arg("force", False)
     tensorboard_dir: str = arg("runs", "TensorBoard log folder (empty: no TensorBoard logs)")
-    progress: bool = arg(True, "show a tqdm bar over the timesteps")
+    progress: bool = run_arg("progress", True, note="one over the timesteps")
     torch_threads: int = arg(1, "torch CPU threads of this process")
     # evaluation on held-out seeds
-    eval_episodes: int = arg(
-        20, "held-out episodes on which the saved checkpoint is evaluated (0: none)"
-    )
-    eval_seed: int = arg(10_000, "seed of the first held-out episode (then +1, +2, ...)")
+    eval_episodes: int = run_arg("eval_episodes", 20, note="the saved checkpoint, reloaded")
+    eval_seed: int = run_arg("eval_seed", 10_000)
     baselines: str = arg(
         "greedy,random", "comma-separated registered agents evaluated next to the policy"
     )
@@ -228,16 +228,17 @@ class PPOConfig:
         "the statistics restart on --resume",
     )
     # long runs
-    checkpoint_every: int = arg(
+    checkpoint_every: int = run_arg(
+        "checkpoint_every",
         50_000,
-        "environment steps between periodic checkpoints <out stem>.last.zip (+ .last.json), "
-        "written at the next iteration boundary and removed when the run completes (0: none; "
-        "SIGINT / SIGTERM always save one)",
+        unit="environment steps",
+        note="<out stem>.last.zip (+ .last.json) is written at the next iteration boundary",
     )
-    resume: str = arg(
+    resume: str = run_arg(
+        "resume",
         "",
-        "continue from this checkpoint (a .last.zip of an interrupted run, same options): "
-        "weights, optimizer state, step count, training log and random generators",
+        unit="<out stem>.last.zip",
+        note="weights, optimizer state, step count, training log and random generators",
     )
     max_minutes: float | None = run_arg("max_minutes", None, unit="iteration boundaries")
     max_memory_gb: float = arg(
@@ -301,6 +302,14 @@ def check_bounds(cfg: PPOConfig) -> None:
     check_max_minutes(cfg.max_minutes)
     if not cfg.max_memory_gb > 0:
         raise UsageError(f"--max-memory-gb must be > 0, got {cfg.max_memory_gb}")
+
+
+@contextlib.contextmanager
+def ppo_run(cfg: PPOConfig, prog: str) -> Iterator[None]:
+    """Check the run's options and outputs (exit 2, one line), then hold the ``--out`` lock."""
+    check_run_outputs(cfg, prog)
+    with output_lock(cfg.out, prog):  # one run per --out
+        yield
 
 
 def parse_hidden(text: str) -> list[int]:
@@ -507,24 +516,7 @@ def train(
     """
     torch.set_num_threads(cfg.torch_threads)
     out = Path(cfg.out)
-    if out.suffix != ".zip":
-        raise UsageError(f"--out must end in .zip, got {cfg.out!r}")
-    check_bounds(cfg)
-    if cfg.algo not in ALGORITHMS:
-        raise UsageError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
-    if cfg.vec_env not in VEC_ENVS:
-        raise UsageError(f"--vec-env must be one of {list(VEC_ENVS)}, got {cfg.vec_env!r}")
-    if cfg.vec_env == "native" and native is None:
-        raise UsageError(
-            f"--vec-env native: {env_id} is trained through a wrapper without a native vector "
-            "env; use --vec-env dummy or subproc"
-        )
-    if cfg.curve_every and env_id not in gym.registry:
-        raise UsageError(
-            f"--curve-every: the learning curve plays the policy through the ppo agent on a "
-            f"Gymnasium env, and {env_id} is not one (its script evaluates on its own)"
-        )
-    check_run_outputs(cfg, "selenv.learned.rl.training.train")  # the scripts check first
+    _check_train(cfg, env_id, native)
     from selenv.learned.rl.curves import (  # the curve evaluates through the ppo agent
         CurveCallback,
         CurveRecorder,
@@ -534,129 +526,24 @@ def train(
     resumed = _read_resume(cfg, env_id, view) if cfg.resume else None
     resumed_points = resumed_curve(cfg, resumed) if resumed is not None else None
     out.parent.mkdir(parents=True, exist_ok=True)
-    hidden = parse_hidden(cfg.hidden)
 
-    # 1. envs
-    def monitored() -> gym.Env[Any, Any]:
-        return Monitor(make_env())
-
-    factories = [monitored for _ in range(cfg.n_envs)]
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # workers: tiny matrices, no contention
-    venv: VecEnv
-    if cfg.vec_env == "native":
-        assert native is not None  # checked above
-        venv = make_native_vec_env(n_envs=cfg.n_envs, seed=cfg.seed, **native)
-    else:
-        venv = (
-            SubprocVecEnv(factories, start_method="spawn")
-            if cfg.vec_env == "subproc"
-            else DummyVecEnv(factories)
-        )
-        venv.seed(cfg.seed)
-    if cfg.normalize_reward:  # training statistics only: the policy acts on raw observations
-        venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
-    layout = obs_layout(venv.observation_space)
-    obs_floats = sum(
-        int(np.prod(sp.shape or (1,)))
-        for sp in getattr(venv.observation_space, "spaces", {"": venv.observation_space}).values()
+    # 1. envs, 2. model (fresh, --init-from or --resume)
+    venv, layout = _make_venv(cfg, make_env, native)
+    model = _make_model(cfg, venv, features_extractor, extractor_kwargs)
+    init_from = _start_weights(model, venv, cfg, env_id, view, resumed)
+    training_log: list[dict[str, Any]] = list((resumed or {}).get("training_log") or [])
+    metadata = _Record(
+        cfg=cfg,
+        env_id=env_id,
+        view=view,
+        layout=layout,
+        model=model,
+        extractor=features_extractor,
+        extractor_kwargs=extractor_kwargs or {},
+        init_from=init_from,
+        extra=extra_meta or {},
+        wall_before=float((resumed or {}).get("training", {}).get("wall_seconds", 0.0)),
     )
-    need = estimate_memory_bytes(cfg, obs_floats, int(layout["n"]), int(layout["n_features"]))
-    if need > cfg.max_memory_gb * 2**30:
-        venv.close()
-        raise UsageError(
-            f"this run needs about {need / 2**30:.1f} GB (rollout buffer of --n-envs x --n-steps "
-            f"= {cfg.n_envs * cfg.n_steps} observations of {obs_floats} floats, minibatches of "
-            f"--batch-size {cfg.batch_size} x {layout['n']} candidates x --hidden "
-            f"{cfg.hidden}), more than --max-memory-gb {cfg.max_memory_gb:g}: lower these "
-            "options or raise --max-memory-gb"
-        )
-
-    # 2. model
-    model = make_ppo(
-        venv,
-        cfg.algo,
-        seed=cfg.seed,
-        learning_rate=cfg.learning_rate,
-        n_steps=cfg.n_steps,
-        batch_size=cfg.batch_size,
-        n_epochs=cfg.n_epochs,
-        ent_coef=cfg.ent_coef,
-        gamma=cfg.gamma,
-        target_kl=cfg.target_kl or None,
-        tensorboard_log=cfg.tensorboard_dir or None,
-        policy_kwargs={
-            "features_extractor_class": features_extractor,
-            "features_extractor_kwargs": {
-                "hidden": hidden,
-                "activation": cfg.activation,
-                "gain_skip_init": cfg.gain_skip_init,
-                **(extractor_kwargs or {}),
-            },
-        },
-    )
-    init_from = None
-    if cfg.init_from and resumed is None:  # a resumed run holds its own weights
-        try:
-            init_from = init_from_checkpoint(model, cfg.init_from, env_id, view)
-        except ValueError as exc:
-            venv.close()
-            raise UsageError(f"--init-from: {exc}") from None
-    elif resumed is not None:
-        init_from = resumed.get("init_from")
-    training_log: list[dict[str, Any]] = []
-    wall_before = 0.0
-    if resumed is not None:
-        _restore(model, venv, cfg, resumed)
-        training_log = list(resumed.get("training_log") or [])
-        wall_before = float(resumed.get("training", {}).get("wall_seconds", 0.0))
-
-    env_config = None  # the configuration trained on, resolved (Gymnasium ids)
-    if env_id in gym.registry:
-        probe = gym.make(env_id, **cfg.kwargs())
-        env_config = resolved_env_config(probe)
-        probe.close()
-
-    def metadata(wall: float, pretraining: Any, complete: bool) -> dict[str, Any]:
-        return {
-            "env_id": env_id,
-            "env_kwargs": cfg.kwargs(),
-            "env_config": env_config,
-            "view": view,
-            "obs_layout": {
-                "whitened_dim": layout["whitened_dim"],
-                "n_features": layout["n_features"],
-                "n_candidates_trained": layout["n"],
-            },
-            "architecture": {
-                "policy": f"selenv.learned.rl.candidate_policy.{type(model.policy).__name__}",
-                "features_extractor": (
-                    f"{features_extractor.__module__}.{features_extractor.__name__}"
-                ),
-                "hidden": hidden,
-                "activation": cfg.activation,
-                "gain_skip_init": cfg.gain_skip_init,
-                **(extractor_kwargs or {}),
-                "net_arch": {"pi": [], "vf": [64]},
-                "n_parameters": int(sum(p.numel() for p in model.policy.parameters())),
-                "pool_size_independent": True,
-            },
-            "training": {
-                **dataclasses.asdict(cfg),
-                "algorithm": type(model).__name__,
-                "timesteps_done": int(model.num_timesteps),
-                "wall_seconds": round(wall_before + wall, 1),
-            },
-            "pretraining": pretraining,
-            "init_from": init_from,
-            "metrics": None,
-            "complete": complete,
-            "num_timesteps": int(model.num_timesteps),
-            "selenv_version": selenv.__version__,
-            "torch_version": torch.__version__,
-            "sb3_version": stable_baselines3.__version__,
-            "sb3_contrib_version": sb3_contrib.__version__,
-            **(extra_meta or {}),
-        }
 
     # 3. (optional pre-training, then) PPO
     start = time.perf_counter()
@@ -673,7 +560,7 @@ def train(
             env_id=env_id,
             make_eval_env=make_eval_env,
             metadata=lambda: metadata(0.0, None, complete=False),
-            clock=lambda: wall_before + time.perf_counter() - start,
+            clock=lambda: metadata.wall_before + time.perf_counter() - start,
             flag=flag,
             resumed=resumed_points,
         )
@@ -736,7 +623,6 @@ def train(
     meta["training_log"] = training_log
     if curve is not None:
         meta["learning_curve"] = curve.record()
-    json_path = out.with_suffix(".json")
     save_checkpoint(model, meta, out, exclude=_NOT_SAVED)
     for stale in last_paths(out):  # superseded by the complete checkpoint
         stale.unlink(missing_ok=True)
@@ -757,10 +643,198 @@ def train(
                 baselines=cfg.baselines,
                 policy_variants=policy_variants,
             )
-        write_json(json_path, meta)
+        write_json(out.with_suffix(".json"), meta)
         summary = {k: v["mean_return"] for k, v in meta["metrics"]["agents"].items()}
         print(json.dumps({"mean_return": summary, "wall_seconds": round(wall, 1)}, indent=2))
     return meta
+
+
+def _check_train(cfg: PPOConfig, env_id: str, native: dict[str, Any] | None) -> None:
+    """The options of :func:`train`, checked before any work (``UsageError`` naming one)."""
+    if Path(cfg.out).suffix != ".zip":
+        raise UsageError(f"--out must end in .zip, got {cfg.out!r}")
+    check_bounds(cfg)
+    if cfg.algo not in ALGORITHMS:
+        raise UsageError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
+    if cfg.vec_env not in VEC_ENVS:
+        raise UsageError(f"--vec-env must be one of {list(VEC_ENVS)}, got {cfg.vec_env!r}")
+    if cfg.vec_env == "native" and native is None:
+        raise UsageError(
+            f"--vec-env native: {env_id} is trained through a wrapper without a native vector "
+            "env; use --vec-env dummy or subproc"
+        )
+    if cfg.curve_every and env_id not in gym.registry:
+        raise UsageError(
+            f"--curve-every: the learning curve plays the policy through the ppo agent on a "
+            f"Gymnasium env, and {env_id} is not one (its script evaluates on its own)"
+        )
+    check_run_outputs(cfg, "selenv.learned.rl.training.train")  # the scripts check first
+
+
+def _make_venv(
+    cfg: PPOConfig, make_env: Callable[[], gym.Env[Any, Any]], native: dict[str, Any] | None
+) -> tuple[VecEnv, dict[str, Any]]:
+    """The training envs and their observation layout; the memory estimate checked.
+
+    Raises:
+        UsageError: the run would need more than ``--max-memory-gb`` (the envs are closed).
+    """
+
+    def monitored() -> gym.Env[Any, Any]:
+        return Monitor(make_env())
+
+    factories = [monitored for _ in range(cfg.n_envs)]
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # workers: tiny matrices, no contention
+    venv: VecEnv
+    if cfg.vec_env == "native":
+        assert native is not None  # checked by _check_train
+        venv = make_native_vec_env(n_envs=cfg.n_envs, seed=cfg.seed, **native)
+    else:
+        venv = (
+            SubprocVecEnv(factories, start_method="spawn")
+            if cfg.vec_env == "subproc"
+            else DummyVecEnv(factories)
+        )
+        venv.seed(cfg.seed)
+    if cfg.normalize_reward:  # training statistics only: the policy acts on raw observations
+        venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=cfg.gamma)
+    layout = obs_layout(venv.observation_space)
+    obs_floats = sum(
+        int(np.prod(sp.shape or (1,)))
+        for sp in getattr(venv.observation_space, "spaces", {"": venv.observation_space}).values()
+    )
+    need = estimate_memory_bytes(cfg, obs_floats, int(layout["n"]), int(layout["n_features"]))
+    if need > cfg.max_memory_gb * 2**30:
+        venv.close()
+        raise UsageError(
+            f"this run needs about {need / 2**30:.1f} GB (rollout buffer of --n-envs x --n-steps "
+            f"= {cfg.n_envs * cfg.n_steps} observations of {obs_floats} floats, minibatches of "
+            f"--batch-size {cfg.batch_size} x {layout['n']} candidates x --hidden "
+            f"{cfg.hidden}), more than --max-memory-gb {cfg.max_memory_gb:g}: lower these "
+            "options or raise --max-memory-gb"
+        )
+    return venv, layout
+
+
+def _make_model(
+    cfg: PPOConfig,
+    venv: VecEnv,
+    features_extractor: type[CandidateScorer],
+    extractor_kwargs: dict[str, Any] | None,
+) -> Any:
+    """The fresh (Maskable)PPO model of the run's options on ``venv``."""
+    return make_ppo(
+        venv,
+        cfg.algo,
+        seed=cfg.seed,
+        learning_rate=cfg.learning_rate,
+        n_steps=cfg.n_steps,
+        batch_size=cfg.batch_size,
+        n_epochs=cfg.n_epochs,
+        ent_coef=cfg.ent_coef,
+        gamma=cfg.gamma,
+        target_kl=cfg.target_kl or None,
+        tensorboard_log=cfg.tensorboard_dir or None,
+        policy_kwargs={
+            "features_extractor_class": features_extractor,
+            "features_extractor_kwargs": {
+                "hidden": parse_hidden(cfg.hidden),
+                "activation": cfg.activation,
+                "gain_skip_init": cfg.gain_skip_init,
+                **(extractor_kwargs or {}),
+            },
+        },
+    )
+
+
+def _start_weights(
+    model: Any,
+    venv: VecEnv,
+    cfg: PPOConfig,
+    env_id: str,
+    view: str,
+    resumed: dict[str, Any] | None,
+) -> Any:
+    """Load ``--init-from`` or the ``--resume`` state into ``model``; the ``init_from`` record.
+
+    Raises:
+        UsageError: an ``--init-from`` checkpoint that does not fit (the envs are closed).
+    """
+    if resumed is not None:  # a resumed run holds its own weights
+        _restore(model, venv, cfg, resumed)
+        return resumed.get("init_from")
+    if not cfg.init_from:
+        return None
+    try:
+        return init_from_checkpoint(model, cfg.init_from, env_id, view)
+    except ValueError as exc:
+        venv.close()
+        raise UsageError(f"--init-from: {exc}") from None
+
+
+@dataclass
+class _Record:
+    """The metadata of a PPO run's checkpoints (``.last`` and final), built when saved."""
+
+    cfg: PPOConfig
+    env_id: str
+    view: str
+    layout: dict[str, Any]
+    model: Any
+    extractor: type[CandidateScorer]
+    extractor_kwargs: dict[str, Any]
+    init_from: Any
+    extra: dict[str, Any]
+    wall_before: float
+    env_config: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.env_id in gym.registry:  # the configuration trained on, resolved
+            probe = gym.make(self.env_id, **self.cfg.kwargs())
+            self.env_config = resolved_env_config(probe)
+            probe.close()
+
+    def __call__(self, wall: float, pretraining: Any, complete: bool) -> dict[str, Any]:
+        """The metadata after ``wall`` seconds of this invocation."""
+        cfg, model, layout, extractor = self.cfg, self.model, self.layout, self.extractor
+        return {
+            "env_id": self.env_id,
+            "env_kwargs": cfg.kwargs(),
+            "env_config": self.env_config,
+            "view": self.view,
+            "obs_layout": {
+                "whitened_dim": layout["whitened_dim"],
+                "n_features": layout["n_features"],
+                "n_candidates_trained": layout["n"],
+            },
+            "architecture": {
+                "policy": f"selenv.learned.rl.candidate_policy.{type(model.policy).__name__}",
+                "features_extractor": f"{extractor.__module__}.{extractor.__name__}",
+                "hidden": parse_hidden(cfg.hidden),
+                "activation": cfg.activation,
+                "gain_skip_init": cfg.gain_skip_init,
+                **self.extractor_kwargs,
+                "net_arch": {"pi": [], "vf": [64]},
+                "n_parameters": int(sum(p.numel() for p in model.policy.parameters())),
+                "pool_size_independent": True,
+            },
+            "training": {
+                **dataclasses.asdict(cfg),
+                "algorithm": type(model).__name__,
+                "timesteps_done": int(model.num_timesteps),
+                "wall_seconds": round(self.wall_before + wall, 1),
+            },
+            "pretraining": pretraining,
+            "init_from": self.init_from,
+            "metrics": None,
+            "complete": complete,
+            "num_timesteps": int(model.num_timesteps),
+            "selenv_version": selenv.__version__,
+            "torch_version": torch.__version__,
+            "sb3_version": stable_baselines3.__version__,
+            "sb3_contrib_version": sb3_contrib.__version__,
+            **self.extra,
+        }
 
 
 #: model attributes a checkpoint leaves out (rollout state and episode stats: not needed)
