@@ -259,7 +259,9 @@ def _build_env(env_id: str, env_kwargs: dict[str, Any]) -> gym.Env[Any, Any]:
     try:
         return gym.make(env_id, **{**strict, **env_kwargs})
     except (TypeError, ValueError) as exc:
-        if strict and "invalid_action" not in env_kwargs and "'invalid_action'" in str(exc):
+        # CPython's wording for the keyword a signature does not take (not the user's keywords)
+        missing = "keyword argument 'invalid_action'" in str(exc)
+        if strict and "invalid_action" not in env_kwargs and missing:
             raise BenchError(  # not the user's keywords: a family's env must take it
                 f"cannot build {env_id}: selenv bench plays a family's env with "
                 f"invalid_action='raise' (a masked action fails loudly) and its env does not "
