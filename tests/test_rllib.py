@@ -524,8 +524,9 @@ def test_export_on_a_full_disk_keeps_the_previous_pair(tmp_path: Path, tmpfs_of_
         _proc.run(["umount", str(mnt)], capture_output=True, timeout=60)
 
 
-def _signal_after_recording(monkeypatch, signum: int, at: int, check=None) -> None:
-    """Send ``signum`` to this process right after iteration ``at`` finished, before it is kept."""
+def _signal_after_recording(monkeypatch, signum: int, at: int, check=None, times=1) -> None:
+    """Send ``signum`` ``times`` to this process right after iteration ``at`` was sampled and
+    learned, before the run has kept it."""
     import signal
 
     record = train_rllib_marl._record
@@ -535,7 +536,8 @@ def _signal_after_recording(monkeypatch, signum: int, at: int, check=None) -> No
         if it == at:
             if check is not None:
                 check()
-            os.kill(os.getpid(), signal.Signals(signum))
+            for _ in range(times):
+                os.kill(os.getpid(), signal.Signals(signum))
         return out
 
     monkeypatch.setattr(train_rllib_marl, "_record", record_then_signal)
@@ -549,20 +551,20 @@ def _last(out: Path) -> list[Path]:
 def test_interrupted_training_keeps_the_last_completed_iteration(
     ray_local, tmp_path, capsys, monkeypatch
 ) -> None:
-    """SIGINT right after iteration 2 finished, before it is kept.
+    """SIGINT twice inside iteration 2, before the run has kept it: the second abandons it.
 
     The run keeps iteration 1 as the checkpoint ``<out>.last.*`` (a loadable export marked
     incomplete, with its metrics), skips the evaluation, writes no final export, and ends
     with exit 130 and one line naming the ``--resume`` option.
     """
-    _signal_after_recording(monkeypatch, 2, at=2)
+    _signal_after_recording(monkeypatch, 2, at=2, times=2)
     out = tmp_path / "run" / "policy"
     argv = [*TINY, "--iterations", "4", "--eval-episodes", "2", "--checkpoint-every", "0",
             "--out", str(out)]  # fmt: skip
     assert train_rllib_marl.cli(argv) == 130
     err = capsys.readouterr().err.strip().splitlines()
     last_json, _, optimizer, metrics = _last(out)
-    assert len(err) == 1 and "SIGINT" in err[0] and "after iteration 1 of 4" in err[0], err
+    assert len(err) == 1 and "SIGINT" in err[0] and "saved iteration 1 of 4" in err[0], err
     assert err[0].endswith(f"--resume {last_json}")
     module, meta = load_exported(last_json)  # playable as rllib:path=<out>.last.json
     assert meta["training"]["complete"] is False and meta["training"]["interrupted"] == "SIGINT"
@@ -577,10 +579,10 @@ def test_interrupted_training_keeps_the_last_completed_iteration(
 def test_terminated_training_resumes_to_the_same_iteration_count(
     ray_local, tmp_path, capsys, monkeypatch
 ) -> None:
-    """SIGTERM right after iteration 2 finished (iteration 1 is kept), then --resume.
+    """SIGTERM inside iteration 2: the run finishes it, keeps it, stops; then --resume.
 
     As under a fresh Ray start, Ray's SIGTERM handler is installed when the session starts:
-    the run must still stop through the command's own handler.
+    the run must still stop through the trainer base's handler, at the end of the iteration.
 
     The checkpoint is checked before Ray starts: another training option, a tampered or
     pickled optimizer file are refused (exit 2, one line). The resumed run restores the
@@ -620,6 +622,8 @@ def test_terminated_training_resumes_to_the_same_iteration_count(
     assert train_rllib_marl.cli(argv) == 143
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "SIGTERM" in err[0] and err[0].endswith(f"--resume {last_json}")
+    assert "saved iteration 2 of 4" in err[0], err  # the iteration in progress was finished
+    assert json.loads(last_json.read_text())["training"]["interrupted"] == "SIGTERM"
     monkeypatch.undo()  # no more signals
     saved = th.load(optimizer, weights_only=True)
     saved_weights = th.load(last_pth, weights_only=True)
@@ -672,7 +676,7 @@ def test_terminated_training_resumes_to_the_same_iteration_count(
                     compared.append(key)
         module = state["rl_module"]["shared"]
         assert all(np.array_equal(np.asarray(module[k]), v) for k, v in saved_weights.items())
-        assert algo.iteration == 1  # the checkpoint kept iteration 1
+        assert algo.iteration == 2  # the checkpoint kept iteration 2
 
     monkeypatch.setattr(train_rllib_marl, "_restore", restore_and_compare)
     meta = train_rllib_marl.main([*argv, "--resume", str(last_json)])
@@ -684,6 +688,52 @@ def test_terminated_training_resumes_to_the_same_iteration_count(
     assert all(b > a for a, b in itertools.pairwise(steps)), steps  # the counters continue
     assert not any(p.exists() for p in _last(out))  # superseded by the complete export
     load_exported(out.with_suffix(".json"))
+
+
+def test_max_minutes_keeps_the_iteration_and_resume_completes(
+    ray_local, tmp_path, capsys, monkeypatch
+) -> None:
+    """``--max-minutes``, as every trainer's: at the end of the first iteration past the
+    budget the run keeps it as ``<out>.last.*`` (``"interrupted": "max-minutes"``), skips the
+    evaluation and exits 75 with one line naming ``--resume``; the resumed run has its own
+    budget, which is not checked after the last iteration.
+
+    The trainer base's clock is replaced by a counter that advances one minute per read (the
+    first read is the run's start), so the budget expires at a known iteration.
+    """
+    from selenv.learned import trainer
+
+    reads: list[float] = []
+
+    def minutes() -> float:
+        reads.append(60.0 * len(reads))
+        return reads[-1]
+
+    monkeypatch.setattr(trainer, "clock", minutes)
+    out = tmp_path / "run" / "policy"
+    last_json, _, _, metrics = _last(out)
+    argv = [*TINY, "--iterations", "3", "--eval-episodes", "2", "--checkpoint-every", "0",
+            "--out", str(out)]  # fmt: skip
+    assert train_rllib_marl.cli([*argv, "--max-minutes", "1"]) == 75
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--max-minutes" in err[0] and "iteration 1 of 3" in err[0], err
+    assert err[0].endswith(f"--resume {last_json}")
+    _, meta = load_exported(last_json)
+    training = meta["training"]
+    assert training["interrupted"] == "max-minutes" and training["complete"] is False
+    assert training["max_minutes"] == 1 and meta["resume_state"]["iterations_done"] == 1
+    assert [r["iteration"] for r in json.loads(metrics.read_text())] == [1]
+    assert not out.with_suffix(".json").exists() and "eval" not in meta
+    assert len(reads) == 2  # the start, then the end of iteration 1
+
+    del reads[:]  # a resumed run has its own budget: 1 minute per iteration, 2 allowed
+    meta = train_rllib_marl.main([*argv, "--eval-episodes", "0", "--resume", str(last_json),
+                                  "--max-minutes", "2"])  # fmt: skip
+    assert meta["training"]["complete"] is True and meta["iterations"] == 3
+    assert len(reads) == 2  # the start, the end of iteration 2 (not after the last one)
+    records = json.loads(out.with_suffix(".metrics.json").read_text())
+    assert [r["iteration"] for r in records] == [1, 2, 3]
+    assert not any(p.exists() for p in _last(out))
 
 
 def test_a_second_training_on_the_same_out_is_refused(tmp_path, capsys) -> None:

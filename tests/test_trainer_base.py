@@ -94,6 +94,7 @@ SCRIPTS = {
     "train_landmark_expert": "p.zip",
     "train_clustering_dagger": "p.zip",
     "train_cl_cem": "s.json",
+    "train_rllib_marl": "p",  # the output stem: p.json, p.pth, p.metrics.json
 }
 
 
@@ -104,6 +105,8 @@ def test_bad_max_minutes_is_a_one_line_usage_error(
 ) -> None:
     import importlib
 
+    if script == "train_rllib_marl":
+        pytest.importorskip("ray.rllib")
     module = importlib.import_module(f"selenv.train.{script}")
     with pytest.raises(SystemExit) as exc:
         module.main([f"--out={tmp_path / SCRIPTS[script]}", f"--max-minutes={value}"])

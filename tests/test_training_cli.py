@@ -356,8 +356,26 @@ def _recorded(module: ModuleType, meta: dict[str, Any]) -> dict[str, Any]:
             block["eval_episodes"] = metrics["episodes"]
     if command is not None:
         block.update(_command_values(module, command))
+    if name == "train_rllib_marl":
+        block.update(_rllib_budget(meta["training"]))
     fields = {f.name for f in dataclasses.fields(module.Config)}
     return {k: v for k, v in block.items() if k in fields}
+
+
+def _rllib_budget(training: dict[str, Any]) -> dict[str, Any]:
+    """The iterations and budget of an RLlib run as the trainer base's options.
+
+    RLlib exports written before the trainer base record ``max_minutes`` 0.0 for no budget
+    and, for a budget that cut the run, the iterations asked for; that run exported the
+    iterations done as its complete module, which is ``--iterations <done>`` without a budget
+    now (a budget stops with a resumable state instead). Exports of the trainer base record
+    ``None`` and always ``iterations_done == iterations``: unchanged.
+    """
+    done, budget = training["iterations_done"], training.get("max_minutes")
+    if budget is None:
+        return {}
+    assert budget == 0.0 or done < training["iterations"], training  # the budget cut the run
+    return {"iterations": done, "max_minutes": None}
 
 
 def _same(key: str, a: Any, b: Any) -> bool:

@@ -24,7 +24,10 @@ the same ``--out`` is refused while this one holds its lock (exit 2, one line).
 ``--hidden`` / ``--vf`` widths beyond the loaders' ceilings
 (:data:`selenv.learned.resources.CHECKPOINT_LIMITS`) are refused up front (exit 2).
 
-Long runs lose at most one interval (resumable training, without pickle):
+Long runs lose at most one iteration (resumable training, without pickle). The run
+management is the trainer base's (:mod:`selenv.learned.trainer`: the shared run options, the
+output lock, :class:`~selenv.learned.trainer.RunStop`, the stop lines and exit codes); this
+script brings RLlib's update step (``Algorithm.train()``, one iteration) and its checkpoint:
 
 * ``--checkpoint-every N`` writes, after every ``N``-th iteration, the checkpoint
   ``<out>.last.json`` + ``.last.pth`` (an export of the module, playable as
@@ -34,12 +37,16 @@ Long runs lose at most one interval (resumable training, without pickle):
   four files are written as one atomic group, their sizes and sha256 recorded in the JSON,
   and removed once the final export is written. The JSON's ``resume_state`` holds the
   iteration count, RLlib's lifetime counters and this process's random generators.
-* SIGINT / SIGTERM stop the run: the last completed iteration is kept as that checkpoint
-  (``"interrupted": "SIGINT"``), the evaluation is skipped, and the run exits 130 / 143 with
-  one line naming the checkpoint and the ``--resume`` option to continue with (``ray.init``
-  replaces the SIGTERM handler with an immediate exit; the command's own is put back for the
-  training loop).
-* ``--resume <out>.last.json`` (with the options of the interrupted run: another training
+* The safe point is the end of an iteration. SIGINT / SIGTERM during an iteration let it
+  finish (a second signal abandons it at once); ``--max-minutes M`` stops at the end of the
+  first iteration that ends ``M`` minutes or more after the run started (Ray's start-up
+  included; at least one iteration runs). Either way the last completed iteration is kept as
+  that checkpoint (``"interrupted"``: ``"SIGINT"``, ``"SIGTERM"`` or ``"max-minutes"``), the
+  evaluation is skipped, and the run exits 130 / 143 / 75 with one line naming the checkpoint
+  and the ``--resume`` option to continue with. A stop after the last iteration writes the
+  complete export and skips only the evaluation. (``ray.init`` replaces the SIGTERM handler
+  with an immediate exit; the run's own handlers are installed once Ray has started.)
+* ``--resume <out>.last.json`` (with the options of the stopped run: another training
   option is refused, exit 2, naming it) builds a fresh Algorithm, restores the module
   weights, the optimizer state (``Algorithm.set_state``, then synced to the env runners), the
   iteration count, the lifetime counters and the generators, and trains up to
@@ -70,10 +77,8 @@ import io
 import json
 import math
 import re
-import signal
 import sys
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
@@ -82,21 +87,27 @@ import numpy as np
 import torch as th
 from tqdm.auto import tqdm
 
-from selenv.atomic import OutputBusyError, OutputLock, write_json
-from selenv.exits import Terminated
-from selenv.learned.config import arg, check_outputs, parse_config, usage_error
+from selenv.atomic import write_json
+from selenv.exits import Terminated, UsageError
+from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.resources import CHECKPOINT_LIMITS, bounded_widths, json_depth, read_metadata
 from selenv.learned.rl.candidate_policy import obs_layout
 from selenv.learned.rl.rllib_env import SelenvMultiAgentEnv, resolve_env
-from selenv.learned.rl.training import (
-    MAX_OPTIMIZER_BYTES,
-    TrainingInterrupted,
-    TrainingTerminated,
-    _rng_state,
-    _set_rng_state,
-    run_cli,
-)
 from selenv.learned.tensor_load import load_tensors
+from selenv.learned.trainer import (
+    MAX_OPTIMIZER_BYTES,
+    RESUME_FREE,
+    RunStop,
+    Script,
+    check_run_options,
+    evaluation_stops,
+    output_lock,
+    rng_state,
+    run_arg,
+    run_cli,
+    set_rng_state,
+    stop_exception,
+)
 from selenv.untrusted import json_object
 
 __all__ = [
@@ -115,11 +126,6 @@ ENVS = ("fim_selection_v0", "receiver_clustering_v1")
 #: clustering, whose view gives the "stay" label the only positive gain (p(stay) ~ 0.999)
 GAIN_SKIP_DEFAULTS = {"fim_selection_v0": 0.0, "receiver_clustering_v1": 1.0}
 SCRIPT = "selenv.train.train_rllib_marl"
-PROG = f"python -m {SCRIPT}"
-
-
-class UsageError(ValueError):
-    """A bad command line (reported on one line, exit code 2)."""
 
 
 @dataclass
@@ -133,11 +139,7 @@ class Config:
         "PPO iterations (each samples --train-batch-size env steps, then learns); the shipped "
         "fim_selection_v0 module: 200 iterations of 1,024 steps (204,800 env steps)",
     )
-    max_minutes: float = arg(
-        0.0,
-        "stop early, before an iteration that would end past this many minutes since "
-        "the start (0: run every iteration)",
-    )
+    max_minutes: float | None = run_arg("max_minutes", None, unit="the end of an iteration")
     seed: int = arg(0, "seed of RLlib (env runners' env resets, torch initialisation, minibatches)")
     env_kwargs: str = arg(
         "{}", "JSON object of the env constructor's keywords ({}: the env's defaults)"
@@ -158,7 +160,7 @@ class Config:
         None,
         "output stem: writes OUT.pth, OUT.json, OUT.metrics.json (None: runs/rllib_<env>/policy)",
     )
-    force: bool = arg(False, "overwrite existing output files")
+    force: bool = run_arg("force", False)
     train_batch_size: int = arg(
         1024, "env steps sampled per iteration (RLlib train_batch_size_per_learner)"
     )
@@ -191,42 +193,40 @@ class Config:
         "initial weight w of the relative-gain skip w r_k in every logit (None: per env "
         f"{GAIN_SKIP_DEFAULTS}; 1 starts receiver clustering near 'stay')",
     )
-    eval_episodes: int = arg(
-        30, "held-out episodes played by greedy and the trained module after training (0: none)"
+    eval_episodes: int = run_arg(
+        "eval_episodes", 30, note="played by greedy and the exported module after training"
     )
-    eval_seed: int = arg(10_000, "seed of the first held-out episode")
+    eval_seed: int = run_arg("eval_seed", 10_000)
     tensorboard_dir: str = arg(
         "", "also write TensorBoard scalars there (empty: only OUT.metrics.json)"
     )
-    progress: bool = arg(True, "show a tqdm bar over the iterations")
+    progress: bool = run_arg("progress", True, note="one over the iterations")
     torch_threads: int = arg(1, "torch CPU threads of this process")
-    checkpoint_every: int = arg(
-        10,
-        "iterations between periodic checkpoints OUT.last.json (+ .last.pth, "
-        ".last.optimizer.pth, .last.metrics.json), removed when the run completes (0: none; "
-        "SIGINT / SIGTERM always keep one)",
-    )
+    checkpoint_every: int = run_arg(
+        "checkpoint_every", 10, note="the checkpoint is OUT.last.json (+ .last.pth, "
+        ".last.optimizer.pth, .last.metrics.json)",
+    )  # fmt: skip
     allow_large: bool = arg(
         False,
         "lift the ceilings of --iterations (100,000), --num-envs-per-env-runner (1,024), "
         "--train-batch-size and --minibatch-size (1,048,576), --num-epochs (1,000) and "
         "--eval-episodes (100,000)",
     )
-    resume: str = arg(
-        "",
-        "continue from this checkpoint (OUT.last.json of an unfinished run, same options): "
-        "module weights, optimizer state, iteration count, metrics and random generators",
-    )
+    resume: str = run_arg(
+        "resume", "", unit="checkpoint OUT.last.json", note="module weights, optimizer state, "
+        "iteration count, metrics and random generators",
+    )  # fmt: skip
 
 
-#: options that may differ between an interrupted run and its resumption (how long and where
-#: it runs, what it writes); every other option must be the checkpoint's
+#: options that may differ between an interrupted run and its resumption: the trainer base's
+#: run options, how long and where it runs; every other option must be the checkpoint's
 RUN_OPTIONS = frozenset({
-    "iterations", "max_minutes", "address", "num_cpus", "num_env_runners", "out", "force",
-    "progress", "resume", "checkpoint_every", "eval_episodes", "eval_seed", "tensorboard_dir",
-    "torch_threads", "allow_large",
+    *RESUME_FREE, "iterations", "address", "num_cpus", "num_env_runners", "tensorboard_dir",
+    "torch_threads",
     "env_kwargs",  # env_kwargs: compared parsed, not as text
 })  # fmt: skip
+RUN = Script(SCRIPT, Config, __doc__)
+PROG = RUN.prog
 #: ceilings of the sizes that multiply work or memory (``--allow-large`` lifts them)
 CEILINGS = {
     "iterations": 100_000, "num_envs_per_env_runner": 1_024, "train_batch_size": 1 << 20,
@@ -257,10 +257,12 @@ def _widths(text: str, option: str) -> list[int]:
 def parse_args(argv: list[str] | None = None) -> tuple[Config, dict[str, Any]]:
     """The config and the parsed env kwargs; usage errors exit 2 with a one-line reason.
 
-    ``--config FILE`` (TOML) supplies defaults (:func:`selenv.learned.config.parse_config`).
+    ``--config FILE`` (TOML) supplies defaults (:func:`selenv.learned.config.parse_config`);
+    the shared run options are checked by :func:`selenv.learned.trainer.check_run_options`.
     Existing outputs are checked by :func:`main` (:func:`outputs`), not here.
     """
-    cfg = parse_config(Config, argv, (__doc__ or "").split("\n")[0], script=SCRIPT)
+    cfg = RUN.parse(argv)
+    check_run_options(cfg, PROG)
     try:
         env_kwargs = _check(cfg)
     except UsageError as exc:
@@ -277,8 +279,8 @@ def _check(cfg: Config) -> dict[str, Any]:
     """Validate ``cfg`` (module docstring); return the env kwargs. Raises :class:`UsageError`."""
     at_least = {
         "iterations": 1, "seed": 0, "num_env_runners": 0, "num_envs_per_env_runner": 1,
-        "train_batch_size": 1, "minibatch_size": 1, "num_epochs": 1, "eval_episodes": 0,
-        "eval_seed": 0, "torch_threads": 1, "checkpoint_every": 0,
+        "train_batch_size": 1, "minibatch_size": 1, "num_epochs": 1, "eval_seed": 0,
+        "torch_threads": 1,
     }  # fmt: skip
     for name, low in at_least.items():
         if getattr(cfg, name) < low:
@@ -306,7 +308,7 @@ def _check(cfg: Config) -> dict[str, Any]:
     if cfg.minibatch_size > cfg.train_batch_size:
         raise UsageError("--minibatch-size must not exceed --train-batch-size")
     positive = ("lr", "clip_param", "vf_clip_param")
-    nonneg = ("entropy_coeff", "vf_loss_coeff", "grad_clip", "max_minutes")
+    nonneg = ("entropy_coeff", "vf_loss_coeff", "grad_clip")
     for name in (*positive, *nonneg):
         value = getattr(cfg, name)
         if not math.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -489,7 +491,7 @@ class _Snapshot:
     weights: dict[str, np.ndarray]  # the shared module's state, copied
     optimizer: dict[str, Any]  # RLlib's optimizer state, arrays as torch tensors
     lifetime: dict[str, dict[str, Any]]  # RLlib's lifetime counters (metrics logger)
-    rng: dict[str, Any]  # this process's generators (:func:`_rng_state`)
+    rng: dict[str, Any]  # this process's generators (:func:`rng_state`)
 
 
 @dataclass
@@ -537,7 +539,7 @@ def _snapshot(algo: Any, iteration: int) -> _Snapshot:
         weights={k: np.array(v, copy=True) for k, v in module.items()},
         optimizer=_plain(state[COMPONENT_OPTIMIZER]),
         lifetime=lifetime,
-        rng=_rng_state(),
+        rng=rng_state(),
     )
 
 
@@ -792,7 +794,7 @@ def _read_resume(cfg: Config, env_kwargs: dict[str, Any]) -> _Resumed:
         records = _read_records(json_path, meta, done)
         lifetime = _check_lifetime(state.get("metrics_logger"), where)
         rng = state.get("rng")
-        _set_rng_state(rng if isinstance(rng, dict) else {})  # checked now, set again later
+        set_rng_state(rng if isinstance(rng, dict) else {})  # checked now, set again later
         wall = state.get("wall_seconds", 0.0)
         wall = float(wall) if _finite(wall) else 0.0
     except ValueError as exc:
@@ -830,42 +832,19 @@ def _restore(algo: Any, resumed: _Resumed) -> None:
         COMPONENT_METRICS_LOGGER: {"stats": snap.lifetime},
         TRAINING_ITERATION: snap.iteration,
     })  # fmt: skip
-    _set_rng_state(snap.rng)
-
-
-@contextlib.contextmanager
-def _sigterm_handler_kept(handler: Any) -> Iterator[None]:
-    """Put back the caller's Python SIGTERM handler, which ``ray.init`` replaced, for the block.
-
-    Ray's driver handler exits at once (and its crash handler dumps a stack); the caller's
-    (:func:`selenv.exits.sigterm_raises` under :func:`cli`) lets the run keep its last
-    completed iteration. A default handler is left to Ray; Ray's is restored afterwards.
-    """
-    current = signal.getsignal(signal.SIGTERM)
-    if not callable(handler) or handler is current:
-        yield
-        return
-    try:
-        signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread: nothing was changed
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, current if current is not None else signal.SIG_DFL)
+    set_rng_state(snap.rng)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train, export, evaluate; return the exported metadata (the JSON's content).
 
     The outputs are locked for the run (a second run on the same ``--out``: exit 2, one
-    line). SIGINT / SIGTERM (the latter while :func:`selenv.exits.sigterm_raises` is active,
-    as under :func:`cli`) stop the run: the last completed iteration is kept as the
-    checkpoint :func:`last_paths` (marked ``"complete": false``, ``"interrupted": "SIGINT"``)
-    with the metrics so far, the evaluation is skipped, and ``TrainingInterrupted`` /
-    ``TrainingTerminated`` is raised (exit 130 / 143 with one line through :func:`cli`,
-    naming the ``--resume`` option that continues the run).
+    line). A stop (SIGINT / SIGTERM, the latter while :func:`selenv.exits.sigterm_raises` is
+    active as under :func:`cli`, or ``--max-minutes``) keeps the last completed iteration as
+    the checkpoint :func:`last_paths` (``"complete": false``, ``"interrupted"``) with the
+    metrics so far, skips the evaluation and raises the trainer base's
+    :func:`~selenv.learned.trainer.stop_exception` (exit 130 / 143 / 75 with one line through
+    :func:`cli`, naming the ``--resume`` option that continues the run).
     """
     cfg, env_kwargs = parse_args(argv)
     folders = [cfg.tensorboard_dir] if cfg.tensorboard_dir else []
@@ -880,20 +859,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             resumed = _read_resume(cfg, env_kwargs)
         except UsageError as exc:
             _fail(exc)
-    json_path, _, _ = _outputs(cfg)
-    lock = OutputLock(json_path)
-    try:
-        lock.acquire()
-    except OutputBusyError as exc:
-        _fail(exc)
-    try:
-        return _train(cfg, env_kwargs, resumed)
-    finally:
-        lock.release()
+    flag = RunStop(cfg.max_minutes)  # the budget counts from here, Ray's start-up included
+    with output_lock(_outputs(cfg)[0], PROG):
+        return _train(cfg, env_kwargs, resumed, flag)
 
 
-def _train(cfg: Config, env_kwargs: dict[str, Any], resumed: _Resumed | None) -> dict[str, Any]:
-    """:func:`main` after the checks, under the output lock."""
+def _train(
+    cfg: Config, env_kwargs: dict[str, Any], resumed: _Resumed | None, flag: RunStop
+) -> dict[str, Any]:
+    """:func:`main` after the checks, under the output lock: iterations until done or stopped."""
     from selenv.learned.rl.rllib_agent import export_module
     from selenv.parallel import ExecutorError, ray_session
 
@@ -909,14 +883,13 @@ def _train(cfg: Config, env_kwargs: dict[str, Any], resumed: _Resumed | None) ->
 
         writer = SummaryWriter(cfg.tensorboard_dir)
     start = time.perf_counter()
-    stopped: str | None = None
+    abandoned: str | None = None  # a second signal abandoned the iteration in progress
     with contextlib.ExitStack() as stack:
-        handler = signal.getsignal(signal.SIGTERM)
         try:
             stack.enter_context(ray_session(cfg.address, cfg.num_cpus))
         except ExecutorError as exc:
             _fail(exc)
-        stack.enter_context(_sigterm_handler_kept(handler))
+        stack.enter_context(flag)  # after ray.init, whose SIGTERM handler exits at once
         algo = build_config(cfg, env_kwargs, seed=cfg.seed + done).build_algo()
         stack.callback(algo.stop)
         if resumed is not None:
@@ -926,69 +899,83 @@ def _train(cfg: Config, env_kwargs: dict[str, Any], resumed: _Resumed | None) ->
                 _fail(f"--resume {resumed.path}: cannot restore its state: {exc}")
         bar = tqdm(range(done + 1, cfg.iterations + 1), desc=f"rllib {cfg.env}", unit="it",
                    initial=done, total=cfg.iterations, disable=not cfg.progress)  # fmt: skip
-        longest = 0.0
+        stack.callback(bar.close)
         try:
             for it in bar:
-                t0 = time.perf_counter()
-                if cfg.max_minutes and t0 + longest - start > 60.0 * cfg.max_minutes:
+                if flag.signal is not None:  # received during the start-up
                     break
-                result = algo.train()
-                longest = max(longest, time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                result = algo.train()  # the update step: sample, then learn
                 record = _record(it, result, time.perf_counter() - t0)
                 new = _snapshot(algo, it)
-                records.append(record)  # a signal in between: records[: snap.iteration] is kept
+                records.append(record)  # abandoned in between: records[: snap.iteration] kept
                 snap = new
-                ret = record["episode_return_mean_sum_over_agents"]
-                if ret is not None and np.isfinite(ret):
-                    bar.set_postfix_str(f"return(sum over agents)={ret:.3f}")
-                if writer is not None:
-                    for key, value in record.items():
-                        if isinstance(value, int | float) and key != "iteration":
-                            writer.add_scalar(f"rllib/{key}", value, it)
+                _log(bar, writer, record)
+                if it < cfg.iterations and flag.check_budget():  # the safe point
+                    break
                 if cfg.checkpoint_every and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
                     wall = wall_before + time.perf_counter() - start
                     _save_last(cfg, env_kwargs, snap, records, wall, None)
         except KeyboardInterrupt:
-            stopped = "SIGINT"
+            abandoned = "SIGINT"
         except Terminated:
-            stopped = "SIGTERM"
-        bar.close()
+            abandoned = "SIGTERM"
     wall = wall_before + time.perf_counter() - start
     if writer is not None:
         writer.close()
-    stop_error = TrainingInterrupted if stopped == "SIGINT" else TrainingTerminated
-    how = f"{'interrupted' if stopped == 'SIGINT' else 'terminated'} ({stopped})"
-    if snap is None:
-        if stopped is not None:
-            raise stop_error(f"{how} before the first iteration completed: nothing was written")
-        raise ValueError("no iteration ran (--max-minutes too small?)")
-    records = records[: snap.iteration]
-    if stopped is not None:
-        last = _save_last(cfg, env_kwargs, snap, records, wall, stopped)
-        raise stop_error(
-            f"{how} after iteration {snap.iteration} of {cfg.iterations}: saved it as {last} "
-            f"(+ .pth, .{OPTIMIZER_FILE}, .{METRICS_FILE}), marked incomplete; continue with "
-            f"the same command and --resume {last}"
+    stopped = abandoned or flag.signal
+    if stopped is not None and (snap is None or snap.iteration < cfg.iterations):
+        if snap is None:
+            raise stop_exception(stopped, "no iteration had completed: nothing was written")
+        with flag:
+            last = _save_last(cfg, env_kwargs, snap, records[: snap.iteration], wall, stopped)
+        raise stop_exception(
+            stopped,
+            f"saved iteration {snap.iteration} of {cfg.iterations} as {last} (+ .pth, "
+            f".{OPTIMIZER_FILE}, .{METRICS_FILE}), marked incomplete; continue with the same "
+            f"command and --resume {last}",
         )
+    assert snap is not None  # every iteration ran (or the checkpoint had run them)
+    records = records[: snap.iteration]
     module = _module_of(cfg, env_kwargs, snap.weights)
     metadata = _metadata(cfg, env_kwargs, records, wall, metrics_path.name, None, complete=True)
-    json_path, _ = export_module(module, json_path, metadata)
-    write_json(metrics_path, records, indent=1)
-    _remove_last(cfg)  # superseded by the complete export
+    with flag:  # the export, its metrics and the removal of the checkpoint, signals held
+        json_path, _ = export_module(module, json_path, metadata)
+        write_json(metrics_path, records, indent=1)
+        _remove_last(cfg)  # superseded by the complete export
+    if stopped is not None:
+        raise stop_exception(
+            stopped,
+            f"training had completed: saved {json_path} (+ .pth, .metrics.json); its "
+            "evaluation was skipped",
+        )
     metadata = read_metadata(json_path, "RLlib export metadata")
     if cfg.eval_episodes:
-        metadata["eval"] = _evaluate(cfg, env_kwargs, json_path)
+        with evaluation_stops(json_path):
+            metadata["eval"] = _evaluate(cfg, env_kwargs, json_path)
         write_json(json_path, metadata)  # the weights are unchanged: the pair still matches
     print(f"wrote {json_path} (+ .pth, .metrics.json) in {wall:.0f} s", file=sys.stderr)
     return metadata
 
 
+def _log(bar: Any, writer: Any, record: dict[str, Any]) -> None:
+    """An iteration's record on the tqdm bar and, if any, the TensorBoard writer."""
+    ret = record["episode_return_mean_sum_over_agents"]
+    if ret is not None and np.isfinite(ret):
+        bar.set_postfix_str(f"return(sum over agents)={ret:.3f}")
+    if writer is not None:
+        for key, value in record.items():
+            if isinstance(value, int | float) and key != "iteration":
+                writer.add_scalar(f"rllib/{key}", value, record["iteration"])
+
+
 def cli(argv: list[str] | None = None) -> int:
-    """Command-line entry point: :func:`main` with the exit codes of :mod:`selenv.exits`.
+    """Command-line entry point: :func:`main` with the exit codes of the trainer base.
 
     Returns 0 after a run; 1 with one line for an I/O failure (the previous outputs are left
-    as they were); 130 / 143 with one line naming what was kept after SIGINT / SIGTERM.
-    A usage error or a busy output exits 2 with one line (``SystemExit``, as argparse does).
+    as they were); 130 / 143 / 75 with one line naming what was kept after SIGINT / SIGTERM /
+    ``--max-minutes`` (:func:`selenv.learned.trainer.run_cli`). A usage error or a busy
+    output exits 2 with one line (``SystemExit``, as argparse does).
     """
     return run_cli(main, PROG, argv)
 
