@@ -280,8 +280,8 @@ def test_export_roundtrip_and_bench_agent(export: Path) -> None:
     assert meta["env_id"] == FIM_MODULE and meta["obs_layout"]["whitened_dim"] == 16
     for path in (export, export.with_suffix(".pth"), export.with_suffix("")):
         assert export_paths(path) == (export, export.with_suffix(".pth"))
-    agent = make(f"rllib:path={export}", FIM_MODULE)
-    assert isinstance(agent, RLlibPolicy)
+    agent = make(f"rllib:path={export}", FIM_MODULE)  # the policy record's agent, around it
+    assert isinstance(getattr(agent, "inner", agent), RLlibPolicy)
     res = run_bench(FIM_MODULE, [f"rllib:path={export}"], episodes=1, progress=False,
                     env_kwargs={"n_candidates": 6, "budgets": 2})  # fmt: skip
     assert res.agents[f"rllib:path={export}"].skipped is None
