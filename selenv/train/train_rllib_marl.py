@@ -27,7 +27,8 @@ the same ``--out`` is refused while this one holds its lock (exit 2, one line).
 Long runs lose at most one iteration (resumable training, without pickle). The run
 management is the trainer base's (:mod:`selenv.learned.trainer`: the shared run options, the
 output lock, :class:`~selenv.learned.trainer.RunStop`, the stop lines and exit codes); this
-script brings RLlib's update step (``Algorithm.train()``, one iteration) and its checkpoint:
+script brings RLlib's update step (``Algorithm.train()``, one iteration) and its checkpoint
+(:mod:`selenv.learned.rl.rllib_checkpoint`):
 
 * ``--checkpoint-every N`` writes, after every ``N``-th iteration, the checkpoint
   ``<out>.last.json`` + ``.last.pth`` (an export of the module, playable as
