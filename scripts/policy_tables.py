@@ -125,17 +125,29 @@ def readme_block() -> str:
     ]
     envs = list(dict.fromkeys(e for r in all_policies() for e in r.plays))
     for env_id in envs:
-        chosen = resolve_learned(env_id)
-        if chosen is None:
-            rows.append(f"| `{env_id}` | none yet | | |")
-            continue
-        record, standing = chosen
-        rows.append(
-            f"| `{env_id}` | `{record.name}` ({METHODS[record.method].split(' (')[0]}) | "
-            f"{_diff(standing)} ({standing.episodes}) vs `{standing.baseline}` | "
-            f"{standing.decision_time_ratio:.1f}x |"
-        )
+        for kwargs in _measured_settings(env_id):
+            label = f"`{env_id}`" + "".join(f" ({k}={v})" for k, v in sorted(kwargs.items()))
+            chosen = resolve_learned(env_id, kwargs if kwargs else None)
+            if chosen is None:
+                rows.append(f"| {label} | none yet | | |")
+                continue
+            record, standing = chosen
+            rows.append(
+                f"| {label} | `{record.name}` ({METHODS[record.method].split(' (')[0]}) | "
+                f"{_diff(standing)} ({standing.episodes}) vs `{standing.baseline}` | "
+                f"{standing.decision_time_ratio:.1f}x |"
+            )
     return "\n".join(rows)
+
+
+def _measured_settings(env_id: str) -> list[dict[str, object]]:
+    """The defaults, then every keyword setting a standing of ``env_id`` was measured at."""
+    settings: dict[str, dict[str, object]] = {"{}": {}}
+    for record in all_policies():
+        for s in record.standings():
+            if s.env_id == env_id and s.env_kwargs:
+                settings.setdefault(repr(sorted(s.env_kwargs.items())), dict(s.env_kwargs))
+    return list(settings.values())
 
 
 def expected(page: str | Path = PAGE, readme: str | Path = README) -> dict[Path, tuple[str, str]]:

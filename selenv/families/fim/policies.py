@@ -54,7 +54,7 @@ POLICIES = (
         trainer="python -m selenv.train.train_fim_marl --config "
         "configs/fim_marl_ppo_independent.toml",
         budget="one forward pass per acting agent per step",
-        valid={"mode": ("independent",)},
+        valid={"mode": ("independent", "cooperative")},  # trained independent, verified both
     ),
     PolicySpec(
         name="rllib",
