@@ -128,6 +128,40 @@ def test_every_keeps_the_clustering_between_decisions(policy: ClusteringLearnedP
         obs, _, _, _, infos = env.step(actions)
 
 
+def test_greedy_every_plays_greedy_search_at_its_steps() -> None:
+    """``greedy_every=3``: at k % 3 == 0 greedy's full search (the same joint action as the
+    module's greedy, so the step's myopic cost change is greedy's: never worse than greedy's
+    edit); at the other steps at most ``top_k`` evaluations, as without the option.
+    """
+    mixed = make_clustering_marl_learned(top_k=2, greedy_every=3)
+    greedy = ClusteringGreedyPolicy(every=1)
+    searched, moved = 0, 0
+    for seed in SEEDS:
+        env = _env()
+        obs, infos = env.reset(seed=seed)
+        mixed.reset(env, seed=seed)
+        greedy.reset(env, seed=seed)
+        while env.agents:
+            k, evaluations = env.bank.k, env.bank.n_cost_evaluations
+            allowed = greedy.allowed_edits(env.bank.labels, env.max_size).size
+            best = _greedy_edit(env)  # costs every allowed edit itself
+            greedy_cost = env.bank.n_cost_evaluations - evaluations
+            evaluations = env.bank.n_cost_evaluations
+            ours = mixed.act(obs, infos)
+            spent = env.bank.n_cost_evaluations - evaluations
+            if k % 3 == 0:
+                searched += 1
+                assert spent == greedy_cost == allowed
+                np.testing.assert_array_equal(
+                    _targets(env, ours), apply_edit(env.bank.labels, best)
+                )
+                moved += best != 0
+            else:
+                assert spent <= mixed.top_k
+            obs, _, _, _, infos = env.step(ours)
+    assert searched > 0 and moved > 0  # greedy's search did run and did edit
+
+
 @pytest.mark.parametrize(
     ("options", "named"),
     [
@@ -137,6 +171,9 @@ def test_every_keeps_the_clustering_between_decisions(policy: ClusteringLearnedP
         ({"every": 0}, "every"),
         ({"every": "5"}, "every"),
         ({"swaps": 1}, "swaps"),
+        ({"greedy_every": -1}, "greedy_every"),
+        ({"greedy_every": 5.0}, "greedy_every"),
+        ({"greedy_every": True}, "greedy_every"),
         ({"checkpoint": 3}, "checkpoint"),
         ({"checkpoint": "/nonexistent/ranking.zip"}, "ranking.zip"),
         ({"checkpoint": str(CHECKPOINT_DIR / "fim_selection_ppo.zip")}, "FIMSelection"),

@@ -27,6 +27,14 @@ with ``top_k`` at least the number of allowed edits, the policy is the module's
 ``greedy:every=<every>``. A decision costs at most ``top_k`` cost evaluations instead of one
 per allowed edit.
 
+``greedy_every=G`` (``G >= 1``; 0, the default, turns it off) makes every step ``k`` with
+``k % G == 0`` greedy's full search instead: every allowed edit is costed and the best
+improving one played, so those steps are exactly the module's ``greedy:every=G`` decision
+(myopically never worse than greedy's edit), and the ranking's ``top_k`` fill the steps in
+between. Costing greedy's best edit alongside the ``top_k`` at every step would be the
+module's ``greedy:every=1`` itself (the ``top_k`` are among the edits greedy costs), at one
+evaluation per allowed edit per step.
+
 :func:`make_clustering_marl_learned` is the factory the agent registry calls.
 """
 
@@ -51,7 +59,7 @@ from selenv.learned.rl.lean import LeanScorer, TopMScorer
 __all__ = ["OPTIONS", "ClusteringLearnedPolicy", "make_clustering_marl_learned"]
 
 #: the options of :func:`make_clustering_marl_learned` (those of :class:`ClusteringLearnedPolicy`)
-OPTIONS = ("checkpoint", "top_k", "every", "swaps")
+OPTIONS = ("checkpoint", "top_k", "every", "swaps", "greedy_every")
 
 
 class ClusteringLearnedPolicy(MultiAgentPolicy):
@@ -63,6 +71,8 @@ class ClusteringLearnedPolicy(MultiAgentPolicy):
         top_k: edits costed per decision (>= 1; the no-op, when ranked among them, is free).
         every: steps between decisions (everyone stays in between).
         swaps: offer the swaps that the resolution rule always carries out.
+        greedy_every: steps between greedy's full searches (every allowed edit costed) played
+            instead of the ranking (>= 0; 0: never).
 
     Raises:
         ValueError: a bad option value (named), or a checkpoint that is missing, unreadable
@@ -77,9 +87,11 @@ class ClusteringLearnedPolicy(MultiAgentPolicy):
         top_k: int = 8,
         every: int = 1,
         swaps: bool = True,
+        greedy_every: int = 0,
     ) -> None:
         self.top_k = check_int(top_k, "top_k", 1)
         self.every = check_int(every, "every", 1)
+        self.greedy_every = check_int(greedy_every, "greedy_every", 0)
         if not isinstance(swaps, bool):
             raise ValueError(f"swaps must be a bool, got {type(swaps).__name__}")
         self.swaps = swaps
@@ -135,15 +147,25 @@ class ClusteringLearnedPolicy(MultiAgentPolicy):
             scores = self.scorer.scores(cand, mask)[allowed]
         return allowed[np.argsort(-scores, kind="stable")[: self.top_k]]
 
+    def greedy_step(self, k: int) -> bool:
+        """Whether step ``k`` is one of greedy's full searches (``greedy_every``)."""
+        return self.greedy_every > 0 and k % self.greedy_every == 0
+
     def act(self, observations: dict[str, Any], infos: dict[str, Any]) -> dict[str, Any]:
-        """Targets that realise the best improving ranked edit (everyone stays if none)."""
+        """Targets that realise the best improving costed edit (everyone stays if none).
+
+        The costed edits are the ranking's ``top_k``, or every allowed edit at greedy's steps.
+        """
         env = self.env
         bank = env.bank
         labels = bank.labels
         targets = labels.copy()
-        if bank.k % self.every == 0 and env.agents:
-            edits = self.ranked_edits(observations[env.agents[0]])
-            edits = edits[edits != 0]
+        if env.agents and (self.greedy_step(bank.k) or bank.k % self.every == 0):
+            if self.greedy_step(bank.k):
+                edits = self.rule.allowed_edits(labels, env.max_size)
+            else:
+                edits = self.ranked_edits(observations[env.agents[0]])
+                edits = edits[edits != 0]
             if edits.size:
                 d = edit_cost_changes(bank, edits)
                 j = int(np.argmin(d))
@@ -157,7 +179,7 @@ def make_clustering_marl_learned(**options: Any) -> ClusteringLearnedPolicy:
     """Registry factory of the learned policy of ``receiver_clustering_v1``.
 
     Args:
-        **options: ``checkpoint``, ``top_k``, ``every``, ``swaps`` of
+        **options: ``checkpoint``, ``top_k``, ``every``, ``swaps``, ``greedy_every`` of
             :class:`ClusteringLearnedPolicy`.
 
     Raises:
