@@ -157,7 +157,8 @@ def _table(rows: list[tuple[str, str]]) -> str:
 def _agents(env_id: str) -> list[tuple[str, str]]:
     from selenv.agents.base import AGENTS, agents_for
 
-    return [(name, AGENTS[name][env_id].description) for name in agents_for(env_id)]
+    specs = [AGENTS[name][env_id] for name in agents_for(env_id)]
+    return [(spec.name, spec.description) for spec in specs if not spec.deprecated]
 
 
 def family_page(spec: Any) -> str:

@@ -106,6 +106,9 @@ class AgentSpec:
     #: among the agents ``selenv bench`` runs when ``--agents`` is not given (``False``: a
     #: deprecated name, a retired policy, or the record ``learned`` already plays)
     default: bool = True
+    #: an old name kept for one release (it warns when built; ``selenv list`` says what
+    #: replaces it; the env pages leave it out)
+    deprecated: bool = False
 
     def build(self, **kwargs: Any) -> Agent:
         """Instantiate the agent.

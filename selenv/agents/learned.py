@@ -255,7 +255,7 @@ def register_policies() -> None:
                 record.name,
                 record.plays,
                 functools.partial(_build, record),
-                record.description,
+                record.description + (" (shipped weights retired)" if record.retired else ""),
                 all_versions=False,  # a shipped policy was trained on the current version
                 learned=True,
                 default=not record.retired,
@@ -272,6 +272,7 @@ def register_policies() -> None:
                     all_versions=False,
                     learned=True,
                     default=False,
+                    deprecated=True,
                 )
             )
         envs.update(dict.fromkeys(record.plays))
