@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import statistics
+import sys
 import time
 from typing import Any
 
@@ -22,6 +24,7 @@ import torch  # noqa: F401  (imported first, so limit_threads sets its threads t
 
 import selenv  # noqa: F401  (registers the envs)
 from selenv.agents import make, parse_spec
+from selenv.atomic import write_json
 from selenv.threads import limit_threads
 
 
@@ -52,6 +55,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--rounds", type=int, default=7)
     p.add_argument("--episodes", type=int, default=5, help="episodes per agent and round")
     p.add_argument("--seed", type=int, default=1000)
+    p.add_argument("--json", default=None, help="also write the figures to this JSON file")
     args = p.parse_args(argv)
     specs = args.agents.split(",")
     if args.baseline not in specs:
@@ -80,6 +84,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(f"{args.env} {kwargs}, {args.rounds} rounds x {args.episodes} episodes")
     for s, v in out.items():
         print(f"  {s:28s} {v['ms']:8.3f} ms per decision   {v['ratio']:5.2f}x {args.baseline}")
+    if args.json:
+        command = shlex.join(["benchmarks/bench_decision_time.py", *(argv or sys.argv[1:])])
+        doc = {
+            "env_id": args.env,
+            "env_kwargs": kwargs,
+            "baseline": args.baseline,
+            "rounds": args.rounds,
+            "episodes": args.episodes,
+            "seed": args.seed,
+            "command": command,
+            "agents": out,
+        }
+        write_json(args.json, doc)
     return out
 
 

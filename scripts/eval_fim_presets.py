@@ -6,7 +6,7 @@ cell, the policy's paired difference to greedy (bootstrap 95 % CI, W/T/L), its n
 ``(R - R_random) / (R_best - R_random)`` and its decision time relative to greedy's. An agent
 that cannot play a preset (the shipped ``ppo`` is tied to ``d = 7``) is listed as refused.
 
-    .venv/bin/python scripts/eval_fim_presets.py                  # ppo_general, 30 seeds
+    .venv/bin/python scripts/eval_fim_presets.py                  # ppo (one policy for every preset), 30 seeds
     .venv/bin/python scripts/eval_fim_presets.py --agent ppo:runs/general/policy.zip \
         --episodes 10 --json runs/eval.json
 
@@ -45,7 +45,7 @@ def _positive(text: str) -> int:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command line."""
     p = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
-    p.add_argument("--agent", default="ppo_general", help="the policy's agent spec")
+    p.add_argument("--agent", default="ppo", help="the policy's agent spec")
     p.add_argument("--episodes", type=_positive, default=30, help="held-out seeds per cell")
     p.add_argument("--seed", type=int, default=1000, help="first seed (then +1, +2, ...)")
     p.add_argument("--presets", default=",".join(PRESETS), help="comma-separated presets")

@@ -143,13 +143,48 @@ def _key(entry: dict[str, Any]) -> str:
     return json.dumps([entry["agent"], entry["env_id"], entry["env_kwargs"]], sort_keys=True)
 
 
-def record(paths: list[Path]) -> list[str]:
-    """Write the standings of the bench JSONs ``paths`` into the checkpoint JSONs; their lines."""
+def _timings(paths: list[Path]) -> list[dict[str, Any]]:
+    """The ``benchmarks/bench_decision_time.py --json`` files (interleaved decision times)."""
+    return [read_metadata(p, what="decision-time JSON") for p in paths]
+
+
+def with_timing(entry: dict[str, Any], timings: list[dict[str, Any]]) -> dict[str, Any]:
+    """``entry`` with its decision-time ratios from an interleaved timing of the same env.
+
+    The bench plays agents one after another, so its ratios move with the machine's load; a
+    timing file of the same env, keywords and baseline that has the agent (and the reference)
+    replaces them, and the entry records the timing's command.
+    """
+    for t in timings:
+        same = t["env_id"] == entry["env_id"] and t["env_kwargs"] == entry["env_kwargs"]
+        agents = t["agents"]
+        if not same or t["baseline"] != entry["baseline"] or entry["agent"] not in agents:
+            continue
+        entry = {
+            **entry,
+            "decision_time_ratio": agents[entry["agent"]]["ratio"],
+            "decision_time_command": t["command"],
+        }
+        ref = entry.get("reference")
+        if ref is not None and ref["agent"] in agents:
+            entry["reference"] = {**ref, "decision_time_ratio": agents[ref["agent"]]["ratio"]}
+        return entry
+    return entry
+
+
+def record(paths: list[Path], timing: list[Path] | None = None) -> list[str]:
+    """Write the standings of the bench JSONs ``paths`` into the checkpoint JSONs; their lines.
+
+    ``timing``: interleaved decision-time files whose ratios replace the bench's
+    (:func:`with_timing`).
+    """
     by_file: dict[str, list[dict[str, Any]]] = {}
     lines: list[str] = []
+    timings = _timings(timing or [])
     for path in paths:
         doc = read_metadata(path, what="bench JSON")
         for rec, entry in standings_of(doc):
+            entry = with_timing(entry, timings)
             by_file.setdefault(rec.checkpoint, []).append(entry)
             lines.append(
                 f"{rec.checkpoint}: {entry['agent']} on {entry['env_id']} "
@@ -170,9 +205,17 @@ def record(paths: list[Path]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bench_json", nargs="+", type=Path, help="JSON files of selenv bench")
+    parser.add_argument(
+        "--timing",
+        nargs="+",
+        type=Path,
+        default=[],
+        help="benchmarks/bench_decision_time.py --json files: their interleaved decision-time "
+        "ratios replace the bench's",
+    )
     args = parser.parse_args(argv)
     try:
-        for line in record(args.bench_json):
+        for line in record(args.bench_json, args.timing):
             print(line)
     except (OSError, ValueError, KeyError) as exc:
         print(f"record_standings: error: {exc}", file=sys.stderr)
