@@ -286,12 +286,14 @@ class FIMPolicySwapAgent(PlanAgent):
         return [int(remaining[k]) for k in best]
 
     def policy_picks(self, obs: Any, left: int) -> list[int]:
-        """The policy's next ``left`` picks (env indices), each on the observation it would see.
+        """The policy start: ``left`` picks (env indices), the policy's first, then greedy's.
 
-        The policy plays on a scratch :class:`~selenv.families.fim.batched.FIMBatchState` (the
-        env is not stepped) whose prior is the information now and whose pool is every
-        candidate not yet selected, or with ``policy_pool = M > 0`` the ``M`` of them the
-        policy scores highest now (one forward pass over the pool).
+        The policy makes the first ``policy_steps`` picks (all with 0), each on the observation
+        it would see after its own picks so far, and greedy the rest. They play on a scratch
+        :class:`~selenv.families.fim.batched.FIMBatchState` (the env is not stepped) whose
+        prior is the information now and whose pool is every candidate not yet selected, or
+        with ``policy_pool = M > 0`` the ``M`` of them the policy scores highest now (one
+        forward pass over the pool).
         """
         base = self.env.unwrapped
         state = base.state  # type: ignore[attr-defined]
