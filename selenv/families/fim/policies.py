@@ -32,6 +32,20 @@ POLICIES = (
         aliases={"ppo_general": {}},
     ),
     PolicySpec(
+        name="ppo_swap",
+        plays=(_ID,),
+        factory="selenv.learned.families.fim:make_fim_learned",
+        checkpoint="fim_selection_ppo_general.zip",
+        method="learned_search",
+        description="swap's local search from greedy's picks and from a start the ppo policy "
+        "makes (its first 2 picks, greedy completing), the better result played: never below "
+        "swap (ppo_swap:starts=policy for the policy start alone)",
+        trainer="python -m selenv.train.train_fim_ppo --config "
+        "configs/fim_selection_ppo_general.toml",
+        budget="two swap searches and 2 policy forward passes per episode (a plan)",
+        valid={"preset": _PRESETS, "budget": (5, 10, 15, 20), "n_candidates": (50, 100, 200)},
+    ),
+    PolicySpec(
         name="ppo",
         plays=(_MODULE,),
         factory="selenv.learned.rl.marl:make_shared_ppo",
