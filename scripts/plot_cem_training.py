@@ -111,7 +111,7 @@ def plot(data: dict[str, Any], refs: dict[str, float] | None, out: str) -> Path:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Read, (play the references,) plot; exit 2 on a file that is not a trained scorer."""
-    from selenv.learned.rl.cl_scorer import read_scorer
+    from selenv.learned.families.cooperative import read_scorer
 
     args = parse_args(argv)
     try:

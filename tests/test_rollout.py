@@ -202,7 +202,7 @@ def _cl_pair(seed: int, steps: int) -> tuple[gym.Env[Any, Any], gym.Env[Any, Any
 def _cl_agent(name: str) -> Any:
     """A CL lookahead agent; ``cem`` with fixed nonzero weights (no checkpoint: any team)."""
     if name == "cem":
-        from selenv.learned.rl.cl_scorer import CLLearnedScorerAgent
+        from selenv.learned.families.cooperative import CLLearnedScorerAgent
 
         return CLLearnedScorerAgent(np.linspace(-2e-3, 2e-3, 12), horizon=2)
     return make(name, CL)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from selenv.agents import make
-from selenv.learned.rl.cl_scorer import read_scorer
+from selenv.learned.families.cooperative import read_scorer
 from selenv.learned.rl.training import run_cli
 from selenv.train import train_cl_cem
 

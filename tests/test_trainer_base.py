@@ -230,7 +230,7 @@ CEM_TINY = ["--env-kwargs", '{"horizon": 8}', "--generations", "2", "--populatio
 def test_cem_budget_keeps_the_generation_and_resumes_to_the_same_theta(
     tmp_path: Path, minutes: list[int]
 ) -> None:
-    from selenv.learned.rl.cl_scorer import read_scorer
+    from selenv.learned.families.cooperative import read_scorer
     from selenv.train import train_cl_cem
 
     whole = tmp_path / "whole.json"

@@ -1,6 +1,6 @@
 """Train the ``cem`` scorer of ``CLScheduling-v1`` by the cross-entropy method on returns.
 
-The agent (:mod:`selenv.learned.rl.cl_scorer`) scores a pair by greedy's one-step gain, or a
+The agent (:mod:`selenv.learned.families.cooperative`) scores a pair by greedy's one-step gain, or a
 ``--horizon``-step lookahead of greedy, plus ``theta . phi`` over 12 pair features; this
 script searches ``theta`` with the cross-entropy method (:mod:`selenv.learned.rl.cem`): each
 generation plays ``--population`` parameter vectors on the same ``--train-episodes`` training
@@ -222,7 +222,7 @@ def episode_return(agent: Any, env: Any, seed: int) -> float:
 
 def _evaluate(vector: np.ndarray) -> float:
     """Mean return over the training seeds of the agent with ``theta = scale * vector``."""
-    from selenv.learned.rl.cl_scorer import CLLearnedScorerAgent
+    from selenv.learned.families.cooperative import CLLearnedScorerAgent
 
     w = _WORKER
     agent = CLLearnedScorerAgent(w["scale"] * np.asarray(vector), w["horizon"], w["top_k"])
@@ -244,7 +244,7 @@ def _run(cfg: Config, argv: list[str] | None) -> dict[str, Any]:
 
     import selenv  # noqa: F401
     from selenv.families.cooperative.features import FEATURE_NAMES
-    from selenv.learned.rl.cl_scorer import CHECKPOINT_FORMAT, env_config
+    from selenv.learned.families.cooperative import CHECKPOINT_FORMAT, env_config
 
     kwargs = _check(cfg, f"python -m {SCRIPT}")
     out = Path(cfg.out)

@@ -14,7 +14,7 @@ import pytest
 import selenv  # noqa: F401
 from selenv.agents import make
 from selenv.families.cooperative.features import FEATURE_NAMES, FusionMemory, pair_features
-from selenv.learned.rl.cl_scorer import CHECKPOINT_FORMAT, CLLearnedScorerAgent, read_scorer
+from selenv.learned.families.cooperative import CHECKPOINT_FORMAT, CLLearnedScorerAgent, read_scorer
 
 CL = "selenv/CLScheduling-v1"
 SHORT = {"horizon": 16}

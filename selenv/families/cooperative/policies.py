@@ -10,7 +10,7 @@ POLICIES = (
     PolicySpec(
         name="cem",
         plays=(_ID,),
-        factory="selenv.learned.rl.cl_scorer:make_cl_cem",
+        factory="selenv.learned.families.cooperative:make_cl_cem",
         checkpoint="cl_scheduling_cem.json",
         method="cem",
         description="a one-filter-step lookahead of greedy plus a learned correction from 12 "
