@@ -11,7 +11,7 @@ POLICIES = (
     PolicySpec(
         name="ppo_search",
         plays=(_ID,),
-        factory="selenv.learned.rl.search:make_landmark_ppo_search",
+        factory="selenv.learned.families.landmarks:make_landmark_ppo_search",
         checkpoint="landmark_selection_ppo.zip",
         method="learned_search",
         description="fast_rollout's lookahead on the shortlist the shipped ppo policy ranks "
