@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from selenv.families.cooperative.rollout import CLRolloutAgent
+from selenv.learned.families.cooperative import CL_ID, collect_cl_rollout_labels
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
-from selenv.learned.rl.expert import CL_ID, TRAIN_SEED_BASE, collect_cl_rollout_labels, train_seed
+from selenv.learned.rl.expert import TRAIN_SEED_BASE, train_seed
 from selenv.train import train_cl_expert
 
 #: a small CL team: 4 labels take a few dozen rollout decisions (ties among them); with 3 agents
@@ -117,7 +118,7 @@ def test_train_cl_expert_tiny_budget_end_to_end(tmp_path: Path) -> None:
 
 
 def test_landmark_labels_and_training_entry_point(tmp_path: Path) -> None:
-    from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+    from selenv.learned.families.landmarks import LANDMARK_ID, collect_landmark_rollout_labels
     from selenv.train import train_landmark_expert
 
     data = collect_landmark_rollout_labels({}, 8, seed=0, horizon=2, progress=False)
@@ -162,7 +163,7 @@ def test_landmark_labels_and_training_entry_point(tmp_path: Path) -> None:
 
 def test_fast_rollout_labels_are_its_scores_on_its_candidates() -> None:
     from selenv.families.landmarks.fast_rollout import LandmarkFastRolloutAgent
-    from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+    from selenv.learned.families.landmarks import LANDMARK_ID, collect_landmark_rollout_labels
 
     data = collect_landmark_rollout_labels(
         {}, 5, seed=0, horizon=2, explore=0.0, labeller="fast_rollout", progress=False
@@ -190,7 +191,7 @@ def test_fast_rollout_labels_are_its_scores_on_its_candidates() -> None:
 
 
 def test_an_unknown_labeller_is_refused_before_any_work(capsys: pytest.CaptureFixture) -> None:
-    from selenv.learned.rl.expert import collect_landmark_rollout_labels
+    from selenv.learned.families.landmarks import collect_landmark_rollout_labels
     from selenv.train import train_landmark_expert
 
     with pytest.raises(ValueError, match="labeller"):

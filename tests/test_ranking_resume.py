@@ -24,9 +24,9 @@ import numpy as np
 import pytest
 import torch
 
+from selenv.learned.families.landmarks import LANDMARK_ID
 from selenv.learned.rl import distill
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
-from selenv.learned.rl.expert import LANDMARK_ID
 from selenv.learned.rl.ranking import RankingData, load_labels, save_labels
 from selenv.learned.rl.safe_load import read_weights
 from selenv.learned.rl.training import run_cli

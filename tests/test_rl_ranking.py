@@ -172,7 +172,7 @@ def test_fit_metrics_with_unlabelled_actions_are_finite_json() -> None:
 
     import torch as th
 
-    from selenv.learned.rl.expert import LANDMARK_ID, collect_landmark_rollout_labels
+    from selenv.learned.families.landmarks import LANDMARK_ID, collect_landmark_rollout_labels
 
     data = collect_landmark_rollout_labels(
         {}, 16, seed=0, horizon=1, labeller="fast_rollout", progress=False

@@ -1,10 +1,10 @@
 """Expert iteration on ``CLScheduling-v1``: distil the non-myopic ``rollout`` into the policy.
 
 Rounds of DAgger (the loop of :mod:`selenv.learned.rl.distill`, the labels of
-:mod:`selenv.learned.rl.expert`): round 0 labels the states the ``rollout``
-reference visits, every later round the states the current policy visits; every labelled
-decision carries rollout's score of stop and of its ``top_k`` pairs; the candidate-scoring
-policy's logits are fitted to all labels so far (ListNet,
+:func:`selenv.learned.families.cooperative.collect_cl_rollout_labels`): round 0 labels the
+states the ``rollout`` reference visits, every later round the states the current policy
+visits; every labelled decision carries rollout's score of stop and of its ``top_k`` pairs;
+the candidate-scoring policy's logits are fitted to all labels so far (ListNet,
 :func:`selenv.learned.rl.ranking.fit_ranking`).
 The policy starts from ``--checkpoint`` (default: the shipped CL policy, a softened greedy on
 the previewed fused gains) and plays in the ``cl_pairs_fused_top3`` view: the candidates
@@ -51,6 +51,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from selenv.learned.config import arg
+from selenv.learned.families.cooperative import CL_ID, collect_cl_rollout_labels
 from selenv.learned.rl import distill
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.distill import (
@@ -64,7 +65,6 @@ from selenv.learned.rl.distill import (
     run_expert_iteration,
     state_files,
 )
-from selenv.learned.rl.expert import CL_ID, collect_cl_rollout_labels
 from selenv.learned.trainer import Script
 
 __all__ = [

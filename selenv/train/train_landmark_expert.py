@@ -2,8 +2,8 @@
 
 The same DAgger loop (:mod:`selenv.learned.rl.distill`) as
 :mod:`selenv.train.train_cl_expert`, with
-:func:`selenv.learned.rl.expert.collect_landmark_rollout_labels`: every pick is labelled by the
-landmark ``rollout`` (top-4 K-subsets by one-step gain plus brute force's own, 10 future
+:func:`selenv.learned.families.landmarks.collect_landmark_rollout_labels`: every pick is labelled
+by the landmark ``rollout`` (top-4 K-subsets by one-step gain plus brute force's own, 10 future
 filter updates of brute force on the forecast covariances); a landmark's label is the best
 score of a candidate subset containing it. The policy starts from the shipped landmark
 checkpoint and keeps its view; the result is benchmarked against ``brute_force`` and
@@ -31,17 +31,17 @@ from functools import partial
 from typing import Any
 
 from selenv.learned.config import arg
+from selenv.learned.families.landmarks import (
+    LANDMARK_ID,
+    LANDMARK_LABELLERS,
+    collect_landmark_rollout_labels,
+)
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS
 from selenv.learned.rl.distill import (
     ExpertConfig,
     expert_outputs,
     expert_run,
     run_expert_iteration,
-)
-from selenv.learned.rl.expert import (
-    LANDMARK_ID,
-    LANDMARK_LABELLERS,
-    collect_landmark_rollout_labels,
 )
 from selenv.learned.trainer import Script
 

@@ -1,4 +1,4 @@
-"""Learning code that serves ``CLScheduling``: the ``cem`` scorer.
+"""Learning code that serves ``CLScheduling``: the ``cem`` scorer and the ``rollout`` labeller.
 
 ``cem``: greedy's score plus a learned correction, trained on returns. The agent scores stop
 with 0 and an open pair ``p`` with
@@ -21,13 +21,17 @@ The checkpoint is a JSON file of numbers (no code, no pickle): read with
 :func:`~selenv.learned.resources.read_metadata` (size and depth bounded) and every field
 checked. It is tied to the env configuration it was trained on (team size, model, objective,
 fusion, budget): another one is refused at ``reset``.
+
+The ``rollout`` labeller (:func:`collect_cl_rollout_labels`) labels ``CLScheduling-v1``
+decisions with the ``rollout`` reference's scores, for expert iteration
+(:mod:`selenv.learned.rl.expert`, ``python -m selenv.train.train_cl_expert``).
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -36,17 +40,28 @@ from selenv.agents.rollout import best_index, ceiling_option
 from selenv.core.linalg import FloatArray
 from selenv.families.cooperative.fast_rollout import CLFastRolloutAgent
 from selenv.families.cooperative.features import FEATURE_NAMES, FusionMemory, pair_features
+from selenv.families.cooperative.rollout import CL_ENV_ID, CLRolloutAgent
 from selenv.learned.resources import checkpoint_path, read_metadata
+
+if TYPE_CHECKING:  # the labeller's collection loop is torch code, imported when it runs
+    from selenv.learned.rl.expert import Label, LabelFn
+    from selenv.learned.rl.ranking import RankingData
 
 __all__ = [
     "CHECKPOINT_FORMAT",
+    "CL_ID",
     "DEFAULT_CEM_CHECKPOINT",
     "ENV_CONFIG_KEYS",
     "CLLearnedScorerAgent",
+    "cl_rollout_labeller",
+    "collect_cl_rollout_labels",
     "env_config",
     "make_cl_cem",
     "read_scorer",
 ]
+
+#: the env the ``rollout`` labeller serves
+CL_ID = CL_ENV_ID
 
 CHECKPOINT_FORMAT = "selenv-cl-linear-scorer"
 #: the shipped checkpoint (in ``checkpoints/``)
@@ -210,4 +225,97 @@ def make_cl_cem(checkpoint: str | Path | None = None) -> CLLearnedScorerAgent:
     look = data["lookahead"]
     return CLLearnedScorerAgent(
         data["theta"], horizon=look["horizon"], top_k=look["top_k"], env_config=data["env_config"]
+    )
+
+
+# -- the rollout labeller (expert iteration) --------------------------------------------------
+
+
+def _cl_label(labeller: Any, view: Any, obs: dict[str, Any], n: int) -> Label:
+    """Rollout's scores of stop and its ``top_k`` pairs (exact ties are not labelled)."""
+    mask = np.asarray(obs["action_mask"], dtype=bool)
+    if not mask[:-1].any():
+        return None, None, n - 1, True  # stop is the only allowed action
+    choice, scores = labeller.scores()
+    values = list(scores.values())
+    if not max(values) > min(values):  # every pair a no-op (DMV w* = 1): no label
+        return None, None, choice, False
+    row = view(obs)
+    allowed = np.asarray(row["action_mask"], dtype=bool)
+    d = np.full(n, np.inf)
+    for a, value in scores.items():
+        if allowed[a]:  # a restricted view (top-k) may differ on exact gain ties
+            d[a] = -value
+    return (row, d, choice, False) if np.isfinite(d).sum() > 1 else (None, None, choice, False)
+
+
+def cl_rollout_labeller(top_k: int, horizon: int) -> tuple[CLRolloutAgent, LabelFn]:
+    """The ``rollout`` reference and how it labels a decision.
+
+    The :data:`~selenv.learned.rl.expert.Labeller` of :func:`collect_cl_rollout_labels`.
+
+    Raises:
+        ValueError: ``top_k`` < 1 or ``horizon`` < 0 (the agent's own checks).
+    """
+    return CLRolloutAgent(top_k=top_k, horizon=horizon), _cl_label
+
+
+def collect_cl_rollout_labels(
+    env_kwargs: dict[str, Any],
+    n_states: int,
+    seed: int,
+    *,
+    view: str | None = "cl_pairs_fused_top3",
+    top_k: int = 3,
+    horizon: int = 5,
+    explore: float = 0.05,
+    behaviour: str | None = None,
+    workers: int = 1,
+    progress: bool = True,
+) -> RankingData:
+    """Label ``n_states`` CL decisions with the ``rollout`` reference's scores.
+
+    The ``rollout`` agent (:class:`~selenv.families.cooperative.rollout.CLRolloutAgent`)
+    scores stop and the ``top_k`` open pairs of a decision by simulating ``horizon`` filter
+    steps of greedy on the forecast covariance recursion (no truth, no future noise); each
+    evaluated action gets ``dJ = -score``, the others ``+inf``. Only decisions whose evaluated
+    actions differ are labelled: stop-only steps carry no choice, and early in an episode
+    every pair's fused update is a no-op (DMV's ``w* = 1``), so stop and the pairs tie
+    exactly (about the first ten steps of the benchmark preset). The collection loop, its
+    seeds and its workers are :func:`selenv.learned.rl.expert.collect_rollout_labels`'.
+
+    Args:
+        env_kwargs: ``CLScheduling-v1`` keyword arguments (``{}``: the benchmark preset).
+        n_states: labelled decisions to collect (each with actions of different scores).
+        seed: training seed (episode seeds: :func:`~selenv.learned.rl.expert.train_seed`).
+        view: candidate view of the policy; ``cl_pairs_fused_top3`` allows exactly the
+            labeller's candidates (stop and the ``top_k`` pairs by previewed gain).
+        top_k: pairs the labeller scores per decision (besides stop).
+        horizon: filter steps the labeller simulates after the current one.
+        explore: probability of a random allowed action instead of the behaviour's.
+        behaviour: checkpoint whose (deterministic) actions drive the trajectories (DAgger);
+            ``None``: the labeller's own choices.
+        workers: processes (spawned; the caller needs the ``__main__`` guard if > 1); they
+            die with the caller and are stopped when it is interrupted.
+        progress: tqdm bar (first worker).
+
+    Raises:
+        ValueError: ``n_states``, ``workers``, ``top_k`` < 1, ``horizon`` < 0, or ``explore``
+            outside [0, 1].
+    """
+    from selenv.learned.rl.expert import collect_rollout_labels
+
+    return collect_rollout_labels(
+        CL_ID,
+        env_kwargs,
+        n_states,
+        seed,
+        labeller=cl_rollout_labeller,
+        view=view,
+        top_k=top_k,
+        horizon=horizon,
+        explore=explore,
+        behaviour=behaviour,
+        workers=workers,
+        progress=progress,
     )

@@ -37,9 +37,9 @@ from gymnasium import spaces
 from selenv.atomic import write_json
 from selenv.envs.resolved import resolved_env_config
 from selenv.exits import Terminated, UsageError
+from selenv.families.cooperative.rollout import CL_ENV_ID as CL_ID
 from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.rl.agent import load_metadata
-from selenv.learned.rl.expert import CL_ID
 from selenv.learned.rl.ranking import (
     FitState,
     RankingData,

@@ -1,24 +1,21 @@
-"""Expert iteration: the non-myopic ``rollout`` references (CL scheduling, landmarks) as labellers.
+"""Expert iteration: a non-myopic lookahead reference as the labeller of a policy's states.
 
-The ``rollout`` agent (:class:`selenv.families.cooperative.rollout.CLRolloutAgent`) scores stop and
-the
-``top_k`` open pairs of a decision by simulating ``horizon`` filter steps of greedy on the
-forecast covariance recursion (no truth, no future noise). Its scores are a dense label of a
-state: each evaluated action gets ``dJ = -score`` (the objective drop, negated, so lower is
-better, the convention of :class:`selenv.learned.rl.ranking.RankingData`); the actions it did not
-evaluate (one-step gain below its ``top_k``) get ``+inf`` -- ListNet's target is then 0 on
-them, so the policy learns to rank them last. A policy fitted to these labels
-(:func:`selenv.learned.rl.ranking.fit_ranking`) plays rollout's choice for the price of one network
-evaluation.
+A labeller is an agent that scores the candidate actions of a decision by simulating ahead on
+the forecast (no truth, no future noise), such as a family's ``rollout`` reference. Its scores
+are a dense label of a state: each evaluated action gets ``dJ`` (lower is better, the
+convention of :class:`selenv.learned.rl.ranking.RankingData`); the actions it did not evaluate
+get ``+inf`` -- ListNet's target is then 0 on them, so the policy learns to rank them last. A
+policy fitted to these labels (:func:`selenv.learned.rl.ranking.fit_ranking`) plays the
+labeller's choice for the price of one network evaluation.
 
 DAgger (Ross et al. 2011): round 0 follows the labeller's own choices; later rounds follow
 the current learner (``behaviour``), so the labels cover the states the learner visits.
-Only decisions whose evaluated actions differ are labelled: stop-only steps carry no choice,
-and early in an episode every pair's fused update is a no-op (DMV's ``w* = 1``), so stop and
-the pairs tie exactly (about the first ten steps of the benchmark preset).
 
-``LandmarkSelection-v1`` (:func:`collect_landmark_rollout_labels`) works the same way with
-the landmark ``rollout``; both share one collection loop (``_collect``).
+This module is the collection loop that every family's labeller shares
+(:func:`collect_rollout_labels`); a family's learned module supplies the labeller (a
+:data:`Labeller`: the agent and how it labels one decision) and its ``collect_*`` entry
+point: :func:`selenv.learned.families.cooperative.collect_cl_rollout_labels`,
+:func:`selenv.learned.families.landmarks.collect_landmark_rollout_labels`.
 
 The workers are a :class:`selenv.parallel.ProcessExecutor` pool: they die with this process
 (even after ``kill -9``), and a SIGINT / SIGTERM of the caller during a collection abandons
@@ -30,6 +27,7 @@ worker stride), disjoint from the held-out evaluation seeds ``< 10**6`` of the d
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,26 +37,32 @@ import torch as th
 from tqdm.auto import tqdm
 
 import selenv  # noqa: F401  (registers the envs, also in worker processes)
+from selenv.learned.rl._moved import moved_attr
 from selenv.learned.rl.ranking import RankingData
 from selenv.learned.rl.views import view_for
 from selenv.parallel import ProcessExecutor, TaskStopped, stoppable
 
 __all__ = [
-    "CL_ID",
-    "LANDMARK_ID",
-    "LANDMARK_LABELLERS",
     "TRAIN_SEED_BASE",
-    "collect_cl_rollout_labels",
-    "collect_landmark_rollout_labels",
+    "Label",
+    "LabelFn",
+    "Labeller",
+    "collect_rollout_labels",
     "train_seed",
 ]
 
-CL_ID = "selenv/CLScheduling-v1"
-LANDMARK_ID = "selenv/LandmarkSelection-v1"
-#: the landmark labellers: the ``rollout`` reference and its shortlist version
-LANDMARK_LABELLERS = ("rollout", "fast_rollout")
 #: training episode seeds start at ``TRAIN_SEED_BASE * (seed + 1)``
 TRAIN_SEED_BASE = 10**6
+
+#: a labelled decision: (view row or None if not labelled, deltas, the labeller's action,
+#: whether the action is forced -- the only allowed one, no behaviour or exploration asked)
+Label = tuple[dict[str, np.ndarray] | None, np.ndarray | None, int, bool]
+#: how a decision is labelled: ``label(agent, view, obs, n_actions)``
+LabelFn = Callable[[Any, Any, dict[str, Any], int], Label]
+#: a family's labeller: ``labeller(top_k, horizon) -> (agent, label)``; a module-level function
+#: (or a ``functools.partial`` of one) so that it reaches the worker processes; it raises
+#: ``ValueError`` on a bad ``top_k`` / ``horizon``
+Labeller = Callable[[int, int], tuple[Any, LabelFn]]
 
 
 def train_seed(seed: int, worker: int, workers: int, episode: int) -> int:
@@ -80,55 +84,7 @@ class _Job:
     explore: float
     behaviour: str | None
     progress: bool
-    labeller: str = "rollout"
-
-
-#: a labelled decision: (view row or None if not labelled, deltas, the labeller's action,
-#: whether the action is forced -- the only allowed one, no behaviour or exploration asked)
-_Label = tuple[dict[str, np.ndarray] | None, np.ndarray | None, int, bool]
-
-
-def _cl_label(labeller: Any, view: Any, obs: dict[str, Any], n: int) -> _Label:
-    """Rollout's scores of stop and its ``top_k`` pairs (exact ties are not labelled)."""
-    mask = np.asarray(obs["action_mask"], dtype=bool)
-    if not mask[:-1].any():
-        return None, None, n - 1, True  # stop is the only allowed action
-    choice, scores = labeller.scores()
-    values = list(scores.values())
-    if not max(values) > min(values):  # every pair a no-op (DMV w* = 1): no label
-        return None, None, choice, False
-    row = view(obs)
-    allowed = np.asarray(row["action_mask"], dtype=bool)
-    d = np.full(n, np.inf)
-    for a, value in scores.items():
-        if allowed[a]:  # a restricted view (top-k) may differ on exact gain ties
-            d[a] = -value
-    return (row, d, choice, False) if np.isfinite(d).sum() > 1 else (None, None, choice, False)
-
-
-def _landmark_label(labeller: Any, view: Any, obs: dict[str, Any], n: int) -> _Label:
-    """A landmark's label: minus the best score of rollout's candidate subsets containing it."""
-    best, scores = labeller.scores()
-    d = np.full(n, np.inf)
-    for subset, value in scores.items():
-        for lm in subset:
-            d[lm] = min(d[lm], -value)
-    finite = np.isfinite(d)
-    if finite.sum() > 1 and np.ptp(d[finite]) > 0:
-        return view(obs), d, best[0], False
-    return None, None, best[0], False
-
-
-def _labeller(job: _Job) -> tuple[Any, Any]:
-    from selenv.families.cooperative.rollout import CLRolloutAgent
-    from selenv.families.landmarks.fast_rollout import LandmarkFastRolloutAgent
-    from selenv.families.landmarks.rollout import LandmarkRolloutAgent
-
-    if job.env_id == CL_ID:
-        return CLRolloutAgent(top_k=job.top_k, horizon=job.horizon), _cl_label
-    if job.labeller == "fast_rollout":
-        return LandmarkFastRolloutAgent(top_k=job.top_k, horizon=job.horizon), _landmark_label
-    return LandmarkRolloutAgent(top_k=job.top_k, horizon=job.horizon), _landmark_label
+    labeller: Labeller
 
 
 def _collect(job: _Job) -> RankingData | None:
@@ -144,7 +100,7 @@ def _collect_share(job: _Job) -> RankingData:
     th.set_num_threads(1)  # one worker per core
     env = gym.make(job.env_id, **job.env_kwargs)
     view = view_for(job.env_id, env, job.view)
-    labeller, label = _labeller(job)
+    labeller, label = job.labeller(job.top_k, job.horizon)
     agent = None
     if job.behaviour is not None:
         from selenv.learned.rl.agent import SB3PolicyAgent
@@ -188,11 +144,13 @@ def _collect_share(job: _Job) -> RankingData:
     return RankingData(stacked, np.stack(deltas))
 
 
-def _collect_all(
+def collect_rollout_labels(
     env_id: str,
     env_kwargs: dict[str, Any],
     n_states: int,
     seed: int,
+    *,
+    labeller: Labeller,
     view: str | None,
     top_k: int,
     horizon: int,
@@ -200,9 +158,31 @@ def _collect_all(
     behaviour: str | None,
     workers: int,
     progress: bool,
-    labeller: str = "rollout",
 ) -> RankingData:
-    """Validate the options, split the work over ``workers`` processes, stack the labels."""
+    """Label ``n_states`` decisions of ``env_id`` with ``labeller``'s scores.
+
+    Args:
+        env_id: the env's id.
+        env_kwargs: its keyword arguments.
+        n_states: labelled decisions to collect.
+        seed: training seed (episode seeds: :func:`train_seed`).
+        labeller: the family's labeller (:data:`Labeller`), built with ``top_k`` and
+            ``horizon`` in each worker.
+        view: candidate view of the policy (``None``: the env's first,
+            :func:`~selenv.learned.rl.views.view_for`).
+        top_k: the labeller's ``top_k``.
+        horizon: the labeller's ``horizon``.
+        explore: probability of a random allowed action instead of the behaviour's.
+        behaviour: checkpoint whose (deterministic) actions drive the trajectories (DAgger);
+            ``None``: the labeller's own choices.
+        workers: processes (spawned; the caller needs the ``__main__`` guard if > 1); they
+            die with the caller and are stopped when it is interrupted.
+        progress: tqdm bar (first worker).
+
+    Raises:
+        ValueError: ``n_states`` or ``workers`` < 1, ``explore`` outside [0, 1], or the
+            labeller's refusal of ``top_k`` / ``horizon`` (before any process starts).
+    """
     for name, value, low in (("n_states", n_states, 1), ("workers", workers, 1)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
@@ -228,7 +208,7 @@ def _collect_all(
         )
         for w in range(workers)
     ]
-    _labeller(jobs[0])  # validates top_k / horizon before any process starts
+    labeller(top_k, horizon)  # validates top_k / horizon before any process starts
     if workers == 1:
         return _collect_share(jobs[0])
     with ProcessExecutor(workers) as pool:
@@ -239,97 +219,16 @@ def _collect_all(
     return RankingData.concatenate(done)
 
 
-def collect_cl_rollout_labels(
-    env_kwargs: dict[str, Any],
-    n_states: int,
-    seed: int,
-    *,
-    view: str | None = "cl_pairs_fused_top3",
-    top_k: int = 3,
-    horizon: int = 5,
-    explore: float = 0.05,
-    behaviour: str | None = None,
-    workers: int = 1,
-    progress: bool = True,
-) -> RankingData:
-    """Label ``n_states`` CL decisions with the ``rollout`` reference's scores.
-
-    Args:
-        env_kwargs: ``CLScheduling-v1`` keyword arguments (``{}``: the benchmark preset).
-        n_states: labelled decisions to collect (each with actions of different scores).
-        seed: training seed (episode seeds: :func:`train_seed`).
-        view: candidate view of the policy; ``cl_pairs_fused_top3`` allows exactly the
-            labeller's candidates (stop and the ``top_k`` pairs by previewed gain).
-        top_k: pairs the labeller scores per decision (besides stop).
-        horizon: filter steps the labeller simulates after the current one.
-        explore: probability of a random allowed action instead of the behaviour's.
-        behaviour: checkpoint whose (deterministic) actions drive the trajectories (DAgger);
-            ``None``: the labeller's own choices.
-        workers: processes (spawned; the caller needs the ``__main__`` guard if > 1); they
-            die with the caller and are stopped when it is interrupted.
-        progress: tqdm bar (first worker).
-
-    Raises:
-        ValueError: ``n_states``, ``workers``, ``top_k`` < 1, ``horizon`` < 0, or ``explore``
-            outside [0, 1].
-    """
-    return _collect_all(
-        CL_ID,
-        env_kwargs,
-        n_states,
-        seed,
-        view,
-        top_k,
-        horizon,
-        explore,
-        behaviour,
-        workers,
-        progress,
-    )
+#: names that moved to the families' learned modules (deprecated here, for one release)
+_MOVED = {
+    **dict.fromkeys(("CL_ID", "collect_cl_rollout_labels"), "selenv.learned.families.cooperative"),
+    **dict.fromkeys(
+        ("LANDMARK_ID", "LANDMARK_LABELLERS", "collect_landmark_rollout_labels"),
+        "selenv.learned.families.landmarks",
+    ),
+}
 
 
-def collect_landmark_rollout_labels(
-    env_kwargs: dict[str, Any],
-    n_states: int,
-    seed: int,
-    *,
-    top_k: int = 4,
-    horizon: int = 10,
-    explore: float = 0.05,
-    behaviour: str | None = None,
-    workers: int = 1,
-    progress: bool = True,
-    labeller: str = "rollout",
-) -> RankingData:
-    """Label ``LandmarkSelection-v1`` picks with the landmark ``rollout`` reference's scores.
-
-    At every pick the labeller scores its candidate subsets of the picks left in the filter
-    step (``top_k`` by one-step gain plus brute force's own); a landmark's ``dJ`` is minus the
-    best score of a candidate subset containing it, ``+inf`` if none does. The behaviour
-    plays the first landmark of rollout's best subset (or ``behaviour``'s pick: DAgger).
-    Picks where all labelled landmarks tie are skipped. Same seeds and options as
-    :func:`collect_cl_rollout_labels`, plus ``labeller``: ``"rollout"``
-    (:class:`~selenv.families.landmarks.rollout.LandmarkRolloutAgent`) or ``"fast_rollout"``
-    (:class:`~selenv.families.landmarks.fast_rollout.LandmarkFastRolloutAgent`: the same
-    forecast on a shortlist of the 6 landmarks with the largest single gain, 11-15x cheaper
-    per label).
-
-    Raises:
-        ValueError: as :func:`collect_cl_rollout_labels`; ``labeller`` not one of the two.
-    """
-    if labeller not in LANDMARK_LABELLERS:
-        raise ValueError(f"labeller must be one of {LANDMARK_LABELLERS}, got {labeller!r}")
-    return _collect_all(
-        LANDMARK_ID,
-        env_kwargs,
-        n_states,
-        seed,
-        None,
-        top_k,
-        horizon,
-        explore,
-        behaviour,
-        workers,
-        progress,
-        labeller,
-    )
+def __getattr__(name: str) -> Any:
+    """A moved name (:data:`_MOVED`), with a ``DeprecationWarning`` naming its new module."""
+    return moved_attr(__name__, name, _MOVED)
