@@ -11,15 +11,9 @@ import pytest
 
 import selenv  # noqa: F401
 from selenv.agents import make
-from selenv.agents.fim_solvers import greedy_whitened, swap_whitened
+from selenv.agents.fim_solvers import greedy_whitened, swap_deltas, swap_whitened, whiten_in
 from selenv.core.information import logdet_objective
-from selenv.learned.families.fim import (
-    FIMPolicySwapAgent,
-    make_fim_learned,
-    polish,
-    swap_deltas,
-    whiten_in,
-)
+from selenv.learned.families.fim import FIMPolicySwapAgent, make_fim_learned, polish
 
 FIM = "selenv/FIMSelection-v1"
 SEEDS = (3, 11, 29, 104)

@@ -61,13 +61,13 @@ from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import solve_triangular
 
 from selenv.core.information import (
     LogDetGainState,
     _as_candidates,
     _logdet_objective_trusted,
     as_candidates,
-    information_matrix,
     logdet_objective,
     whitened_pool,
 )
@@ -106,7 +106,9 @@ __all__ = [
     "partition_swap_whitened",
     "random_selection",
     "swap",
+    "swap_deltas",
     "swap_whitened",
+    "whiten_in",
 ]
 
 #: default size guard of :func:`brute_force` (number of subsets evaluated)
@@ -409,26 +411,81 @@ def brute_force_whitened(
     return _finish(Q0, G, best.tolist(), n_sub, objective, idx)
 
 
-def _swap_deltas(G: FloatArray, P: FloatArray, sel: np.ndarray, uns: np.ndarray) -> FloatArray:
-    """``log det(A - Q_i + Q_j) - log det A`` for every selected i and unselected j, ``(K, U)``.
+def whiten_in(Q0: FloatArray, G: FloatArray, sel: np.ndarray) -> FloatArray:
+    """``Z = G L^-T`` with ``L L^T = A = Q0 + sum_{k in sel} G_k^T G_k`` (eq. 2), ``(N, m, d)``.
 
-    Matrix determinant lemma with ``U = [G_i; G_j]`` and ``D = diag(-I, I)``:
-    ``det(A + U^T D U) / det A = det(I + D U P U^T)``.
+    The candidates whitened in the information of the selection ``sel``: ``Z_i Z_j^T =
+    G_i A^-1 G_j^T``. Inputs are trusted (validated by the caller).
+
+    Raises:
+        ValueError: ``A`` is not numerically positive definite.
     """
-    m = G.shape[1]
-    Gi, Gj = G[sel], G[uns]  # (K, m, d), (U, m, d)
-    Sii = np.einsum("kad,de,kbe->kab", Gi, P, Gi)  # G_i P G_i^T
-    Sjj = np.einsum("uad,de,ube->uab", Gj, P, Gj)  # G_j P G_j^T
-    Cij = np.einsum("kad,de,ube->kuab", Gi, P, Gj)  # G_i P G_j^T
+    N, m, d = G.shape
+    Gs = G[sel].reshape(-1, d)
+    L = cholesky_spd(Q0 + Gs.T @ Gs, "FIM")
+    Z = solve_triangular(L, G.reshape(N * m, d).T, lower=True, check_finite=False)  # L^-1 G^T
+    out: FloatArray = np.ascontiguousarray(Z.T).reshape(N, m, d)
+    return out
+
+
+def swap_deltas(Z: FloatArray, sel: np.ndarray, uns: np.ndarray) -> FloatArray:
+    """``log det(A - Q_i + Q_j) - log det A`` for selected ``i`` and unselected ``j``, ``(K, U)``.
+
+    ``Z`` ``(N, m, d)``: the candidates whitened in the selection's information ``A = L L^T``
+    (:func:`whiten_in`, ``Z_k = G_k L^-T``), so ``S_ii = Z_i Z_i^T = G_i A^-1 G_i^T``,
+    ``S_jj = Z_j Z_j^T`` and ``C_ij = Z_i Z_j^T``. The matrix determinant lemma with
+    ``U = [G_i; G_j]`` and ``D = diag(-I, I)`` gives ``det(A + U^T D U) / det A =
+    det(I + D U A^-1 U^T)``, the determinant of ``[[I - S_ii, -C_ij], [C_ij^T, I + S_jj]]``,
+    and its Schur complement on the first block:
+
+    ``log det(A - Q_i + Q_j) - log det A
+    = log det(I - S_ii) + log det(I + S_jj + C_ij^T (I - S_ii)^-1 C_ij)``.
+
+    Written out entry by entry for ``m = 1`` and ``m = 2`` rows per candidate (every Kirchner
+    preset), so one pass over the ``K x U`` pairs is one matrix product and a few elementwise
+    array operations instead of ``K U`` determinants of ``2m x 2m`` matrices; batched
+    ``slogdet`` of the ``m x m`` blocks otherwise. A pair whose matrix is not positive
+    definite (rounding on a degenerate pool) gets ``-inf``. Inputs are trusted.
+    """
+    _, m, d = Z.shape
+    Zi, Zj = Z[sel], Z[uns]  # (K, m, d), (U, m, d)
     K, U = len(sel), len(uns)
-    M = np.empty((K, U, 2 * m, 2 * m))
-    eye = np.eye(m)
-    M[:, :, :m, :m] = (eye - Sii)[:, None]
-    M[:, :, :m, m:] = -Cij
-    M[:, :, m:, :m] = np.swapaxes(Cij, -1, -2)
-    M[:, :, m:, m:] = (eye + Sjj)[None]
-    sign, logdet = np.linalg.slogdet(M)
-    return np.where(sign > 0, logdet, -np.inf)
+    C = (Zi.reshape(K * m, d) @ Zj.reshape(U * m, d).T).reshape(K, m, U, m)
+    C = C.transpose(0, 2, 1, 3)  # C[k, u] = Z_i Z_j^T (K, U, m, m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if m == 1:
+            a = 1.0 - np.einsum("kd,kd->k", Zi[:, 0], Zi[:, 0])  # I - S_ii (K,)
+            s = np.einsum("ud,ud->u", Zj[:, 0], Zj[:, 0])  # S_jj (U,)
+            comp = 1.0 + s[None] + C[..., 0, 0] ** 2 / a[:, None]
+            out = np.log(a)[:, None] + np.log(comp)
+            ok = (a[:, None] > 0) & (comp > 0)
+        elif m == 2:
+            i0, i1, j0, j1 = Zi[:, 0], Zi[:, 1], Zj[:, 0], Zj[:, 1]
+            a00 = 1.0 - np.einsum("kd,kd->k", i0, i0)  # I - S_ii
+            a01 = -np.einsum("kd,kd->k", i0, i1)
+            a11 = 1.0 - np.einsum("kd,kd->k", i1, i1)
+            det_a = a00 * a11 - a01 * a01  # det(I - S_ii)
+            p, q, r = (x[:, None] / det_a[:, None] for x in (a11, -a01, a00))  # (I - S_ii)^-1
+            c00, c01, c10, c11 = C[..., 0, 0], C[..., 0, 1], C[..., 1, 0], C[..., 1, 1]
+            t00 = p * c00 * c00 + 2.0 * q * c00 * c10 + r * c10 * c10  # C^T (I - S_ii)^-1 C
+            t01 = p * c00 * c01 + q * (c00 * c11 + c10 * c01) + r * c10 * c11
+            t11 = p * c01 * c01 + 2.0 * q * c01 * c11 + r * c11 * c11
+            s00 = np.einsum("ud,ud->u", j0, j0)  # S_jj
+            s01 = np.einsum("ud,ud->u", j0, j1)
+            s11 = np.einsum("ud,ud->u", j1, j1)
+            det_c = (1.0 + s00 + t00) * (1.0 + s11 + t11) - (s01 + t01) ** 2
+            out = np.log(det_a)[:, None] + np.log(det_c)
+            ok = (det_a[:, None] > 0) & (a00[:, None] > 0) & (det_c > 0)
+        else:
+            eye = np.eye(m)
+            A = eye - Zi @ np.swapaxes(Zi, -1, -2)  # I - S_ii (K, m, m)
+            sign_a, log_a = np.linalg.slogdet(A)
+            X = np.linalg.solve(A[:, None], C)  # (I - S_ii)^-1 C
+            Sjj = Zj @ np.swapaxes(Zj, -1, -2)
+            sign_c, log_c = np.linalg.slogdet(eye + Sjj[None] + np.swapaxes(C, -1, -2) @ X)
+            out = log_a[:, None] + log_c
+            ok = (sign_a[:, None] > 0) & (sign_c > 0)
+    return np.where(ok, out, -np.inf)
 
 
 def _check_tol(tol: object) -> float:
@@ -437,13 +494,6 @@ def _check_tol(tol: object) -> float:
     if not 0.0 <= float(tol) < math.inf:
         raise ValueError(f"tol must be a finite number >= 0, got {tol!r}")
     return float(tol)
-
-
-def _crlb(Q0: FloatArray, G: FloatArray, sel: np.ndarray) -> FloatArray:
-    """``A^-1`` of the selection's FIM ``A`` (eq. 2), by two triangular solves."""
-    A = information_matrix(Q0, G, sel)
-    L = cholesky_spd(A, "FIM")
-    return np.linalg.solve(L.T, np.linalg.solve(L, np.eye(A.shape[0])))
 
 
 @small_blas
@@ -460,8 +510,10 @@ def swap_whitened(
 ) -> Selection:
     """Greedy (or ``initial``) followed by best-improvement swap local search.
 
-    Each round evaluates every (selected, unselected) swap in one batched determinant-lemma
-    pass (``O(K N m^2 d)``) and applies the best if it gains more than ``tol`` nats. The
+    Each round evaluates every (selected, unselected) swap in one batched pass of
+    :func:`swap_deltas` (the pool whitened in the current information, ``O(N m d^2)``, then
+    the Schur complement of the determinant-lemma matrix, ``O(K N m^2 d)``) and applies the
+    best (the first in row-major order on ties) if it gains more than ``tol`` nats. The
     objective never decreases, so the result is at least as good as greedy. For
     ``objective="trace"`` / ``"max_eig"`` a swap's value is the criterion of ``A - Q_i + Q_j``
     by batched Cholesky (:func:`~selenv.core.objectives.swap_criteria`, ``O(K N d^3)``) and
@@ -514,7 +566,7 @@ def _deltas(
 ) -> FloatArray:
     """``f(S - i + j) - f(S)`` for every selected ``i`` and unselected ``j``, ``(K, U)``."""
     if objective == "logdet":
-        return _swap_deltas(G, _crlb(Q0, G, sel), sel, uns)
+        return swap_deltas(whiten_in(Q0, G, sel), sel, uns)
     crit = subset_criteria(Q0, np.einsum("kmi,kmj->kij", G, G), sel[None], objective, interest)
     return float(crit[0]) - swap_criteria(Q0, G, sel, uns, objective, interest)
 
@@ -777,7 +829,7 @@ def partition_swap_whitened(
     """:func:`partition_greedy_whitened` (or ``initial``), then swaps within each group.
 
     Each round evaluates, for every group, every (selected, unselected) pair of that group
-    (the batched determinant lemma of :func:`swap_whitened`) and applies the best swap over all
+    (:func:`swap_deltas`, as :func:`swap_whitened`) and applies the best swap over all
     groups if it gains more than ``tol`` nats, so every group keeps its number of picks and the
     objective never decreases: at least the partition greedy.
 
@@ -810,12 +862,13 @@ def partition_swap_whitened(
         if sel.size == 0:
             break
         best, best_i, best_j = tol, -1, -1
+        Z = whiten_in(Q0, G, sel) if objective == "logdet" else None  # once per round
         for g in range(len(B)):
             rows = np.flatnonzero(owner[sel] == g)
             uns = np.setdiff1d(np.flatnonzero(owner == g), sel)
             if rows.size == 0 or uns.size == 0:
                 continue
-            delta = _group_deltas(Q0, G, sel, rows, uns, objective, idx)
+            delta = _group_deltas(Q0, G, Z, sel, rows, uns, objective, idx)
             evals += delta.size
             i, j = np.unravel_index(int(np.argmax(delta)), delta.shape)
             if delta[i, j] > best:
@@ -829,13 +882,18 @@ def partition_swap_whitened(
 def _group_deltas(
     Q0: FloatArray,
     G: FloatArray,
+    Z: FloatArray | None,
     sel: np.ndarray,
     rows: np.ndarray,
     uns: np.ndarray,
     objective: str,
     interest: np.ndarray | None,
 ) -> FloatArray:
-    """``f(S - sel[r] + j) - f(S)`` for ``r`` in ``rows`` and ``j`` in ``uns``, ``(|rows|, U)``."""
-    if objective == "logdet":
-        return _swap_deltas(G, _crlb(Q0, G, sel), sel[rows], uns)
+    """``f(S - sel[r] + j) - f(S)`` for ``r`` in ``rows`` and ``j`` in ``uns``, ``(|rows|, U)``.
+
+    ``Z``: for log det, the pool whitened in the information of ``S`` (:func:`whiten_in`),
+    shared by every group of the round; ``None`` for the other objectives.
+    """
+    if Z is not None:
+        return swap_deltas(Z, sel[rows], uns)
     return _deltas(Q0, G, sel, uns, objective, interest)[rows]

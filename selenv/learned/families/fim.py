@@ -23,17 +23,9 @@ path, it stops (from there it would end where greedy's did).
 ``starts="greedy"`` is exactly ``swap`` (the same moves in the same order), ``starts="policy"``
 the policy's start alone.
 
-The swap deltas are ``swap``'s, evaluated through the Schur complement of its
-determinant-lemma matrix (:func:`swap_deltas`): with the candidates whitened in the current
-information ``A = L L^T`` (``Z_k = G_k L^-T``), ``S_ii = Z_i Z_i^T``, ``S_jj = Z_j Z_j^T`` and
-``C_ij = Z_i Z_j^T``,
-
-``log det(A - Q_i + Q_j) - log det A
-= log det(I - S_ii) + log det(I + S_jj + C_ij^T (I - S_ii)^-1 C_ij)``,
-
-written out entry by entry for ``m <= 2`` rows per candidate (every Kirchner preset), so one
-pass over the ``K x U`` pairs is one matrix product and a few elementwise array operations
-instead of ``K U`` determinants of ``2m x 2m`` matrices.
+The swap deltas are ``swap``'s own, :func:`~selenv.agents.fim_solvers.swap_deltas` (the
+Schur complement of the determinant-lemma matrix, in closed form for ``m <= 2`` rows per
+candidate).
 """
 
 from __future__ import annotations
@@ -44,12 +36,11 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from scipy.linalg import solve_triangular
 
 from selenv.agents.base import PlanAgent
-from selenv.agents.fim_solvers import greedy_whitened
+from selenv.agents.fim_solvers import greedy_whitened, swap_deltas, whiten_in
 from selenv.core.information import information_matrix
-from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.core.linalg import FloatArray
 from selenv.families.fim.batched import FIMBatchState
 from selenv.families.fim.env import fim_observations
 from selenv.learned.rl.agent import CHECKPOINT_DIR, SB3PolicyAgent
@@ -60,8 +51,6 @@ __all__ = [
     "FIMPolicySwapAgent",
     "make_fim_learned",
     "polish",
-    "swap_deltas",
-    "whiten_in",
 ]
 
 FIM_ENV_ID = "selenv/FIMSelection-v1"
@@ -70,70 +59,6 @@ DEFAULT_CHECKPOINT = "fim_selection_ppo_general.zip"
 #: the ``starts`` option: which starting selections the swap search polishes
 STARTS = ("both", "policy", "greedy")
 _ONE = np.zeros(1, dtype=np.intp)
-
-
-def swap_deltas(Z: FloatArray, sel: np.ndarray, uns: np.ndarray) -> FloatArray:
-    """``log det(A - Q_i + Q_j) - log det A`` for selected ``i`` and unselected ``j``, ``(K, U)``.
-
-    ``Z`` ``(N, m, d)``: the candidates whitened in the selection's information ``A = L L^T``
-    (``Z_k = G_k L^-T``), so ``S_ii = Z_i Z_i^T``, ``S_jj = Z_j Z_j^T``, ``C_ij = Z_i Z_j^T``
-    and the delta is the Schur complement form of the module docstring; closed forms for
-    ``m = 1`` and ``m = 2``, batched ``slogdet`` of the ``m x m`` complement otherwise. A pair
-    whose matrix is not positive definite (rounding on a degenerate pool) gets ``-inf``.
-    """
-    _, m, d = Z.shape
-    Zi, Zj = Z[sel], Z[uns]  # (K, m, d), (U, m, d)
-    K, U = len(sel), len(uns)
-    C = (Zi.reshape(K * m, d) @ Zj.reshape(U * m, d).T).reshape(K, m, U, m)
-    C = C.transpose(0, 2, 1, 3)  # C[k, u] = Z_i Z_j^T (K, U, m, m)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if m == 1:
-            a = 1.0 - np.einsum("kd,kd->k", Zi[:, 0], Zi[:, 0])  # I - S_ii (K,)
-            s = np.einsum("ud,ud->u", Zj[:, 0], Zj[:, 0])  # S_jj (U,)
-            comp = 1.0 + s[None] + C[..., 0, 0] ** 2 / a[:, None]
-            out = np.log(a)[:, None] + np.log(comp)
-            ok = (a[:, None] > 0) & (comp > 0)
-        elif m == 2:
-            i0, i1, j0, j1 = Zi[:, 0], Zi[:, 1], Zj[:, 0], Zj[:, 1]
-            a00 = 1.0 - np.einsum("kd,kd->k", i0, i0)  # I - S_ii
-            a01 = -np.einsum("kd,kd->k", i0, i1)
-            a11 = 1.0 - np.einsum("kd,kd->k", i1, i1)
-            det_a = a00 * a11 - a01 * a01  # det(I - S_ii)
-            p, q, r = (x[:, None] / det_a[:, None] for x in (a11, -a01, a00))  # (I - S_ii)^-1
-            c00, c01, c10, c11 = C[..., 0, 0], C[..., 0, 1], C[..., 1, 0], C[..., 1, 1]
-            t00 = p * c00 * c00 + 2.0 * q * c00 * c10 + r * c10 * c10  # C^T (I - S_ii)^-1 C
-            t01 = p * c00 * c01 + q * (c00 * c11 + c10 * c01) + r * c10 * c11
-            t11 = p * c01 * c01 + 2.0 * q * c01 * c11 + r * c11 * c11
-            s00 = np.einsum("ud,ud->u", j0, j0)  # S_jj
-            s01 = np.einsum("ud,ud->u", j0, j1)
-            s11 = np.einsum("ud,ud->u", j1, j1)
-            det_c = (1.0 + s00 + t00) * (1.0 + s11 + t11) - (s01 + t01) ** 2
-            out = np.log(det_a)[:, None] + np.log(det_c)
-            ok = (det_a[:, None] > 0) & (a00[:, None] > 0) & (det_c > 0)
-        else:
-            eye = np.eye(m)
-            A = eye - Zi @ np.swapaxes(Zi, -1, -2)  # I - S_ii (K, m, m)
-            sign_a, log_a = np.linalg.slogdet(A)
-            X = np.linalg.solve(A[:, None], C)  # (I - S_ii)^-1 C
-            Sjj = Zj @ np.swapaxes(Zj, -1, -2)
-            sign_c, log_c = np.linalg.slogdet(eye + Sjj[None] + np.swapaxes(C, -1, -2) @ X)
-            out = log_a[:, None] + log_c
-            ok = (sign_a[:, None] > 0) & (sign_c > 0)
-    return np.where(ok, out, -np.inf)
-
-
-def whiten_in(Q0: FloatArray, G: FloatArray, sel: np.ndarray) -> FloatArray:
-    """``Z = G L^-T`` with ``L L^T = A = Q0 + sum_{k in sel} G_k^T G_k`` (eq. 2), ``(N, m, d)``.
-
-    Raises:
-        ValueError: ``A`` is not numerically positive definite.
-    """
-    N, m, d = G.shape
-    Gs = G[sel].reshape(-1, d)
-    L = cholesky_spd(Q0 + Gs.T @ Gs, "FIM")
-    Z = solve_triangular(L, G.reshape(N * m, d).T, lower=True, check_finite=False)  # L^-1 G^T
-    out: FloatArray = np.ascontiguousarray(Z.T).reshape(N, m, d)
-    return out
 
 
 def polish(
@@ -148,7 +73,8 @@ def polish(
 ) -> tuple[np.ndarray, int]:
     """Best-improvement 1-swap search from ``start``: ``swap``'s moves, ``(indices, rounds)``.
 
-    Each round scores every (selected, unselected) pair (:func:`swap_deltas`) and applies the
+    Each round scores every (selected, unselected) pair
+    (:func:`~selenv.agents.fim_solvers.swap_deltas`) and applies the
     best (row-major first on ties, the selected slot replaced in place) if it gains more than
     ``tol`` nats; the objective never decreases. ``rounds`` counts the passes made (the last
     one finds no improving swap unless ``max_rounds`` or ``stop_at`` stopped the search).
