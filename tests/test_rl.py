@@ -14,6 +14,7 @@ from gymnasium import spaces
 from pettingzoo.test import parallel_api_test  # noqa: F401  (the wrapped env passes it)
 
 from selenv.agents import make
+from selenv.families.cooperative.view import CLView
 from selenv.families.fim.agents import CooperativeGreedyPolicy
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from selenv.learned.rl.candidate_policy import (
@@ -24,7 +25,7 @@ from selenv.learned.rl.candidate_policy import (
     obs_layout,
 )
 from selenv.learned.rl.marl import SharedPolicyEnv
-from selenv.learned.rl.views import CandidateViewWrapper, CLView, view_for
+from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.multiagent import fim_selection_v0
 from selenv.train import (
     train_cl_ppo,

@@ -1,7 +1,7 @@
 """Train MaskablePPO on ``selenv/CLScheduling-v1`` (which relative measurements to fuse).
 
-The env's observation is rewritten by :class:`selenv.learned.rl.views.CLView`: the directed pairs
-(and the stop action) become candidates with the pair's gain and the two agents'
+The env's observation is rewritten by :class:`selenv.families.cooperative.view.CLView`: the
+directed pairs (and the stop action) become candidates with the pair's gain and the two agents'
 uncertainties, so the policy does not depend on the number of pairs. The gain is, by default
 (``--view cl_pairs_fused``), the exact previewed decrease of the objective by the pair's fused
 update -- the quantity the greedy agent maximises, so with the gain skip the untrained policy

@@ -1,7 +1,7 @@
 """Train an edit-ranking policy for ``selenv/ReceiverClustering-v1`` (Greiff et al. 2022).
 
 The policy plays the env's ``action_mode="edit"`` encoding (one masked edit per filter step:
-no-op, move, leave, swap) through :class:`selenv.learned.rl.views.ClusteringEditView`, which
+no-op, move, leave, swap) through :class:`selenv.families.clustering.view.ClusteringEditView`, which
 describes every edit by the receivers' noise levels, the clusters' composition and sizes
 -- without evaluating the cost ``J``. Two stages:
 

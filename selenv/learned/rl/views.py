@@ -2,11 +2,13 @@
 
 The candidate layout and the view classes are in :mod:`selenv.envs.views` and the families' ``view``
 modules; :data:`VIEWS` is built from the family records, :class:`CandidateViewWrapper` applies a
-view in training and :mod:`selenv.learned.rl.agent` when a checkpoint acts.
+view in training and :mod:`selenv.learned.rl.agent` when a checkpoint acts. This module names no
+family: a family's view classes are reached through its record (``FamilySpec.views``).
 """
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -15,21 +17,21 @@ import numpy as np
 
 from selenv.envs.views import N_FEATURES, CandidateView, IdentityView, candidate_space
 from selenv.families import FAMILIES
-from selenv.families.clustering.view import ClusteringEditView
-from selenv.families.cooperative.view import CLView
 from selenv.families.spec import load_attr
+from selenv.learned.rl._moved import moved_attr
 
 __all__ = [
     "N_FEATURES",
     "VIEWS",
-    "CLView",
     "CandidateView",
     "CandidateViewWrapper",
-    "ClusteringEditView",
     "IdentityView",
     "candidate_space",
     "view_for",
 ]
+
+#: family view classes this module re-exported before (deprecated here, for one release)
+_FAMILY_VIEW_CLASSES = ("CLView", "ClusteringEditView")
 
 
 #: env id (every registered version) -> {view name -> factory of the view from the env}; the
@@ -70,3 +72,15 @@ class CandidateViewWrapper(gym.ObservationWrapper[Any, Any, Any]):
     def action_masks(self) -> np.ndarray:
         """The wrapped env's mask (MaskablePPO reads it through the VecEnv)."""
         return np.asarray(self.env.unwrapped.action_masks(), dtype=bool)  # type: ignore[attr-defined]
+
+
+def __getattr__(name: str) -> Any:
+    """A family view class once re-exported here, from the view module its record names.
+
+    Warns (``DeprecationWarning``) with the module to import it from.
+    """
+    if name in _FAMILY_VIEW_CLASSES:
+        for home in sorted({spec.views.partition(":")[0] for spec in FAMILIES}):
+            if hasattr(importlib.import_module(home), name):
+                return moved_attr(__name__, name, {name: home})
+    return moved_attr(__name__, name, {})
