@@ -205,9 +205,11 @@ def test_registered_as_ppo() -> None:
     # selenv registers the lazy factory; building it imports selenv.learned.rl.agent and loads
     # the file
     assert "ppo" in agents_for(ENV_ID)
-    agent = make("ppo", ENV_ID)
-    assert isinstance(agent, SB3PolicyAgent) and agent.name == "ppo"
-    assert agent.checkpoint == DEFAULT_CHECKPOINT
+    agent = make("ppo", ENV_ID)  # the record's agent, wrapping the loader's
+    assert isinstance(agent.inner, SB3PolicyAgent) and agent.name == "ppo"
+    assert agent.checkpoint.name == "fim_selection_ppo_general.zip"  # the shipped record
+    own = make(f"ppo:{DEFAULT_CHECKPOINT}", ENV_ID)  # the family's default weights, as a file
+    assert own.checkpoint == DEFAULT_CHECKPOINT
 
 
 # -- mismatches are ValueErrors ---------------------------------------------------------------
