@@ -74,7 +74,7 @@ def _dummy(s: dict[str, Any]) -> DummyVecEnv:
 def _extractor(s: dict[str, Any], after: bool) -> tuple[type[CandidateScorer], dict[str, Any]]:
     cfg = s["cfg"]
     if s["mod"].__name__.endswith("train_clustering_ppo"):
-        from selenv.learned.rl.edit_policy import scorer_policy_kwargs
+        from selenv.learned.families.clustering_edits import scorer_policy_kwargs
 
         return scorer_policy_kwargs(cfg.scorer if after else "mlp", cfg.edit_rank)
     return CandidateScorer, {}

@@ -211,7 +211,7 @@ def test_model_from_checkpoint_checks_the_pair_too(ppo_copy: Path) -> None:
 # -- the factorised edit scorer -------------------------------------------------------------
 def _edit_checkpoint(tmp_path: Path) -> tuple[Path, dict[str, Any]]:
     """A small factorised edit checkpoint (6 receivers) written as the trainers do."""
-    from selenv.learned.rl.edit_policy import EDIT_EXTRACTOR, build_edit_policy
+    from selenv.learned.families.clustering_edits import EDIT_EXTRACTOR, build_edit_policy
     from selenv.learned.rl.safe_load import POLICY_CLASSES
 
     n = 6
@@ -244,7 +244,7 @@ def _edit_checkpoint(tmp_path: Path) -> tuple[Path, dict[str, Any]]:
 
 
 def test_edit_policy_metadata_is_bounded(tmp_path: Path) -> None:
-    from selenv.learned.rl.edit_policy import load_edit_policy
+    from selenv.learned.families.clustering_edits import load_edit_policy
 
     checkpoint, meta = _edit_checkpoint(tmp_path)
     load_edit_policy(checkpoint, meta)  # the well-formed one loads

@@ -82,15 +82,27 @@ CHECKPOINT_LIMITS: dict[str, int] = {
 }
 
 
+#: modules whose classes checkpoints recorded before the module moved: old prefix -> new prefix
+MOVED_CLASS_MODULES = {
+    "selenv.learned.rl.edit_policy.": "selenv.learned.families.clustering_edits.",
+}
+
+
 def current_class_name(name: object) -> object:
-    """A class path recorded by selenv 0.1 (top-level ``learned.*``) under today's name.
+    """A class path recorded by an earlier selenv under today's name.
 
     Checkpoint metadata names its classes (``"learned.rl.candidate_policy.CandidateScorer"``
-    before the packages moved under ``selenv``); such names are compared as
-    ``"selenv.learned...."``. Anything else is returned unchanged.
+    before the packages moved under ``selenv``; ``"selenv.learned.rl.edit_policy.*"`` before
+    the module moved, ``MOVED_CLASS_MODULES``); such names are compared as today's.
+    Anything else is returned unchanged.
     """
-    if isinstance(name, str) and name.startswith("learned."):
-        return f"selenv.{name}"
+    if not isinstance(name, str):
+        return name
+    if name.startswith("learned."):
+        name = f"selenv.{name}"
+    for old, new in MOVED_CLASS_MODULES.items():
+        if name.startswith(old):
+            return new + name[len(old) :]
     return name
 
 

@@ -12,7 +12,7 @@ starting from the checkpoint's weights. The result is saved with the source meta
     python -m selenv.train.train_clustering_dagger   # -> runs/train_clustering_dagger/policy.zip
 
 ``--scorer checkpoint`` (default) fits the checkpoint's own architecture from its weights
-(``mlp`` or ``factorised``, whichever it has: :mod:`selenv.learned.rl.edit_policy`);
+(``mlp`` or ``factorised``, whichever it has: :mod:`selenv.learned.families.clustering_edits`);
 ``--scorer factorised`` / ``mlp`` fits a *fresh* policy of that scorer (the checkpoint's
 ``hidden``, ``activation`` and ``gain_skip_init``) to the labels the checkpoint's behaviour
 collected, e.g. to distil the shipped ``mlp`` policy into the cheaper factorised one.
@@ -46,6 +46,12 @@ from gymnasium import spaces
 from selenv.atomic import write_json
 from selenv.exits import Terminated, UsageError
 from selenv.learned.config import arg, check_outputs, usage_error
+from selenv.learned.families.clustering_edits import (
+    SCORERS,
+    edit_model_from_checkpoint,
+    is_edit_architecture,
+    scorer_policy_kwargs,
+)
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, load_metadata
 from selenv.learned.rl.candidate_policy import make_ppo
 from selenv.learned.rl.distill import (
@@ -56,12 +62,6 @@ from selenv.learned.rl.distill import (
     fit_round,
     read_run_inputs,
     save_state,
-)
-from selenv.learned.rl.edit_policy import (
-    SCORERS,
-    edit_model_from_checkpoint,
-    is_edit_architecture,
-    scorer_policy_kwargs,
 )
 from selenv.learned.rl.ranking import (
     FitState,

@@ -15,10 +15,10 @@ describes every edit by the receivers' noise levels, the clusters' composition a
    stage 1 exists; ``--rank-states 0 --total-timesteps 40000`` reproduces that run.
 
 The edit scorer (``--scorer``): ``factorised`` (default,
-:class:`selenv.learned.rl.edit_policy.FactorisedEditScorer`) embeds the ``n`` receivers once
-and scores each edit by a rank-``k`` bilinear plus additive combination of its receivers'
-embeddings -- per-receiver work instead of per-edit work, ~20x the PPO steps per second of
-``mlp`` (MaskablePPO, 4 envs x 128 steps, batch 256); ``mlp``
+:class:`selenv.learned.families.clustering_edits.FactorisedEditScorer`) embeds the ``n``
+receivers once and scores each edit by a rank-``k`` bilinear plus additive combination of its
+receivers' embeddings -- per-receiver work instead of per-edit work, ~20x the PPO steps per
+second of ``mlp`` (MaskablePPO, 4 envs x 128 steps, batch 256); ``mlp``
 (:class:`selenv.learned.rl.candidate_policy.CandidateScorer`, the shipped checkpoint's) runs
 an MLP on every one of the 1336 edit rows. ``--hidden`` are the widths of the per-receiver
 (factorised) or per-edit (mlp) network.
@@ -45,7 +45,7 @@ import gymnasium as gym
 
 from selenv.exits import check_size
 from selenv.learned.config import arg
-from selenv.learned.rl.edit_policy import SCORERS, scorer_policy_kwargs
+from selenv.learned.families.clustering_edits import SCORERS, scorer_policy_kwargs
 from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
 from selenv.learned.rl.training import (
     PPOConfig,

@@ -1,4 +1,4 @@
-"""The factorised edit scorer of ReceiverClustering-v1 (selenv.learned.rl.edit_policy)."""
+"""ReceiverClustering-v1's factorised edit scorer (selenv.learned.families.clustering_edits)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,14 @@ from selenv.families.clustering.view import (
     leave_rows,
     receivers_for_count,
 )
+from selenv.learned.families.clustering_edits import (
+    EDIT_EXTRACTOR,
+    FactorisedEditScorer,
+    edit_model_from_checkpoint,
+    edit_policy_spec,
+    load_edit_policy,
+    scorer_policy_kwargs,
+)
 from selenv.learned.rl import training
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent, load_metadata
 from selenv.learned.rl.candidate_policy import (
@@ -27,14 +35,6 @@ from selenv.learned.rl.candidate_policy import (
     CandidateScorer,
     CandidateScoringPolicy,
     make_ppo,
-)
-from selenv.learned.rl.edit_policy import (
-    EDIT_EXTRACTOR,
-    FactorisedEditScorer,
-    edit_model_from_checkpoint,
-    edit_policy_spec,
-    load_edit_policy,
-    scorer_policy_kwargs,
 )
 from selenv.learned.rl.safe_load import load_policy
 from selenv.learned.rl.views import CandidateViewWrapper, candidate_space, view_for

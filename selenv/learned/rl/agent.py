@@ -15,9 +15,10 @@ plays any instance of its env with the same per-candidate width::
 The policy is rebuilt from the JSON (never unpickled from the zip): the per-candidate
 ``CandidateScorer`` (:mod:`selenv.learned.rl.safe_load`) or, when
 ``architecture.features_extractor`` is exactly
-:data:`selenv.learned.rl.edit_policy.EDIT_EXTRACTOR`, the factorised edit scorer of
-``ReceiverClustering-v1`` (:func:`selenv.learned.rl.edit_policy.load_edit_policy`); either
-way only the zip's weight tensors are read.
+:data:`selenv.learned.families.clustering_edits.EDIT_EXTRACTOR`, the factorised edit scorer of
+``ReceiverClustering-v1``
+(:func:`selenv.learned.families.clustering_edits.load_edit_policy`); either way only the zip's
+weight tensors are read.
 
 Every failure to load or to apply a checkpoint (missing file, another env, another width) is
 a ``ValueError`` naming the file and what was expected.
@@ -34,17 +35,17 @@ from gymnasium import spaces
 
 from selenv.agents.base import Agent
 from selenv.families import FAMILIES
+from selenv.learned.families.clustering_edits import (
+    FactorisedEditScorer,
+    is_edit_architecture,
+    load_edit_policy,
+)
 from selenv.learned.resources import checkpoint_dir, read_metadata, with_shipped
 from selenv.learned.rl.candidate_policy import (
     MASKED_LOGIT,
     CandidateScoringPolicy,
     CandidateScoringPPOPolicy,
     obs_layout,
-)
-from selenv.learned.rl.edit_policy import (
-    FactorisedEditScorer,
-    is_edit_architecture,
-    load_edit_policy,
 )
 from selenv.learned.rl.lean import LeanScorer, TopMScorer
 from selenv.learned.rl.safe_load import checked_layout, load_policy

@@ -506,8 +506,8 @@ def train(
             keyword arguments of :class:`~selenv.learned.rl.agent.SB3PolicyAgent` (e.g.
             ``{"ppo_top4": {"verify_top_k": 4}}``).
         features_extractor: the policy's scorer (a ``CandidateScorer`` or subclass, e.g.
-            :class:`~selenv.learned.rl.edit_policy.FactorisedEditScorer`); recorded in the
-            metadata's ``architecture`` with ``extractor_kwargs``.
+            :class:`~selenv.learned.families.clustering_edits.FactorisedEditScorer`); recorded
+            in the metadata's ``architecture`` with ``extractor_kwargs``.
         extractor_kwargs: further keyword arguments of ``features_extractor`` (JSON values).
         native: how ``vec_env="native"`` builds the training envs: the keywords of
             :func:`~selenv.learned.rl.vec_env.make_native_vec_env` (``env_id``,
