@@ -31,7 +31,8 @@ POLICIES = (
         checkpoint="receiver_clustering_ppo.zip",
         method="distillation",
         description="the ReceiverClustering-v1 edit ranking on the joint state: its 8 best edits "
-        "costed, the best improving one played by the receivers concerned (ppo:top_k=K)",
+        "costed, the best improving one played by the receivers concerned (ppo:top_k=K; "
+        "ppo:greedy_every=G runs greedy's full search every G steps)",
         trainer="python -m selenv.train.train_clustering_dagger --config "
         "configs/receiver_clustering_ppo.toml",
         budget="8 cost evaluations per decision",
