@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import ast
 import importlib
-import io
 import sys
 import warnings
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -95,58 +93,32 @@ def test_an_unknown_name_is_still_an_attribute_error(module_name: str) -> None:
     assert not hasattr(module, "also_missing")
 
 
-def _edit_metadata(extractor: str, n: int = 6) -> dict[str, Any]:
-    """The JSON metadata of a small factorised edit checkpoint naming ``extractor``."""
-    from selenv.learned.rl.safe_load import POLICY_CLASSES
-
-    cls = POLICY_CLASSES["MaskablePPO"]
-    return {
-        "env_id": "selenv/ReceiverClustering-v1",
-        "training": {"algorithm": "MaskablePPO"},
-        "architecture": {
-            "policy": f"{cls.__module__}.{cls.__name__}",
-            "features_extractor": extractor,
-            "hidden": [16, 16],
-            "activation": "tanh",
-            "gain_skip_init": 1.0,
-            "rank": 4,
-            "net_arch": {"pi": [], "vf": [16]},
-        },
-        "obs_layout": {
-            "whitened_dim": 17,
-            "n_features": 4,
-            "n_candidates_trained": 1 + n * n + n * (n - 1) // 2,
-        },
-    }
-
-
 def test_a_checkpoint_recording_the_old_edit_scorer_path_still_loads(tmp_path: Path) -> None:
-    import torch as th
+    from test_untrusted_metadata import _edit_checkpoint  # a small factorised checkpoint
 
     from selenv.learned.families.clustering_edits import (
         EDIT_EXTRACTOR,
         FactorisedEditScorer,
-        build_edit_policy,
         is_edit_architecture,
         load_edit_policy,
     )
     from selenv.learned.resources import current_class_name
 
+    def naming(meta: dict[str, Any], extractor: str) -> dict[str, Any]:
+        return {**meta, "architecture": {**meta["architecture"], "features_extractor": extractor}}
+
     assert EDIT_EXTRACTOR == f"{FactorisedEditScorer.__module__}.FactorisedEditScorer"
     assert current_class_name(OLD_EDIT_EXTRACTOR) == EDIT_EXTRACTOR
     assert current_class_name("learned.rl.edit_policy.FactorisedEditScorer") == EDIT_EXTRACTOR
-    old = _edit_metadata(OLD_EDIT_EXTRACTOR)
-    assert is_edit_architecture(old) and is_edit_architecture(_edit_metadata(EDIT_EXTRACTOR))
-    assert not is_edit_architecture(_edit_metadata(OLD_EDIT_EXTRACTOR + " "))
-    buffer = io.BytesIO()
-    th.save(build_edit_policy(_edit_metadata(EDIT_EXTRACTOR), "new").state_dict(), buffer)
-    checkpoint = tmp_path / "edit.zip"
-    with zipfile.ZipFile(checkpoint, "w") as zf:
-        zf.writestr("policy.pth", buffer.getvalue())
+    checkpoint, meta = _edit_checkpoint(tmp_path)
+    assert meta["architecture"]["features_extractor"] == EDIT_EXTRACTOR
+    old = naming(meta, OLD_EDIT_EXTRACTOR)
+    assert is_edit_architecture(old) and is_edit_architecture(meta)
+    assert not is_edit_architecture(naming(meta, OLD_EDIT_EXTRACTOR + " "))
     policy = load_edit_policy(checkpoint, old)
     assert isinstance(policy.pi_features_extractor, FactorisedEditScorer)
     with pytest.raises(ValueError, match="features_extractor"):
-        load_edit_policy(checkpoint, _edit_metadata("selenv.learned.rl.edit_policy.Other"))
+        load_edit_policy(checkpoint, naming(meta, "selenv.learned.rl.edit_policy.Other"))
 
 
 def _imported_modules(path: Path) -> set[str]:

@@ -89,7 +89,9 @@ from selenv.learned.rl.candidate_policy import (
     obs_layout,
 )
 from selenv.learned.rl.safe_load import (
+    POLICY_CLASSES,
     _common_architecture,
+    _training_algorithm,
     build_on_training_pool,
     check_checkpoint_hash,
     model_from_checkpoint,
@@ -117,11 +119,6 @@ SCORERS = ("factorised", "mlp")
 #: pairwise edit features per (i, j): ``|ls_i - cm_j|`` (2), ``|ls_i - ls_j|`` (2),
 #: ``|cm_i - cm_j|`` (2)
 N_PAIR_FEATURES = 6
-#: ``training.algorithm`` -> the policy class (the candidate-scoring policies, unchanged)
-_POLICY_CLASSES: dict[str, type[Any]] = {
-    "MaskablePPO": CandidateScoringPolicy,
-    "PPO": CandidateScoringPPOPolicy,
-}
 
 
 def _symlog(x: th.Tensor) -> th.Tensor:
@@ -318,25 +315,16 @@ def is_edit_architecture(metadata: dict[str, Any]) -> bool:
 def edit_policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dict[str, Any]]:
     """``(algorithm, policy_kwargs)`` of a factorised checkpoint, from its JSON metadata only.
 
-    The classes come from a fixed table (:data:`EDIT_EXTRACTOR`, the two candidate-scoring
-    policies); the JSON only selects among them and gives numbers.
+    The classes come from fixed tables (:data:`EDIT_EXTRACTOR`, the two candidate-scoring
+    policies of :data:`~selenv.learned.rl.safe_load.POLICY_CLASSES`); the JSON only selects
+    among them and gives numbers.
 
     Raises:
         ValueError: not a factorised architecture, an unknown algorithm or policy, or
             missing / malformed fields.
     """
-    training = metadata.get("training", {})
-    if not isinstance(training, dict):
-        raise ValueError(
-            f"checkpoint {name}: metadata 'training' must be an object, got {training!r}"
-        )
-    algo = training.get("algorithm", "MaskablePPO")
-    if not isinstance(algo, str) or algo not in _POLICY_CLASSES:
-        known = sorted(_POLICY_CLASSES)
-        raise ValueError(
-            f"checkpoint {name}: training.algorithm={algo!r:.80}, expected one of {known}"
-        )
-    cls = _POLICY_CLASSES[algo]
+    algo = _training_algorithm(metadata, name)
+    cls = POLICY_CLASSES[algo]
     policy_name = f"{cls.__module__}.{cls.__name__}"
     arch = metadata.get("architecture")
     if not isinstance(arch, dict) or not is_edit_architecture(metadata):
@@ -384,7 +372,7 @@ def build_edit_policy(
         ValueError: see :func:`edit_policy_spec`; a missing or malformed ``obs_layout``.
     """
     algo, policy_kwargs = edit_policy_spec(metadata, name)
-    return build_on_training_pool(_POLICY_CLASSES[algo], policy_kwargs, metadata, name)
+    return build_on_training_pool(POLICY_CLASSES[algo], policy_kwargs, metadata, name)
 
 
 def load_edit_policy(

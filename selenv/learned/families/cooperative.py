@@ -268,10 +268,7 @@ def collect_cl_rollout_labels(
     view: str | None = "cl_pairs_fused_top3",
     top_k: int = 3,
     horizon: int = 5,
-    explore: float = 0.05,
-    behaviour: str | None = None,
-    workers: int = 1,
-    progress: bool = True,
+    **options: Any,
 ) -> RankingData:
     """Label ``n_states`` CL decisions with the ``rollout`` reference's scores.
 
@@ -281,8 +278,7 @@ def collect_cl_rollout_labels(
     evaluated action gets ``dJ = -score``, the others ``+inf``. Only decisions whose evaluated
     actions differ are labelled: stop-only steps carry no choice, and early in an episode
     every pair's fused update is a no-op (DMV's ``w* = 1``), so stop and the pairs tie
-    exactly (about the first ten steps of the benchmark preset). The collection loop, its
-    seeds and its workers are :func:`selenv.learned.rl.expert.collect_rollout_labels`'.
+    exactly (about the first ten steps of the benchmark preset).
 
     Args:
         env_kwargs: ``CLScheduling-v1`` keyword arguments (``{}``: the benchmark preset).
@@ -292,16 +288,13 @@ def collect_cl_rollout_labels(
             labeller's candidates (stop and the ``top_k`` pairs by previewed gain).
         top_k: pairs the labeller scores per decision (besides stop).
         horizon: filter steps the labeller simulates after the current one.
-        explore: probability of a random allowed action instead of the behaviour's.
-        behaviour: checkpoint whose (deterministic) actions drive the trajectories (DAgger);
-            ``None``: the labeller's own choices.
-        workers: processes (spawned; the caller needs the ``__main__`` guard if > 1); they
-            die with the caller and are stopped when it is interrupted.
-        progress: tqdm bar (first worker).
+        **options: ``explore``, ``behaviour`` (DAgger), ``workers`` and ``progress`` of the
+            shared collection loop, :func:`selenv.learned.rl.expert.collect_rollout_labels`.
 
     Raises:
         ValueError: ``n_states``, ``workers``, ``top_k`` < 1, ``horizon`` < 0, or ``explore``
             outside [0, 1].
+        TypeError: an unknown option.
     """
     from selenv.learned.rl.expert import collect_rollout_labels
 
@@ -314,8 +307,5 @@ def collect_cl_rollout_labels(
         view=view,
         top_k=top_k,
         horizon=horizon,
-        explore=explore,
-        behaviour=behaviour,
-        workers=workers,
-        progress=progress,
+        **options,
     )

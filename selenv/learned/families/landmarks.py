@@ -153,11 +153,8 @@ def collect_landmark_rollout_labels(
     *,
     top_k: int = 4,
     horizon: int = 10,
-    explore: float = 0.05,
-    behaviour: str | None = None,
-    workers: int = 1,
-    progress: bool = True,
     labeller: str = "rollout",
+    **options: Any,
 ) -> RankingData:
     """Label ``LandmarkSelection-v1`` picks with the landmark ``rollout`` reference's scores.
 
@@ -175,6 +172,7 @@ def collect_landmark_rollout_labels(
     Raises:
         ValueError: as :func:`~selenv.learned.families.cooperative.collect_cl_rollout_labels`;
             ``labeller`` not one of the two.
+        TypeError: an unknown option.
     """
     if labeller not in LANDMARK_LABELLERS:
         raise ValueError(f"labeller must be one of {LANDMARK_LABELLERS}, got {labeller!r}")
@@ -187,8 +185,5 @@ def collect_landmark_rollout_labels(
         view=None,
         top_k=top_k,
         horizon=horizon,
-        explore=explore,
-        behaviour=behaviour,
-        workers=workers,
-        progress=progress,
+        **options,
     )

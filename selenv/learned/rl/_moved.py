@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import importlib
 import warnings
+from collections.abc import Callable
 from typing import Any
 
-__all__ = ["moved_attr"]
+__all__ = ["moved_attr", "moved_module"]
 
 
 def moved_attr(module: str, name: str, moved: dict[str, str]) -> Any:
@@ -27,3 +28,25 @@ def moved_attr(module: str, name: str, moved: dict[str, str]) -> Any:
         stacklevel=3,
     )
     return getattr(importlib.import_module(moved[name]), name)
+
+
+def moved_module(old: str, new: str) -> tuple[Callable[[str], Any], list[str]]:
+    """For a module that moved: warn that ``old`` is deprecated; its ``__getattr__``, ``__all__``.
+
+    The old module is then a thin re-export of ``new``::
+
+        __getattr__, __all__ = moved_module(__name__, "selenv.learned.families.cooperative")
+
+    The ``DeprecationWarning`` is emitted once, when ``old`` is first imported.
+    """
+    warnings.warn(
+        f"{old} is deprecated and removed in the next release; import from {new}",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    module = importlib.import_module(new)
+
+    def attribute(name: str) -> Any:
+        return getattr(module, name)
+
+    return attribute, list(module.__all__)

@@ -1,43 +1,10 @@
 """Deprecated path of :mod:`selenv.learned.families.clustering_edits`, removed in the next release.
 
-Importing it warns (``DeprecationWarning``) and re-exports the names it held. Checkpoints that
-recorded ``selenv.learned.rl.edit_policy.FactorisedEditScorer`` load under the new name
-(:func:`selenv.learned.resources.current_class_name`).
+Importing it warns (``DeprecationWarning``) and re-exports the names of the new module.
+Checkpoints that recorded ``selenv.learned.rl.edit_policy.FactorisedEditScorer`` load under
+the new name (:func:`selenv.learned.resources.current_class_name`).
 """
 
-from __future__ import annotations
+from selenv.learned.rl._moved import moved_module
 
-import warnings
-
-from selenv.learned.families.clustering_edits import (
-    EDIT_EXTRACTOR,
-    SCORERS,
-    FactorisedEditScorer,
-    build_edit_policy,
-    edit_model_from_checkpoint,
-    edit_policy_spec,
-    edit_scorer_parameters,
-    is_edit_architecture,
-    load_edit_policy,
-    scorer_policy_kwargs,
-)
-
-__all__ = [
-    "EDIT_EXTRACTOR",
-    "SCORERS",
-    "FactorisedEditScorer",
-    "build_edit_policy",
-    "edit_model_from_checkpoint",
-    "edit_policy_spec",
-    "edit_scorer_parameters",
-    "is_edit_architecture",
-    "load_edit_policy",
-    "scorer_policy_kwargs",
-]
-
-warnings.warn(
-    "selenv.learned.rl.edit_policy is deprecated and removed in the next release; import from "
-    "selenv.learned.families.clustering_edits",
-    DeprecationWarning,
-    stacklevel=2,
-)
+__getattr__, __all__ = moved_module(__name__, "selenv.learned.families.clustering_edits")

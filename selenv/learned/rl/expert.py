@@ -154,10 +154,10 @@ def collect_rollout_labels(
     view: str | None,
     top_k: int,
     horizon: int,
-    explore: float,
-    behaviour: str | None,
-    workers: int,
-    progress: bool,
+    explore: float = 0.05,
+    behaviour: str | None = None,
+    workers: int = 1,
+    progress: bool = True,
 ) -> RankingData:
     """Label ``n_states`` decisions of ``env_id`` with ``labeller``'s scores.
 

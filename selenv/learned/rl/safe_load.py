@@ -241,17 +241,7 @@ def policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dict[str
     Raises:
         ValueError: an unknown algorithm, policy or features extractor, or missing fields.
     """
-    training = metadata.get("training", {})
-    if not isinstance(training, dict):
-        raise ValueError(
-            f"checkpoint {name}: metadata 'training' must be an object, got {training!r:.80}"
-        )
-    algo = training.get("algorithm", "MaskablePPO")
-    if not isinstance(algo, str) or algo not in POLICY_CLASSES:
-        known = sorted(POLICY_CLASSES)
-        raise ValueError(
-            f"checkpoint {name}: training.algorithm={algo!r:.80}, expected one of {known}"
-        )
+    algo = _training_algorithm(metadata, name)
     cls = POLICY_CLASSES[algo]
     arch = metadata.get("architecture")
     if not isinstance(arch, dict):
@@ -273,6 +263,26 @@ def policy_spec(metadata: dict[str, Any], name: str = "") -> tuple[str, dict[str
         source,
     )
     return algo, {"net_arch": net_arch, "features_extractor_kwargs": extractor}
+
+
+def _training_algorithm(metadata: dict[str, Any], name: str) -> str:
+    """The checkpoint's ``training.algorithm``, a key of :data:`POLICY_CLASSES`.
+
+    Raises:
+        ValueError: a ``training`` that is not an object, or an unknown algorithm.
+    """
+    training = metadata.get("training", {})
+    if not isinstance(training, dict):
+        raise ValueError(
+            f"checkpoint {name}: metadata 'training' must be an object, got {training!r:.80}"
+        )
+    algo = training.get("algorithm", "MaskablePPO")
+    if not isinstance(algo, str) or algo not in POLICY_CLASSES:
+        known = sorted(POLICY_CLASSES)
+        raise ValueError(
+            f"checkpoint {name}: training.algorithm={algo!r:.80}, expected one of {known}"
+        )
+    return algo
 
 
 def _layout_width(metadata: dict[str, Any]) -> int:

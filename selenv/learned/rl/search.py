@@ -1,22 +1,8 @@
 """Deprecated path of :mod:`selenv.learned.families.landmarks`, removed in the next release.
 
-Importing it warns (``DeprecationWarning``) and re-exports the names it held.
+Importing it warns (``DeprecationWarning``) and re-exports the names of the new module.
 """
 
-from __future__ import annotations
+from selenv.learned.rl._moved import moved_module
 
-import warnings
-
-from selenv.learned.families.landmarks import (
-    LandmarkPolicySearchAgent,
-    make_landmark_ppo_search,
-)
-
-__all__ = ["LandmarkPolicySearchAgent", "make_landmark_ppo_search"]
-
-warnings.warn(
-    "selenv.learned.rl.search is deprecated and removed in the next release; import from "
-    "selenv.learned.families.landmarks",
-    DeprecationWarning,
-    stacklevel=2,
-)
+__getattr__, __all__ = moved_module(__name__, "selenv.learned.families.landmarks")
