@@ -45,6 +45,10 @@ MOVED_NAMES = {
         "LANDMARK_LABELLERS": "selenv.learned.families.landmarks",
         "collect_landmark_rollout_labels": "selenv.learned.families.landmarks",
     },
+    "selenv.learned.rl.ranking": {
+        "clustering_edit_deltas": "selenv.learned.families.clustering",
+        "collect_clustering_ranking": "selenv.learned.families.clustering",
+    },
     "selenv.learned.rl.views": {
         "CLView": "selenv.families.cooperative.view",
         "ClusteringEditView": "selenv.families.clustering.view",
@@ -146,7 +150,7 @@ def _family_imports(modules: set[str]) -> list[str]:
     return sorted(m for m in modules if any(m == p or m.startswith(p + ".") for p in prefixes))
 
 
-@pytest.mark.parametrize("name", ["views.py", "expert.py"])
+@pytest.mark.parametrize("name", ["views.py", "expert.py", "ranking.py"])
 def test_the_shared_rl_glue_imports_no_family(name: str) -> None:
     assert len(FAMILY_PACKAGES) >= 4
     assert not _family_imports(_imported_modules(ROOT / "selenv" / "learned" / "rl" / name))

@@ -10,15 +10,10 @@ import pytest
 
 from selenv.agents import make
 from selenv.families.clustering.env import apply_edit, edit_mask
+from selenv.learned.families.clustering import clustering_edit_deltas, collect_clustering_ranking
 from selenv.learned.rl.agent import DEFAULT_CHECKPOINTS, SB3PolicyAgent
 from selenv.learned.rl.candidate_policy import make_maskable_ppo
-from selenv.learned.rl.ranking import (
-    RankingData,
-    clustering_edit_deltas,
-    collect_clustering_ranking,
-    fit_ranking,
-    listnet_targets,
-)
+from selenv.learned.rl.ranking import RankingData, fit_ranking, listnet_targets
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.train import train_clustering_dagger, train_clustering_ppo
 

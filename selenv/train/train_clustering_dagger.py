@@ -4,10 +4,11 @@ The ranking stage of :mod:`selenv.train.train_clustering_ppo` labels states that
 visits; the policy then meets states of its own. Here the policy (acting as
 ``SB3PolicyAgent(checkpoint, verify_top_k=behaviour_top_k)``) drives the labelling
 trajectories, the exact Algorithm 1 cost change of every edit labels them
-(:func:`selenv.learned.rl.ranking.collect_clustering_ranking` with ``behaviour``), and the policy's
-logits are fitted to those labels (ListNet, :func:`selenv.learned.rl.ranking.fit_ranking`),
-starting from the checkpoint's weights. The result is saved with the source metadata plus a
-``dagger`` block, and evaluated like the training scripts do.
+(:func:`selenv.learned.families.clustering.collect_clustering_ranking` with ``behaviour``), and
+the policy's logits are fitted to those labels (ListNet,
+:func:`selenv.learned.rl.ranking.fit_ranking`), starting from the checkpoint's weights. The
+result is saved with the source metadata plus a ``dagger`` block, and evaluated like the
+training scripts do.
 
     python -m selenv.train.train_clustering_dagger   # -> runs/train_clustering_dagger/policy.zip
 
@@ -46,6 +47,7 @@ from gymnasium import spaces
 from selenv.atomic import write_json
 from selenv.exits import Terminated, UsageError
 from selenv.learned.config import arg, check_outputs, usage_error
+from selenv.learned.families.clustering import collect_clustering_ranking
 from selenv.learned.families.clustering_edits import (
     SCORERS,
     edit_model_from_checkpoint,
@@ -66,7 +68,6 @@ from selenv.learned.rl.distill import (
 from selenv.learned.rl.ranking import (
     FitState,
     check_ranking_sizes,
-    collect_clustering_ranking,
     fit_state_path,
     load_labels,
     read_fit_state,

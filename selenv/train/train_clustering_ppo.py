@@ -45,8 +45,9 @@ import gymnasium as gym
 
 from selenv.exits import check_size
 from selenv.learned.config import arg
+from selenv.learned.families.clustering import collect_clustering_ranking
 from selenv.learned.families.clustering_edits import SCORERS, scorer_policy_kwargs
-from selenv.learned.rl.ranking import collect_clustering_ranking, fit_ranking
+from selenv.learned.rl.ranking import fit_ranking
 from selenv.learned.rl.training import (
     PPOConfig,
     output_paths,

@@ -36,18 +36,28 @@ module's ``greedy:every=1`` itself (the ``top_k`` are among the edits greedy cos
 evaluation per allowed edit per step.
 
 :func:`make_clustering_marl_learned` is the factory the agent registry calls.
+
+The edit ranking's training labels are collected here too: :func:`collect_clustering_ranking`
+labels states of ``ReceiverClustering-v1`` with every edit's exact change of ``J``
+(:func:`clustering_edit_deltas`), for :func:`selenv.learned.rl.ranking.fit_ranking`. The
+factorised edit scorer is :mod:`selenv.learned.families.clustering_edits`.
 """
 
 from __future__ import annotations
 
+import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+import torch as th
+from tqdm.auto import tqdm
 
 from selenv.agents.multiagent import CLUSTERING_MODULE, MultiAgentPolicy
 from selenv.families.clustering.agents import CLUSTERING_ENV_ID
-from selenv.families.clustering.env import apply_edit, edit_cost_changes
+from selenv.families.clustering.env import apply_edit, edit_cost_changes, edit_mask
 from selenv.families.clustering.labels import check_int
 from selenv.families.clustering.multiagent import ReceiverClusteringParallelEnv
 from selenv.families.clustering.multiagent_agents import ClusteringGreedyPolicy
@@ -55,8 +65,17 @@ from selenv.families.clustering.view import ClusteringEditView
 from selenv.learned.rl.agent import SB3PolicyAgent
 from selenv.learned.rl.candidate_policy import CandidateScorer
 from selenv.learned.rl.lean import LeanScorer, TopMScorer
+from selenv.learned.rl.ranking import RankingData
+from selenv.learned.rl.views import view_for
+from selenv.parallel import ProcessExecutor, TaskStopped, stoppable
 
-__all__ = ["OPTIONS", "ClusteringLearnedPolicy", "make_clustering_marl_learned"]
+__all__ = [
+    "OPTIONS",
+    "ClusteringLearnedPolicy",
+    "clustering_edit_deltas",
+    "collect_clustering_ranking",
+    "make_clustering_marl_learned",
+]
 
 #: the options of :func:`make_clustering_marl_learned` (those of :class:`ClusteringLearnedPolicy`)
 OPTIONS = ("checkpoint", "top_k", "every", "swaps", "greedy_every")
@@ -192,3 +211,147 @@ def make_clustering_marl_learned(**options: Any) -> ClusteringLearnedPolicy:
             f"its options: {', '.join(OPTIONS)}"
         )
     return ClusteringLearnedPolicy(**options)
+
+
+# -- the edit ranking's labels: every edit's exact cost change along an expert's trajectories --
+
+
+def clustering_edit_deltas(env: gym.Env[Any, Any]) -> np.ndarray:
+    """``(1 + n^2 + n(n-1)/2,)`` change of the Algorithm 1 cost ``J`` by each edit, now.
+
+    ``dJ_a = J(apply_edit(labels, a)) - J(labels)`` at the env's current time (what the
+    greedy search compares); 0 for the no-op, ``+inf`` for masked edits. Costs one
+    evaluation per allowed edit (counted by the env's filter bank).
+    """
+    base = env.unwrapped
+    bank = base.bank  # type: ignore[attr-defined]
+    mask = edit_mask(bank.labels, base.max_size)  # type: ignore[attr-defined]
+    out = np.full(mask.size, np.inf)
+    allowed = np.flatnonzero(mask)
+    out[allowed] = edit_cost_changes(bank, allowed)
+    return out
+
+
+@dataclass(frozen=True)
+class _RankingJob:
+    env_kwargs: dict[str, Any]
+    n_states: int
+    seed: int
+    label_every: int
+    explore: float
+    progress: bool
+    behaviour: str | None
+    behaviour_top_k: int
+
+
+def _ranking_worker(job: _RankingJob) -> RankingData | None:
+    """One worker's share of the labels (``None``: abandoned on the pool's stop request)."""
+    try:
+        with stoppable():
+            return _ranking_share(job)
+    except TaskStopped:
+        return None
+
+
+def _ranking_share(job: _RankingJob) -> RankingData:
+    env = gym.make(CLUSTERING_ENV_ID, **{**job.env_kwargs, "action_mode": "edit"})
+    view = view_for(CLUSTERING_ENV_ID, env)
+    rng = np.random.default_rng(job.seed)
+    agent = None
+    if job.behaviour is not None:
+        th.set_num_threads(1)  # one worker per core
+
+        agent = SB3PolicyAgent(
+            job.behaviour, env_id=CLUSTERING_ENV_ID, verify_top_k=job.behaviour_top_k
+        )
+    rows: list[dict[str, np.ndarray]] = []
+    deltas: list[np.ndarray] = []
+
+    def reset() -> tuple[Any, dict[str, Any]]:
+        seed = int(rng.integers(2**31))
+        out = env.reset(seed=seed)
+        if agent is not None:
+            agent.reset(env, seed=seed)
+        return out
+
+    obs, info = reset()
+    bar = tqdm(total=job.n_states, desc="ranking labels", unit="state", disable=not job.progress)
+    while len(rows) < job.n_states:
+        action = 0
+        if env.unwrapped.bank.k % job.label_every == 0:  # type: ignore[attr-defined]
+            d = clustering_edit_deltas(env)
+            rows.append(view(obs))
+            deltas.append(d)
+            bar.update(1)
+            action = int(np.argmin(d)) if d.min() < 0.0 else 0  # the greedy expert's edit
+        if agent is not None:  # DAgger: the learner's own states, the expert's labels
+            action = int(agent.act(obs, info))
+        if rng.random() < job.explore:  # visit states off the behaviour's path too
+            allowed = np.flatnonzero(obs["action_mask"])
+            action = int(rng.choice(allowed))
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            obs, info = reset()
+    bar.close()
+    env.close()
+    stacked = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
+    return RankingData(stacked, np.stack(deltas))
+
+
+def collect_clustering_ranking(
+    env_kwargs: dict[str, Any],
+    n_states: int,
+    seed: int,
+    *,
+    label_every: int = 5,
+    explore: float = 0.05,
+    workers: int | None = None,
+    progress: bool = True,
+    behaviour: str | None = None,
+    behaviour_top_k: int = 0,
+) -> RankingData:
+    """Label ``n_states`` states of ``ReceiverClustering-v1`` with every edit's ``dJ``.
+
+    States come from the greedy expert's trajectories (the best improving edit every
+    ``label_every`` steps, keep in between) or, with ``behaviour`` (a checkpoint path), from
+    that policy's own trajectories (DAgger, Ross et al. 2011: the learner visits the states,
+    the exact costs label them; it acts every step, as
+    ``SB3PolicyAgent(behaviour, verify_top_k=behaviour_top_k)``); a random allowed edit
+    replaces the action with probability ``explore``. Episodes are seeded from ``seed``;
+    ``workers`` processes (spawned: safe after torch has started threads; so a script calling
+    this with ``workers > 1`` needs the ``if __name__ == "__main__":`` guard) share the work;
+    they die with this process, and a SIGINT / SIGTERM here stops them at once (the
+    collection is abandoned).
+
+    Raises:
+        ValueError: ``n_states < 1``, ``label_every < 1``, ``explore`` outside [0, 1].
+    """
+    if n_states < 1 or label_every < 1 or not 0.0 <= explore <= 1.0:
+        raise ValueError(
+            f"need n_states >= 1, label_every >= 1, 0 <= explore <= 1; got {n_states}, "
+            f"{label_every}, {explore}"
+        )
+    workers = max(1, min(workers or os.cpu_count() or 1, n_states))
+    seeds = np.random.SeedSequence(seed).generate_state(workers)
+    shares = [n_states // workers + (w < n_states % workers) for w in range(workers)]
+    jobs = [
+        _RankingJob(
+            env_kwargs,
+            shares[w],
+            int(seeds[w]),
+            label_every,
+            explore,
+            progress and w == 0,
+            behaviour,
+            behaviour_top_k,
+        )
+        for w in range(workers)
+    ]
+    if workers == 1:
+        return _ranking_share(jobs[0])
+    with ProcessExecutor(workers) as pool:  # workers die with this process, stop with it
+        parts = pool.map(_ranking_worker, jobs, progress=False)
+    done = [p for p in parts if p is not None]
+    if len(done) < len(parts):  # a worker stopped by a Ctrl-C to the process group
+        raise KeyboardInterrupt
+    return RankingData.concatenate(done)

@@ -230,5 +230,5 @@ _MOVED = {
 
 
 def __getattr__(name: str) -> Any:
-    """A moved name (:data:`_MOVED`), with a ``DeprecationWarning`` naming its new module."""
+    """A moved name (``_MOVED``), with a ``DeprecationWarning`` naming its new module."""
     return moved_attr(__name__, name, _MOVED)

@@ -3,8 +3,8 @@
 Where an env has a cheap exact oracle of the objective after each candidate action (the
 Algorithm 1 cost of every local edit in ``ReceiverClustering-v1``), the oracle's values are
 a far denser training signal than PPO's return: one labelled state scores *every* candidate.
-This module collects such labels along an expert's trajectories and fits the policy's logits
-to them with a listwise (ListNet, Cao et al. 2007) cross-entropy
+A family's learned module collects such labels along an expert's trajectories; this module
+fits the policy's logits to them with a listwise (ListNet, Cao et al. 2007) cross-entropy
 
     q_k = softmax_k(-dJ_k / (tau * std_allowed(dJ)))      over the allowed candidates k
     loss = - sum_k q_k log pi_k                            (pi = the policy's masked softmax)
@@ -14,6 +14,9 @@ where ``dJ_k = J(after k) - J(keep)`` (the no-op has ``dJ = 0``). The result is 
 top action) or as the proposal of a verified top-``k`` search
 (:class:`selenv.learned.rl.agent.SB3PolicyAgent` with ``verify_top_k``), and PPO may fine-tune it.
 
+The labels come from a family's labeller (e.g.
+:func:`selenv.learned.families.clustering.collect_clustering_ranking`)::
+
     data = collect_clustering_ranking({"n_agents": 30}, n_states=3000, seed=0, workers=2)
     stats = fit_ranking(model.policy, data, epochs=15)
 """
@@ -21,20 +24,17 @@ top action) or as the proposal of a verified top-``k`` search
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import torch as th
 from tqdm.auto import tqdm
 
-import selenv  # noqa: F401  (registers the envs, also in worker processes)
 from selenv.atomic import atomic_path
-from selenv.learned.rl.views import view_for
+from selenv.learned.rl._moved import moved_attr
 from selenv.learned.tensor_load import load_tensors
 from selenv.untrusted import NotParsedError, loads_json
 
@@ -42,8 +42,6 @@ __all__ = [
     "LABELS_FORMAT",
     "FitState",
     "RankingData",
-    "clustering_edit_deltas",
-    "collect_clustering_ranking",
     "fit_ranking",
     "fit_state_path",
     "listnet_targets",
@@ -53,8 +51,6 @@ __all__ = [
     "save_labels",
     "save_resumable",
 ]
-
-CLUSTERING_ID = "selenv/ReceiverClustering-v1"
 
 
 @dataclass
@@ -88,155 +84,6 @@ class RankingData:
         keys = parts[0].obs.keys()
         obs = {k: np.concatenate([p.obs[k] for p in parts]) for k in keys}
         return RankingData(obs, np.concatenate([p.deltas for p in parts]))
-
-
-def clustering_edit_deltas(env: gym.Env[Any, Any]) -> np.ndarray:
-    """``(1 + n^2 + n(n-1)/2,)`` change of the Algorithm 1 cost ``J`` by each edit, now.
-
-    ``dJ_a = J(apply_edit(labels, a)) - J(labels)`` at the env's current time (what the
-    greedy search compares); 0 for the no-op, ``+inf`` for masked edits. Costs one
-    evaluation per allowed edit (counted by the env's filter bank).
-    """
-    from selenv.families.clustering.env import edit_cost_changes, edit_mask
-
-    base = env.unwrapped
-    bank = base.bank  # type: ignore[attr-defined]
-    mask = edit_mask(bank.labels, base.max_size)  # type: ignore[attr-defined]
-    out = np.full(mask.size, np.inf)
-    allowed = np.flatnonzero(mask)
-    out[allowed] = edit_cost_changes(bank, allowed)
-    return out
-
-
-@dataclass(frozen=True)
-class _Job:
-    env_kwargs: dict[str, Any]
-    n_states: int
-    seed: int
-    label_every: int
-    explore: float
-    progress: bool
-    behaviour: str | None
-    behaviour_top_k: int
-
-
-def _collect_worker(job: _Job) -> RankingData | None:
-    """One worker's share of the labels (``None``: abandoned on the pool's stop request)."""
-    from selenv.parallel import TaskStopped, stoppable
-
-    try:
-        with stoppable():
-            return _collect_share(job)
-    except TaskStopped:
-        return None
-
-
-def _collect_share(job: _Job) -> RankingData:
-    env = gym.make(CLUSTERING_ID, **{**job.env_kwargs, "action_mode": "edit"})
-    view = view_for(CLUSTERING_ID, env)
-    rng = np.random.default_rng(job.seed)
-    agent = None
-    if job.behaviour is not None:
-        from selenv.learned.rl.agent import SB3PolicyAgent
-
-        th.set_num_threads(1)  # one worker per core
-
-        agent = SB3PolicyAgent(
-            job.behaviour, env_id=CLUSTERING_ID, verify_top_k=job.behaviour_top_k
-        )
-    rows: list[dict[str, np.ndarray]] = []
-    deltas: list[np.ndarray] = []
-
-    def reset() -> tuple[Any, dict[str, Any]]:
-        seed = int(rng.integers(2**31))
-        out = env.reset(seed=seed)
-        if agent is not None:
-            agent.reset(env, seed=seed)
-        return out
-
-    obs, info = reset()
-    bar = tqdm(total=job.n_states, desc="ranking labels", unit="state", disable=not job.progress)
-    while len(rows) < job.n_states:
-        action = 0
-        if env.unwrapped.bank.k % job.label_every == 0:  # type: ignore[attr-defined]
-            d = clustering_edit_deltas(env)
-            rows.append(view(obs))
-            deltas.append(d)
-            bar.update(1)
-            action = int(np.argmin(d)) if d.min() < 0.0 else 0  # the greedy expert's edit
-        if agent is not None:  # DAgger: the learner's own states, the expert's labels
-            action = int(agent.act(obs, info))
-        if rng.random() < job.explore:  # visit states off the behaviour's path too
-            allowed = np.flatnonzero(obs["action_mask"])
-            action = int(rng.choice(allowed))
-        obs, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            obs, info = reset()
-    bar.close()
-    env.close()
-    stacked = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
-    return RankingData(stacked, np.stack(deltas))
-
-
-def collect_clustering_ranking(
-    env_kwargs: dict[str, Any],
-    n_states: int,
-    seed: int,
-    *,
-    label_every: int = 5,
-    explore: float = 0.05,
-    workers: int | None = None,
-    progress: bool = True,
-    behaviour: str | None = None,
-    behaviour_top_k: int = 0,
-) -> RankingData:
-    """Label ``n_states`` states of ``ReceiverClustering-v1`` with every edit's ``dJ``.
-
-    States come from the greedy expert's trajectories (the best improving edit every
-    ``label_every`` steps, keep in between) or, with ``behaviour`` (a checkpoint path), from
-    that policy's own trajectories (DAgger, Ross et al. 2011: the learner visits the states,
-    the exact costs label them; it acts every step, as
-    ``SB3PolicyAgent(behaviour, verify_top_k=behaviour_top_k)``); a random allowed edit
-    replaces the action with probability ``explore``. Episodes are seeded from ``seed``;
-    ``workers`` processes (spawned: safe after torch has started threads; so a script calling
-    this with ``workers > 1`` needs the ``if __name__ == "__main__":`` guard) share the work;
-    they die with this process, and a SIGINT / SIGTERM here stops them at once (the
-    collection is abandoned).
-
-    Raises:
-        ValueError: ``n_states < 1``, ``label_every < 1``, ``explore`` outside [0, 1].
-    """
-    if n_states < 1 or label_every < 1 or not 0.0 <= explore <= 1.0:
-        raise ValueError(
-            f"need n_states >= 1, label_every >= 1, 0 <= explore <= 1; got {n_states}, "
-            f"{label_every}, {explore}"
-        )
-    workers = max(1, min(workers or os.cpu_count() or 1, n_states))
-    seeds = np.random.SeedSequence(seed).generate_state(workers)
-    shares = [n_states // workers + (w < n_states % workers) for w in range(workers)]
-    jobs = [
-        _Job(
-            env_kwargs,
-            shares[w],
-            int(seeds[w]),
-            label_every,
-            explore,
-            progress and w == 0,
-            behaviour,
-            behaviour_top_k,
-        )
-        for w in range(workers)
-    ]
-    if workers == 1:
-        return _collect_share(jobs[0])
-    from selenv.parallel import ProcessExecutor
-
-    with ProcessExecutor(workers) as pool:  # workers die with this process, stop with it
-        parts = pool.map(_collect_worker, jobs, progress=False)
-    done = [p for p in parts if p is not None]
-    if len(done) < len(parts):  # a worker stopped by a Ctrl-C to the process group
-        raise KeyboardInterrupt
-    return RankingData.concatenate(done)
 
 
 def listnet_targets(deltas: np.ndarray, temperature: float) -> np.ndarray:
@@ -643,3 +490,14 @@ def check_ranking_sizes(cfg: Any) -> None:
         value = getattr(cfg, field, None)
         if value is not None and not (np.isfinite(value) and value > 0):
             raise UsageError(f"{option(field)}: must be finite and > 0, got {value}")
+
+
+#: names that moved to the family's learned module (deprecated here, for one release)
+_MOVED = dict.fromkeys(
+    ("clustering_edit_deltas", "collect_clustering_ranking"), "selenv.learned.families.clustering"
+)
+
+
+def __getattr__(name: str) -> Any:
+    """A moved name (``_MOVED``), with a ``DeprecationWarning`` naming its new module."""
+    return moved_attr(__name__, name, _MOVED)
