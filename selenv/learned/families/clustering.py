@@ -64,10 +64,10 @@ from selenv.families.clustering.multiagent_agents import ClusteringGreedyPolicy
 from selenv.families.clustering.view import ClusteringEditView
 from selenv.learned.rl.agent import SB3PolicyAgent
 from selenv.learned.rl.candidate_policy import CandidateScorer
+from selenv.learned.rl.expert import collect_shares
 from selenv.learned.rl.lean import LeanScorer, TopMScorer
 from selenv.learned.rl.ranking import RankingData
 from selenv.learned.rl.views import view_for
-from selenv.parallel import ProcessExecutor, TaskStopped, stoppable
 
 __all__ = [
     "OPTIONS",
@@ -244,15 +244,6 @@ class _RankingJob:
     behaviour_top_k: int
 
 
-def _ranking_worker(job: _RankingJob) -> RankingData | None:
-    """One worker's share of the labels (``None``: abandoned on the pool's stop request)."""
-    try:
-        with stoppable():
-            return _ranking_share(job)
-    except TaskStopped:
-        return None
-
-
 def _ranking_share(job: _RankingJob) -> RankingData:
     env = gym.make(CLUSTERING_ENV_ID, **{**job.env_kwargs, "action_mode": "edit"})
     view = view_for(CLUSTERING_ENV_ID, env)
@@ -347,11 +338,4 @@ def collect_clustering_ranking(
         )
         for w in range(workers)
     ]
-    if workers == 1:
-        return _ranking_share(jobs[0])
-    with ProcessExecutor(workers) as pool:  # workers die with this process, stop with it
-        parts = pool.map(_ranking_worker, jobs, progress=False)
-    done = [p for p in parts if p is not None]
-    if len(done) < len(parts):  # a worker stopped by a Ctrl-C to the process group
-        raise KeyboardInterrupt
-    return RankingData.concatenate(done)
+    return collect_shares(_ranking_share, jobs)  # workers die with this process

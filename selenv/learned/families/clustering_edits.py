@@ -93,9 +93,8 @@ from selenv.learned.rl.safe_load import (
     _common_architecture,
     _training_algorithm,
     build_on_training_pool,
-    check_checkpoint_hash,
+    load_policy,
     model_from_checkpoint,
-    read_weights,
 )
 
 __all__ = [
@@ -387,16 +386,7 @@ def load_edit_policy(
         ValueError: see :func:`build_edit_policy` and ``read_weights``; weights that do not fit
             the architecture.
     """
-    name = str(checkpoint)
-    policy = build_edit_policy(metadata, name)
-    check_checkpoint_hash(checkpoint, metadata)
-    state = read_weights(checkpoint)
-    try:
-        policy.load_state_dict(state, strict=True)
-    except RuntimeError as exc:
-        raise ValueError(f"checkpoint {name}: weights do not fit its metadata: {exc}") from exc
-    policy.set_training_mode(False)
-    return policy
+    return load_policy(checkpoint, metadata, build=build_edit_policy)
 
 
 def edit_model_from_checkpoint(

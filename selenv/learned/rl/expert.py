@@ -27,8 +27,9 @@ worker stride), disjoint from the held-out evaluation seeds ``< 10**6`` of the d
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import gymnasium as gym
@@ -48,6 +49,7 @@ __all__ = [
     "LabelFn",
     "Labeller",
     "collect_rollout_labels",
+    "collect_shares",
     "train_seed",
 ]
 
@@ -87,13 +89,31 @@ class _Job:
     labeller: Labeller
 
 
-def _collect(job: _Job) -> RankingData | None:
+def _stoppable_share(share: Callable[[Any], RankingData], job: Any) -> RankingData | None:
     """One worker's share of the labels (``None``: abandoned on the pool's stop request)."""
     try:
         with stoppable():
-            return _collect_share(job)
+            return share(job)
     except TaskStopped:
         return None
+
+
+def collect_shares(share: Callable[[Any], RankingData], jobs: Sequence[Any]) -> RankingData:
+    """``share(job)`` for every job, stacked: in this process for one job, else one worker each.
+
+    ``share`` is a module-level function (it reaches spawned workers by reference; a script
+    that collects with more than one job needs the ``if __name__ == "__main__":`` guard). The
+    workers are a :class:`selenv.parallel.ProcessExecutor` pool: they die with this process,
+    and a SIGINT / SIGTERM of the caller abandons the collection (``KeyboardInterrupt``).
+    """
+    if len(jobs) == 1:
+        return share(jobs[0])
+    with ProcessExecutor(len(jobs)) as pool:
+        parts = pool.map(partial(_stoppable_share, share), jobs, progress=False)
+    done = [p for p in parts if p is not None]
+    if len(done) < len(parts):  # a worker stopped by a Ctrl-C to the process group
+        raise KeyboardInterrupt
+    return RankingData.concatenate(done)
 
 
 def _collect_share(job: _Job) -> RankingData:
@@ -209,14 +229,7 @@ def collect_rollout_labels(
         for w in range(workers)
     ]
     labeller(top_k, horizon)  # validates top_k / horizon before any process starts
-    if workers == 1:
-        return _collect_share(jobs[0])
-    with ProcessExecutor(workers) as pool:
-        parts = pool.map(_collect, jobs, progress=False)
-    done = [p for p in parts if p is not None]
-    if len(done) < len(parts):  # a worker stopped by a Ctrl-C to the process group
-        raise KeyboardInterrupt
-    return RankingData.concatenate(done)
+    return collect_shares(_collect_share, jobs)
 
 
 #: names that moved to the families' learned modules (deprecated here, for one release)

@@ -414,16 +414,21 @@ def model_from_checkpoint(
 
 
 def load_policy(
-    checkpoint: str | Path, metadata: dict[str, Any]
+    checkpoint: str | Path,
+    metadata: dict[str, Any],
+    build: Callable[..., CandidateScoringPolicy | CandidateScoringPPOPolicy] | None = None,
 ) -> CandidateScoringPolicy | CandidateScoringPPOPolicy:
     """The trained policy of ``checkpoint`` (module docstring), in evaluation mode on the CPU.
+
+    ``build(metadata, name=...)`` makes the untrained policy the weights are loaded into
+    (default :func:`build_policy`; a family's own architecture passes its builder).
 
     Raises:
         ValueError: see :func:`read_weights` and :func:`build_policy`; weights that do not fit
             the architecture (missing, unexpected or mis-shaped tensors).
     """
     name = str(checkpoint)
-    policy = build_policy(metadata, name=name)
+    policy = (build or build_policy)(metadata, name=name)
     check_checkpoint_hash(checkpoint, metadata)
     state = read_weights(checkpoint)
     try:
