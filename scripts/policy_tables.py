@@ -46,6 +46,13 @@ def _diff(s: Standing) -> str:
     return f"{s.difference_text()}{mark}, {s.wins}/{s.ties}/{s.losses}{where}"
 
 
+def _time(record: PolicySpec, s: Standing) -> str:
+    text = f"{s.decision_time_ratio:.2f}x"
+    if not record.within_budget(s):
+        text += f" (over its {record.max_decision_ratio:g}x budget)"
+    return text
+
+
 def _share(s: Standing) -> str:
     ref = s.reference
     if ref is None:
@@ -87,7 +94,7 @@ def policies_block() -> str:
             for s in standings:
                 rows.append(
                     f"| {first} | {name} | {method} | {_diff(s)} vs `{s.baseline}` | "
-                    f"{s.decision_time_ratio:.1f}x | {_share(s)} | {_valid(record)} |"
+                    f"{_time(record, s)} | {_share(s)} | {_valid(record)} |"
                 )
                 first = name = method = ""
     seeds = sorted({(s.seed, s.episodes) for r in all_policies() for s in r.standings()})

@@ -151,7 +151,10 @@ def test_learned_exists_on_every_env_and_module_and_plays_the_best_record() -> N
                 for r in all_policies()
                 if env_id in r.plays and not r.retired
                 for s in r.standings()
-                if s.env_id == env_id and not s.env_kwargs and s.beats_baseline
+                if s.env_id == env_id
+                and not s.env_kwargs
+                and s.beats_baseline
+                and r.within_budget(s)
             ),
         )
         assert chosen[1].mean_difference == best
@@ -224,6 +227,10 @@ def test_learned_picks_the_best_significant_standing(fake) -> None:
     fake["c.zip"] = [_standing("c", 0.04, 0.02)]
     assert resolve_learned(FIM)[0].name == "c"  # type: ignore[index]
     records[2] = _record("c", "c.zip", retired="worse than greedy")
+    assert resolve_learned(FIM)[0].name == "a"  # type: ignore[index]
+    records[0] = _record("a", "a.zip", max_decision_ratio=1.5)  # its standing: 2.0x
+    assert resolve_learned(FIM) is None  # over its own decision budget: not `learned`
+    records[0] = _record("a", "a.zip", max_decision_ratio=2.0)
     assert resolve_learned(FIM)[0].name == "a"  # type: ignore[index]
     fake["a.zip"] = [_standing("a", 0.03, -0.01)]
     assert resolve_learned(FIM) is None

@@ -9,7 +9,8 @@ in one line when it is not (:class:`OutsideValidityWarning`), unless they play t
 ``checkpoint=``.
 
 ``learned`` chooses among the records whose standing beats their baseline (95 % CI above 0)
-the one with the largest mean paired difference, preferring standings measured at the env's
+within the record's decision budget (``max_decision_ratio``) the one with the largest mean
+paired difference, preferring standings measured at the env's
 own values of the keywords they were measured with (a PettingZoo ``mode``, say) over those
 measured at the defaults. Standings of one env are measured on the same seeds, so their mean
 differences are comparable (``scripts/record_standings.py``).
@@ -93,6 +94,8 @@ def resolve_learned(
             continue
         for standing in record.standings():
             if standing.env_id != env_id or not standing.beats_baseline:
+                continue
+            if not record.within_budget(standing):
                 continue
             level = _matches(standing, parameters)
             if level is None:

@@ -131,6 +131,9 @@ class PolicySpec:
         baseline: the heuristic it is measured against (``greedy``; ``brute_force`` where the
             per-step optimum is the heuristic to beat).
         budget: its decision budget in words (``"8 cost evaluations per decision"``).
+        max_decision_ratio: the same budget as a ceiling on its decision time over its
+            baseline's (``2.0``: at most twice brute force's); a standing measured above it
+            is reported but does not make the record ``learned``. ``None``: no ceiling.
         valid: env parameters it was trained and verified on, ``{parameter: allowed values}``;
             on another value the agent warns once per episode configuration
             (:class:`selenv.agents.learned.OutsideValidityWarning`). Empty: no limit known.
@@ -153,6 +156,7 @@ class PolicySpec:
     kwargs: Mapping[str, Any] = field(default_factory=dict)
     baseline: str = "greedy"
     budget: str = ""
+    max_decision_ratio: float | None = None
     valid: Mapping[str, tuple[Any, ...]] = field(default_factory=dict)
     aliases: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     retired: str = ""
@@ -181,6 +185,11 @@ class PolicySpec:
             for s in read_standings(self.checkpoint)
             if s.agent == self.name and s.env_id in self.plays
         )
+
+    def within_budget(self, standing: Standing) -> bool:
+        """Whether ``standing``'s decision time is within :attr:`max_decision_ratio`."""
+        ceiling = self.max_decision_ratio
+        return ceiling is None or standing.decision_time_ratio <= ceiling
 
     def outside(self, parameters: Mapping[str, Any]) -> dict[str, Any]:
         """The env parameters (of :attr:`valid`) whose value it was not verified on."""

@@ -19,7 +19,9 @@ POLICIES = (
         trainer="python -m selenv.train.train_landmark_expert --config "
         "configs/landmark_selection_ppo.toml",
         baseline="brute_force",
-        budget="a policy forward pass and a batched 10-step lookahead on a 6-landmark shortlist",
+        budget="a policy forward pass and a batched 10-step lookahead on a 6-landmark "
+        "shortlist; at most 2x brute force's decision time",
+        max_decision_ratio=2.0,
         valid=_VALID,
     ),
     PolicySpec(
@@ -34,7 +36,8 @@ POLICIES = (
         trainer="python -m selenv.train.train_landmark_expert --config "
         "configs/landmark_selection_ppo_distilled.toml",
         baseline="brute_force",
-        budget="one forward pass per landmark per pick",
+        budget="one forward pass per landmark per pick; at most 2x brute force's decision time",
+        max_decision_ratio=2.0,
         valid=_VALID,
     ),
     PolicySpec(
@@ -49,7 +52,8 @@ POLICIES = (
         trainer="python -m selenv.train.train_landmark_expert --config "
         "configs/landmark_selection_ppo.toml",
         baseline="brute_force",
-        budget="one forward pass per landmark per pick",
+        budget="one forward pass per landmark per pick; at most 2x brute force's decision time",
+        max_decision_ratio=2.0,
         valid=_VALID,
     ),
 )
