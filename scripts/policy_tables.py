@@ -103,7 +103,9 @@ def policies_block() -> str:
     rows.append(
         f"Measured by `selenv bench` on {where} (never used in training or selection), at each "
         "env's default keywords unless a keyword is named; decision times are ratios to the "
-        "baseline's in the same run."
+        "baseline's, timed in interleaved rounds (`benchmarks/bench_decision_time.py`, one "
+        "BLAS and one torch thread) for the Gymnasium envs and in the bench run for the "
+        "PettingZoo modules."
     )
     return "\n".join(rows)
 
