@@ -55,6 +55,7 @@ README_BLOCK = ""
 #: the page's provenance block
 RUN_BLOCK = "run"
 
+
 def _marker(tag: str) -> re.Pattern[str]:
     """The markers ``<!-- TAG:start [NAME] -->`` / ``<!-- TAG:end [NAME] -->``."""
     return re.compile(rf"<!-- {re.escape(tag)}:(start|end)(?: (\S+))? -->")

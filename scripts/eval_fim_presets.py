@@ -6,7 +6,7 @@ cell, the policy's paired difference to greedy (bootstrap 95 % CI, W/T/L), its n
 ``(R - R_random) / (R_best - R_random)`` and its decision time relative to greedy's. An agent
 that cannot play a preset (the shipped ``ppo`` is tied to ``d = 7``) is listed as refused.
 
-    .venv/bin/python scripts/eval_fim_presets.py                  # ppo (one policy for every preset), 30 seeds
+    .venv/bin/python scripts/eval_fim_presets.py                  # ppo, 30 seeds
     .venv/bin/python scripts/eval_fim_presets.py --agent ppo:runs/general/policy.zip \
         --episodes 10 --json runs/eval.json
 

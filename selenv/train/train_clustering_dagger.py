@@ -305,9 +305,9 @@ def _run(cfg: Config) -> dict[str, Any]:
         )
 
     if data is not None:  # labels collected: a resume fits them
-        name = collected(data, labels_file, 0, run, flag, save)
-        if name is not None:
-            raise stop(name)
+        stopped = collected(data, labels_file, 0, run, flag, save)
+        if stopped is not None:
+            raise stop(stopped)
     with flag:
         fit = fit_round(
             cfg, model, run.parts[0], run, seed=cfg.seed, flag=flag, save=save, stop=stop

@@ -1,2 +1,5 @@
-"""Learning code that serves one family (its policies, scorers, labellers): a module per family
-(two for clustering: `clustering` and its edit scorer, `clustering_edits`)."""
+"""Learning code that serves one family: its policies, scorers and labellers.
+
+One module per family; clustering has two (``clustering`` and its edit scorer,
+``clustering_edits``).
+"""
