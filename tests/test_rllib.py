@@ -357,7 +357,9 @@ def test_bench_agent_without_export_says_how_to_train(tmp_path: Path, monkeypatc
         make("rllib", FIM_MODULE)
     res = run_bench(FIM_MODULE, None, episodes=1, progress=False,
                     env_kwargs={"n_candidates": 5, "budgets": 1})  # fmt: skip
-    assert "selenv.train.train_rllib_marl" in res.agents["rllib"].skipped
+    # `learned` plays the rllib record in the cooperative mode: skipped with the hint, not a crash
+    assert "rllib" not in res.agents
+    assert "selenv.train.train_rllib_marl" in res.agents["learned"].skipped
     with pytest.raises(BenchError, match="rllib"):  # named explicitly: a usage error
         run_bench(FIM_MODULE, ["rllib:path=nowhere.json"], episodes=1, progress=False)
 
