@@ -73,18 +73,28 @@ class ClusteringGreedyPolicy(MultiAgentPolicy):
     def act(self, observations: dict[str, Any], infos: dict[str, Any]) -> dict[str, Any]:
         """Targets that realise the best improving edit (everyone stays if none improves)."""
         env = self.env
-        bank = env.bank
-        labels = bank.labels
-        targets = labels.copy()
-        if bank.k % self.every == 0:
-            edits = self.allowed_edits(labels, env.max_size)
-            if edits.size:
-                d = edit_cost_changes(bank, edits)
-                j = int(np.argmin(d))
-                if d[j] < 0.0:
-                    targets = apply_edit(labels, int(edits[j]))
-        index = {a: i for i, a in enumerate(env.possible_agents)}
-        return {a: int(targets[index[a]]) for a in env.agents}
+        if env.bank.k % self.every != 0:
+            return best_improving_targets(env, np.zeros(0, dtype=np.int64))
+        return best_improving_targets(env, self.allowed_edits(env.bank.labels, env.max_size))
+
+
+def best_improving_targets(env: Any, edits: np.ndarray) -> dict[str, int]:
+    """Each live agent's target cluster after the best improving edit among ``edits``.
+
+    ``edits`` (shape ``(m,)``, :func:`edit_mask` numbering) are costed together by
+    :func:`edit_cost_changes` (the change ``dJ`` of the Algorithm 1 cost, eq. (10) of Greiff
+    et al. 2022, now); the lowest is applied when ``dJ < 0``, else everyone stays.
+    """
+    bank = env.bank
+    labels = bank.labels
+    targets = labels
+    if edits.size:
+        d = edit_cost_changes(bank, edits)
+        j = int(np.argmin(d))
+        if d[j] < 0.0:
+            targets = apply_edit(labels, int(edits[j]))
+    index = {a: i for i, a in enumerate(env.possible_agents)}
+    return {a: int(targets[index[a]]) for a in env.agents}
 
 
 _CL = (CLUSTERING_MODULE,)

@@ -57,10 +57,13 @@ from tqdm.auto import tqdm
 
 from selenv.agents.multiagent import CLUSTERING_MODULE, MultiAgentPolicy
 from selenv.families.clustering.agents import CLUSTERING_ENV_ID
-from selenv.families.clustering.env import apply_edit, edit_cost_changes, edit_mask
+from selenv.families.clustering.env import edit_cost_changes, edit_mask
 from selenv.families.clustering.labels import check_int
 from selenv.families.clustering.multiagent import ReceiverClusteringParallelEnv
-from selenv.families.clustering.multiagent_agents import ClusteringGreedyPolicy
+from selenv.families.clustering.multiagent_agents import (
+    ClusteringGreedyPolicy,
+    best_improving_targets,
+)
 from selenv.families.clustering.view import ClusteringEditView
 from selenv.learned.rl.agent import SB3PolicyAgent
 from selenv.learned.rl.candidate_policy import CandidateScorer
@@ -176,22 +179,14 @@ class ClusteringLearnedPolicy(MultiAgentPolicy):
         The costed edits are the ranking's ``top_k``, or every allowed edit at greedy's steps.
         """
         env = self.env
-        bank = env.bank
-        labels = bank.labels
-        targets = labels.copy()
-        if env.agents and (self.greedy_step(bank.k) or bank.k % self.every == 0):
-            if self.greedy_step(bank.k):
-                edits = self.rule.allowed_edits(labels, env.max_size)
-            else:
-                edits = self.ranked_edits(observations[env.agents[0]])
-                edits = edits[edits != 0]
-            if edits.size:
-                d = edit_cost_changes(bank, edits)
-                j = int(np.argmin(d))
-                if d[j] < 0.0:
-                    targets = apply_edit(labels, int(edits[j]))
-        index = {a: i for i, a in enumerate(env.possible_agents)}
-        return {a: int(targets[index[a]]) for a in env.agents}
+        k = env.bank.k
+        edits = np.zeros(0, dtype=np.int64)
+        if env.agents and self.greedy_step(k):
+            edits = self.rule.allowed_edits(env.bank.labels, env.max_size)
+        elif env.agents and k % self.every == 0:
+            edits = self.ranked_edits(observations[env.agents[0]])
+            edits = edits[edits != 0]
+        return best_improving_targets(env, edits)
 
 
 def make_clustering_marl_learned(**options: Any) -> ClusteringLearnedPolicy:
