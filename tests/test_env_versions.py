@@ -135,7 +135,8 @@ def test_version_table_registration_and_agents() -> None:
     assert family_of("selenv.multiagent.fim_selection_v0") == "selenv.multiagent.fim_selection_v0"
     for new in ENV_IDS:  # heuristics apply to every version; the shipped policies to theirs
         old = new.replace("-v1", "-v0")
-        learned = {a for a in agents_for(new) if a in ("ppo", "cem", "learned") or a.startswith("ppo_")}
+        names = agents_for(new)
+        learned = {a for a in names if a in ("ppo", "cem", "learned") or a.startswith("ppo_")}
         assert "ppo" in learned
         assert set(agents_for(old)) == set(agents_for(new)) - learned
         assert "greedy" in agents_for(old) or "ga" in agents_for(old)

@@ -156,6 +156,34 @@ def test_the_shared_rl_glue_imports_no_family(name: str) -> None:
     assert not _family_imports(_imported_modules(ROOT / "selenv" / "learned" / "rl" / name))
 
 
+def test_the_generic_learned_layer_imports_no_family_code() -> None:
+    # selenv/learned/rl and the learned package's own modules sit below the families' learned
+    # code (selenv/learned/families): no static import of it (the moved-name shims import
+    # lazily, a family architecture is loaded through safe_load.FAMILY_ARCHITECTURES)
+    paths = sorted((ROOT / "selenv" / "learned" / "rl").glob("*.py"))
+    paths += sorted((ROOT / "selenv" / "learned").glob("*.py"))
+    assert len(paths) > 10
+    offenders = {
+        str(p.relative_to(ROOT)): sorted(
+            m for m in _imported_modules(p) if m.startswith("selenv.learned.families")
+        )
+        for p in paths
+    }
+    assert not {k: v for k, v in offenders.items() if v}
+
+
+def test_a_family_architecture_loads_through_the_generic_loader() -> None:
+    # the generic loader finds the clustering family's factorised scorer by the fixed table
+    from selenv.learned.families.clustering_edits import EDIT_EXTRACTOR, build_edit_policy
+    from selenv.learned.rl.safe_load import FAMILY_ARCHITECTURES, build_policy, builder_for
+
+    assert EDIT_EXTRACTOR in FAMILY_ARCHITECTURES
+    meta = {"architecture": {"features_extractor": EDIT_EXTRACTOR}}
+    assert builder_for(meta) is build_edit_policy
+    assert builder_for({"architecture": {"features_extractor": "x.Other"}}) is build_policy
+    assert builder_for({}) is build_policy
+
+
 def test_the_families_never_import_the_learned_layer() -> None:
     offenders = {
         str(path.relative_to(ROOT)): sorted(

@@ -142,6 +142,9 @@ class FactorisedEditScorer(CandidateScorer):
     ``budget_left (B, 1)``) to ``(B, N + 2 H)`` = ``[scores (N), pooled (2 H)]``; but its
     per-candidate work is a weight-free combination of ``(B, n, .)`` receiver tensors.
 
+    ``scores_every_candidate`` (class attribute): every edit is scored cheaply already, so a
+    ``top_m`` pre-selection does not apply.
+
     Args:
         observation_space: the ``ClusteringEditView`` candidate space of ``n`` receivers
             (``N = 1 + n^2 + n(n-1)/2`` candidates of ``whitened`` width 17).
@@ -157,6 +160,8 @@ class FactorisedEditScorer(CandidateScorer):
             an unknown ``activation``, ``rank < 1``.
     """
 
+    #: every edit is scored cheaply: a ``top_m`` pre-selection does not apply
+    scores_every_candidate = True
     leave_rows: th.Tensor  # (n,) rows of the "r leaves" edits
     swap_i: th.Tensor  # (P,) first receiver of each swap row
     swap_j: th.Tensor  # (P,) second receiver of each swap row

@@ -35,11 +35,6 @@ from gymnasium import spaces
 
 from selenv.agents.base import Agent
 from selenv.families import FAMILIES
-from selenv.learned.families.clustering_edits import (
-    FactorisedEditScorer,
-    is_edit_architecture,
-    load_edit_policy,
-)
 from selenv.learned.resources import checkpoint_dir, read_metadata, with_shipped
 from selenv.learned.rl.candidate_policy import (
     MASKED_LOGIT,
@@ -162,11 +157,9 @@ class SB3PolicyAgent(Agent):
             )
         # never SB3's load(): it unpickles the zip's data (code execution); see safe_load.
         # The architecture is chosen from two fixed loaders by an exact string of the JSON.
-        if is_edit_architecture(self.metadata):
-            policy = load_edit_policy(self.checkpoint, self.metadata)
-        else:
-            policy = load_policy(self.checkpoint, self.metadata)
-        if top_m and isinstance(policy.pi_features_extractor, FactorisedEditScorer):
+        # (a family's own architecture is rebuilt by its builder: safe_load.builder_for)
+        policy = load_policy(self.checkpoint, self.metadata)
+        if top_m and getattr(policy.pi_features_extractor, "scores_every_candidate", False):
             raise ValueError(
                 f"top_m={top_m}: checkpoint {self.checkpoint} has a factorised edit scorer, "
                 "which scores every edit cheaply already (use top_m=0)"

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import inspect
 import json
 import shlex
 import sys
@@ -37,7 +38,6 @@ from gymnasium import spaces
 from selenv.atomic import write_json
 from selenv.envs.resolved import resolved_env_config
 from selenv.exits import Terminated, UsageError
-from selenv.families.cooperative.rollout import CL_ENV_ID as CL_ID
 from selenv.learned.config import arg, check_outputs, usage_error
 from selenv.learned.rl.agent import load_metadata
 from selenv.learned.rl.ranking import (
@@ -386,7 +386,7 @@ def read_run_inputs(
 def evaluate_with_bench(
     checkpoint: Path,
     cfg: Any,
-    env_id: str = CL_ID,
+    env_id: str,
     baseline: str = "greedy",
     agents: str | None = None,
 ) -> dict[str, Any]:
@@ -543,7 +543,8 @@ def _rounds(
     for r in range(run.rounds_done, cfg.rounds):
         t0 = time.perf_counter()
         if len(run.labels) == r:  # collect round r's labels (a signal abandons them)
-            extra = {"view": view} if env_id == CL_ID else {}
+            # a collector that labels through a candidate view gets the checkpoint's view
+            extra = {"view": view} if "view" in inspect.signature(collect).parameters else {}
             part = collect(
                 kwargs,
                 cfg.states_per_round,

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib
 import math
 import re
 import zipfile
@@ -61,10 +62,12 @@ from selenv.learned.rl.views import N_FEATURES, candidate_space
 from selenv.learned.tensor_load import load_tensors
 
 __all__ = [
+    "FAMILY_ARCHITECTURES",
     "MAX_CHECKPOINT_BYTES",
     "MAX_WEIGHTS_BYTES",
     "POLICY_CLASSES",
     "build_policy",
+    "builder_for",
     "check_checkpoint_hash",
     "checked_layout",
     "load_policy",
@@ -84,6 +87,16 @@ POLICY_CLASSES: dict[str, type[Any]] = {
     "PPO": CandidateScoringPPOPolicy,
 }
 _EXTRACTOR = f"{CandidateScorer.__module__}.{CandidateScorer.__name__}"
+#: a family's own features extractor (its class name as the metadata records it, under its
+#: current path) -> ``"module:function"`` of the builder of its untrained policy. A fixed
+#: table: the checkpoint's string only selects an entry, the module imported is named here
+#: (and is imported only when such a checkpoint is loaded, so this generic layer does not
+#: depend on the families' learning code).
+FAMILY_ARCHITECTURES: dict[str, str] = {
+    "selenv.learned.families.clustering_edits.FactorisedEditScorer": (
+        "selenv.learned.families.clustering_edits:build_edit_policy"
+    ),
+}
 #: per-candidate inputs of ``CandidateScorer`` besides ``whitened``: log1p gain, relative
 #: gain, the static features, selected, budget
 _SCORER_EXTRA_INPUTS = 2 + N_FEATURES + 2
@@ -413,6 +426,28 @@ def model_from_checkpoint(
     return model
 
 
+def builder_for(
+    metadata: dict[str, Any],
+) -> Callable[..., CandidateScoringPolicy | CandidateScoringPPOPolicy]:
+    """The builder of the untrained policy ``metadata`` describes.
+
+    A family architecture of :data:`FAMILY_ARCHITECTURES` (by the exact features-extractor
+    string of ``metadata["architecture"]``) gets its family's builder; anything else
+    :func:`build_policy`, which validates it.
+    """
+    arch = metadata.get("architecture") if isinstance(metadata, dict) else None
+    extractor = (
+        current_class_name(arch.get("features_extractor")) if isinstance(arch, dict) else None
+    )
+    target = FAMILY_ARCHITECTURES.get(extractor) if isinstance(extractor, str) else None
+    if target is None:
+        return build_policy
+    module, _, attr = target.partition(":")
+    builder: Callable[..., CandidateScoringPolicy | CandidateScoringPPOPolicy]
+    builder = getattr(importlib.import_module(module), attr)
+    return builder
+
+
 def load_policy(
     checkpoint: str | Path,
     metadata: dict[str, Any],
@@ -421,14 +456,15 @@ def load_policy(
     """The trained policy of ``checkpoint`` (module docstring), in evaluation mode on the CPU.
 
     ``build(metadata, name=...)`` makes the untrained policy the weights are loaded into
-    (default :func:`build_policy`; a family's own architecture passes its builder).
+    (default :func:`builder_for` the metadata: :func:`build_policy`, or the family's builder
+    of an architecture in :data:`FAMILY_ARCHITECTURES`).
 
     Raises:
         ValueError: see :func:`read_weights` and :func:`build_policy`; weights that do not fit
             the architecture (missing, unexpected or mis-shaped tensors).
     """
     name = str(checkpoint)
-    policy = (build or build_policy)(metadata, name=name)
+    policy = (build or builder_for(metadata))(metadata, name=name)
     check_checkpoint_hash(checkpoint, metadata)
     state = read_weights(checkpoint)
     try:
