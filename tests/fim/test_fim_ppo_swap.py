@@ -212,3 +212,23 @@ def test_refuses_another_objective() -> None:
     env.reset(seed=0)
     with pytest.raises(ValueError, match="objective='logdet' only"):
         FIMPolicySwapAgent().reset(env, seed=0)
+
+
+def test_swap_warm_start_study_fixed_point_and_greedy_reference() -> None:
+    """benchmarks/fim_swap_warm_starts.py: swap's result is a fixed point of the polish (one
+    round, the same objective); greedy's start is the reference; replacements lower the kept
+    count exactly."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "fim_swap_warm_starts.py"
+    spec = importlib.util.spec_from_file_location("fim_swap_warm_starts", path)
+    assert spec is not None and spec.loader is not None
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    rows = {r["start"]: r for r in study.measure([3, 11], [0, 2], {"n_candidates": 40}, 0)}
+    assert set(rows) == {"greedy", "swap's result, 0 replaced", "swap's result, 2 replaced"}
+    fixed = rows["swap's result, 0 replaced"]
+    assert fixed["rounds_mean"] == 1.0 and fixed["ties"] == 2 and fixed["picks_of_swap_kept"] == 10
+    assert rows["swap's result, 2 replaced"]["picks_of_swap_kept"] == 8
+    assert rows["greedy"]["ties"] == 2 and rows["greedy"]["rounds_mean"] >= 1.0
