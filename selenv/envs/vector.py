@@ -29,6 +29,9 @@ What this base does, the same way for every family:
 * **Masks**: :meth:`action_masks` returns the ``(B, ...)`` masks (MaskablePPO's protocol).
 * **Rendering**: ``render()`` returns the frames of every sub-env (a tuple, like
   ``SyncVectorEnv``); :meth:`render_env` draws one.
+* **Sub-env attributes**: ``call``, ``get_attr`` and ``set_attr`` as ``SyncVectorEnv`` has them
+  (:mod:`selenv.envs.vector_attrs`): generators, spec, metadata, spaces, masks, frames, the
+  family's declared attributes and the user's own.
 * **Memory**: above 256 sub-envs the memory ``num_envs`` needs is estimated before anything
   is allocated (:mod:`selenv.envs.vector_memory`); a ``ValueError`` naming ``num_envs``, the
   estimate and the available memory refuses a batch that would not fit.
@@ -48,6 +51,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from selenv.envs.conventions import KnownKeywords
+from selenv.envs.vector_attrs import SubEnvAttributes
 from selenv.envs.vector_memory import PROBE_ABOVE, check_vector_memory
 from selenv.scenarios.validation import ArgumentTypeError, describe
 from selenv.threads import small_blas
@@ -91,7 +95,7 @@ def merge_infos(infos: dict[str, Any], new: dict[str, Any], idx: np.ndarray, n: 
         infos["_" + key][idx] = True
 
 
-class BatchedVectorEnv(KnownKeywords, VectorEnv):
+class BatchedVectorEnv(SubEnvAttributes, KnownKeywords, VectorEnv):
     """Base of the families' native vector envs (see the module docstring).
 
     Subclasses call :meth:`_setup` from ``__init__`` and implement:
@@ -142,6 +146,8 @@ class BatchedVectorEnv(KnownKeywords, VectorEnv):
         self.metadata = {**type(self).metadata, "autoreset_mode": self.autoreset_mode}
         #: one generator per sub-env, made as :meth:`gymnasium.Env.reset` makes one
         self.np_randoms: list[np.random.Generator | None] = [None] * self.num_envs
+        #: the seed each generator was made from (``-1`` once one is assigned by the user)
+        self.np_random_seeds: list[int | None] = [None] * self.num_envs
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
         self._has_reset = False
 
@@ -174,7 +180,7 @@ class BatchedVectorEnv(KnownKeywords, VectorEnv):
             idx = np.flatnonzero(mask)
         for i in idx:
             if seeds[i] is not None or self.np_randoms[i] is None:
-                self.np_randoms[i], _ = seeding.np_random(seeds[i])
+                self.np_randoms[i], self.np_random_seeds[i] = seeding.np_random(seeds[i])
         infos = self._reset_envs(idx, opts)
         self._autoreset[idx] = False
         self._has_reset = True

@@ -37,6 +37,7 @@ from selenv.envs.vector import BatchedVectorEnv, check_num_envs
 from selenv.families.clustering.batched import assignment_masks, edit_masks, label_counts
 from selenv.families.clustering.env import (
     ClusteringEnvSettings,
+    ReceiverClusteringEnv,
     apply_edit,
     check_int_labels,
     clustering_env_settings,
@@ -95,6 +96,7 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
         "render_modes": ["rgb_array"],
         "render_fps": 10,
     }
+    sub_env_metadata = ReceiverClusteringEnv.metadata
 
     def __init__(
         self,

@@ -75,6 +75,8 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         "render_modes": ["rgb_array"],
         "render_fps": CLSchedulingEnv.metadata["render_fps"],
     }
+    sub_env_metadata = CLSchedulingEnv.metadata
+    sub_env_attributes = {"budget_left": "budget_left"}  # noqa: RUF012
 
     def __init__(
         self,
@@ -433,6 +435,12 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         }
 
     # -- public ------------------------------------------------------------------------------
+    @property
+    def budget_left(self) -> np.ndarray:
+        """``(B,)``: the single env's ``budget_left`` per sub-env (pairs left in its step)."""
+        out: np.ndarray = self.budget - self._slots
+        return out
+
     def action_masks(self) -> np.ndarray:
         """(B, P + 1) bool: available, unprocessed pairs of every sub-env; stop always allowed."""
         return self._masks.copy()

@@ -25,7 +25,12 @@ from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.envs.vector import BatchedVectorEnv, check_num_envs
 from selenv.families.fim.batched import FIMBatchState, SubEnvGainState, batched_features
-from selenv.families.fim.env import fim_observation_space, fim_observations, fim_settings
+from selenv.families.fim.env import (
+    FIMSelectionEnv,
+    fim_observation_space,
+    fim_observations,
+    fim_settings,
+)
 from selenv.families.fim.scenario import (
     FIMProblem,
     FIMProblemBatch,
@@ -84,6 +89,8 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
         "render_modes": ["rgb_array"],
         "render_fps": 4,
     }
+    sub_env_metadata = FIMSelectionEnv.metadata
+    sub_env_attributes = {"budget_left": "budget_left"}  # noqa: RUF012
 
     def __init__(
         self,

@@ -33,7 +33,11 @@ from selenv.families.landmarks.batched import (
     whiten_landmarks,
     write_observation,
 )
-from selenv.families.landmarks.env import landmark_observation_space, landmark_settings
+from selenv.families.landmarks.env import (
+    LandmarkSelectionEnv,
+    landmark_observation_space,
+    landmark_settings,
+)
 from selenv.families.landmarks.models import STATE_DIM
 from selenv.families.landmarks.scenario import draw_episodes, scenario_static
 from selenv.scenarios.validation import ArgumentTypeError, describe
@@ -68,6 +72,8 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
         "render_modes": ["rgb_array"],
         "render_fps": 10,
     }
+    sub_env_metadata = LandmarkSelectionEnv.metadata
+    sub_env_attributes = {"budget_left": "budget_left"}  # noqa: RUF012
 
     def __init__(
         self,
@@ -144,6 +150,12 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
         for new, idx in self._partial:  # keys only some sub-envs report (invalid_reason)
             merge_infos(infos, new, idx, self.num_envs)
         return obs, rewards, terminated, truncated, infos
+
+    @property
+    def budget_left(self) -> np.ndarray:
+        """``(B,)``: the single env's ``budget_left`` per sub-env (picks left in its step)."""
+        out: np.ndarray = self.k - self._slots
+        return out
 
     def action_masks(self) -> np.ndarray:
         """(B, N) bool: the landmarks not yet picked in each sub-env's filter step."""
