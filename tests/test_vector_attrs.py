@@ -11,19 +11,11 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from test_vector_base import IDS, SHORT, _actions  # the short episodes and random valid actions
 
 import selenv  # noqa: F401
 from selenv.envs.vector import BatchedVectorEnv
-from selenv.families import FAMILIES
 
-#: short episodes so that the steps below cross an episode end (autoreset on both sides)
-SHORT = {
-    "selenv/FIMSelection-v1": {"n_candidates": 10, "budget": 3},
-    "selenv/LandmarkSelection-v1": {"horizon": 2},
-    "selenv/CLScheduling-v1": {"horizon": 2},
-    "selenv/ReceiverClustering-v1": {"horizon": 3},
-}
-IDS = [f.current_id for f in FAMILIES if f.vector_class is not None]
 B = 3
 
 
@@ -32,14 +24,6 @@ def _pair(env_id: str, **kw: object) -> tuple[BatchedVectorEnv, gym.vector.Vecto
     sync = gym.make_vec(env_id, num_envs=B, vectorization_mode="sync", **SHORT[env_id], **kw)
     assert isinstance(native, BatchedVectorEnv)
     return native, sync
-
-
-def _actions(venv: BatchedVectorEnv, rng: np.random.Generator) -> np.ndarray:
-    space = venv.single_action_space
-    masks = np.asarray(venv.action_masks(), dtype=bool)
-    if isinstance(space, gym.spaces.MultiDiscrete):
-        masks = masks.reshape(venv.num_envs, len(space.nvec), -1)
-    return np.argmax(rng.random(masks.shape) + masks, axis=-1)
 
 
 def _state(rng: np.random.Generator) -> dict:
