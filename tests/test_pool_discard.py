@@ -100,3 +100,41 @@ def test_a_stopped_map_discards_the_pool_before_asking_the_workers_to_stop(
     finally:
         executor.close()
     assert recorded_at.get(signal.SIGUSR1) is True
+
+
+def test_results_done_when_a_signal_comes_are_all_handed_over_once(monkeypatch) -> None:
+    """A signal while a batch of finished futures is being handed over loses none of them.
+
+    ``wait`` is made to return every future at once (as it does when several finish between
+    two looks); the signal comes while the first result is handed over. Each result must
+    still reach ``on_result`` exactly once, and the interrupt must propagate.
+    """
+    import concurrent.futures as cf
+    import os
+    import signal
+
+    from selenv.parallel import ProcessExecutor
+    from selenv.parallel import executors as ex
+
+    real_wait = cf.wait
+
+    def all_at_once(fs, timeout=None, return_when=cf.ALL_COMPLETED):
+        if timeout is None:  # the map loop: every future done in one batch
+            return real_wait(fs, return_when=cf.ALL_COMPLETED)
+        return real_wait(fs, timeout=timeout, return_when=return_when)
+
+    monkeypatch.setattr(ex, "wait", all_at_once)
+    got: list[int] = []
+
+    def on_result(i: int, value: int) -> None:
+        got.append(i)
+        if len(got) == 1:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while the batch is handed over
+
+    executor = ProcessExecutor(num_workers=2)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            executor.map(abs, [-1, -2, -3, -4], progress=False, on_result=on_result)
+    finally:
+        executor.close()
+    assert sorted(got) == [0, 1, 2, 3]

@@ -74,7 +74,7 @@ from typing import Any, TypeVar
 
 from tqdm import tqdm
 
-from selenv.exits import DeferredSignals
+from selenv.exits import DeferredSignals, hold_signals
 from selenv.parallel import _discarded, _tracker_guard
 from selenv.parallel.errors import ExecutorError, WorkerDiedError
 from selenv.parallel.ray_session import ray_session
@@ -451,12 +451,19 @@ class ProcessExecutor(Executor):
         out: list[Any] = [None] * len(tasks)
         futures: dict[Future[R], int] = {}
         pending: set[Future[R]] = set()
+        handled: set[Future[R]] = set()  # results handed to on_result (exactly once each)
 
         def finish(fut: Future[R]) -> None:
+            if fut in handled:
+                return
             i = futures[fut]
-            out[i] = fut.result()  # re-raises the worker's exception
-            if on_result is not None:
-                on_result(i, out[i])
+            # a SIGINT / SIGTERM waits until this result is recorded: it is handed over whole,
+            # once (a signal raised in between would lose it or hand it over twice)
+            with hold_signals():
+                out[i] = fut.result()  # re-raises the worker's exception
+                if on_result is not None:
+                    on_result(i, out[i])
+                handled.add(fut)
             bar.update(weights[i])
 
         try:
@@ -479,7 +486,9 @@ class ProcessExecutor(Executor):
                 fut.cancel()
             raise
         except BaseException:  # KeyboardInterrupt, SIGTERM: keep what the workers finish
-            self._stop(futures, pending, finish)
+            # every future not handed over yet: still running, queued, or done but not yet
+            # finished when the signal came (``wait`` had already moved it out of ``pending``)
+            self._stop(futures, set(futures) - handled, finish)
             raise
         return out
 
