@@ -30,15 +30,11 @@ import numpy as np
 import selenv  # noqa: F401  (registers the envs)
 from selenv.agents.fim_solvers import greedy_whitened
 from selenv.atomic import write_json
-from selenv.core.information import information_matrix
+from selenv.core.information import logdet_objective
 from selenv.learned.families.fim import polish
 from selenv.threads import limit_threads
 
 TIE = 1e-9
-
-
-def _logdet(prior: np.ndarray, G: np.ndarray, sel: np.ndarray) -> float:
-    return float(np.linalg.slogdet(information_matrix(prior, G, sel))[1])
 
 
 def measure(
@@ -62,7 +58,7 @@ def measure(
         budget = int(env.unwrapped.budget_left)  # type: ignore[attr-defined]
         greedy = np.array(greedy_whitened(prior, G, budget).indices, dtype=np.intp)
         best, rounds = polish(prior, G, greedy.copy())
-        value = _logdet(prior, G, best)
+        value = logdet_objective(prior, G, best)
         add("greedy", rounds, 0.0, len(set(greedy.tolist()) & set(best.tolist())))
         others = np.setdiff1d(np.arange(G.shape[0]), best)
         for r in replaced:
@@ -70,7 +66,8 @@ def measure(
             slots = rng.choice(budget, size=r, replace=False)
             start[slots] = rng.choice(others, size=r, replace=False)
             sel, n = polish(prior, G, start)
-            add(f"swap's result, {r} replaced", n, _logdet(prior, G, sel) - value, budget - r)
+            gap = logdet_objective(prior, G, sel) - value
+            add(f"swap's result, {r} replaced", n, gap, budget - r)
         env.close()
     out = []
     for name, row in rows.items():

@@ -35,7 +35,7 @@ from gymnasium.utils import seeding
 
 __all__ = ["SubEnvAttributes"]
 
-#: the single-env methods a batched env answers row by row, name -> its batched method
+#: the single-env methods a batched env answers row by row (from its batched method)
 _BATCHED_METHODS = ("action_masks", "render")
 #: names ``call`` refuses: a sub-env is reset or stepped through the vector env
 _VECTOR_ONLY = ("reset", "step", "close")
