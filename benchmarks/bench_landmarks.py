@@ -81,7 +81,7 @@ def collect_states(start: int, n_states: int) -> list[dict[str, Any]]:
             )
         for _ in range(K):
             obs, _, _, _, info = env.step(agent.act(obs, info))
-        prev = list(info["last_selection"])
+        prev = [j for j in info["last_selection"].tolist() if j >= 0]  # -1: padding
     return states
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import matplotlib.image as mpimg
+import numpy as np
 
 import selenv
 from selenv.agents import make
@@ -45,7 +46,8 @@ def main(argv: list[str] | None = None) -> None:
         agent.reset(env, seed=args.seed)
         steps = 0
         # play the steps; CL: go on until a link is being processed, so the frame shows one
-        while steps < args.steps or (info.get("processed") == [] and steps < 10 * args.steps):
+        none_yet = lambda info: not np.any(info.get("processed", True))  # noqa: E731
+        while steps < args.steps or (none_yet(info) and steps < 10 * args.steps):
             obs, _r, terminated, truncated, info = env.step(agent.act(obs, info))
             steps += 1
             if terminated or truncated:

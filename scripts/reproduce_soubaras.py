@@ -158,7 +158,7 @@ def play_env(env: gym.Env[Any, Any], name: str, seed: int, time_solvers: bool) -
             action = agent.act(obs, info)
             decision[k] += time.perf_counter() - t0
             obs, _, terminated, truncated, info = env.step(action)
-        sels[k] = info["last_selection"]
+        sels[k] = tuple(j for j in info["last_selection"].tolist() if j >= 0)  # -1: padding
         objective[k] = info["objective"]
         prev = [int(i) for i in sels[k]]
         if time_solvers:

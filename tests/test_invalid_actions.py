@@ -14,7 +14,14 @@ import numpy as np
 import pytest
 
 import selenv  # noqa: F401
-from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.actions import (
+    INFEASIBLE,
+    INVALID_CODES,
+    MASKED,
+    InvalidActionRule,
+    check_discrete,
+    invalid_code,
+)
 from selenv.multiagent import fim_selection_v0, receiver_clustering_v1
 
 PEN = -0.5
@@ -36,8 +43,15 @@ def test_rule_validation_and_behaviour() -> None:
     assert InvalidActionRule("noop").check("action 1", "masked") is True
     with pytest.raises(ValueError, match="action 1 is invalid: masked"):
         InvalidActionRule("raise").check("action 1", "masked")
-    assert InvalidActionRule.info(None) == {"invalid_action": False}
-    assert InvalidActionRule.info("why") == {"invalid_action": True, "invalid_reason": "why"}
+    assert InvalidActionRule.info(None) == {"invalid_action": False, "invalid_code": 0}
+    assert InvalidActionRule.info("masked: 3 is taken") == {
+        "invalid_action": True,
+        "invalid_code": 1,
+    }
+    assert InvalidActionRule.info("infeasible: too big")["invalid_code"] == 2
+    assert INVALID_CODES[MASKED] == "masked" and INVALID_CODES[INFEASIBLE] == "infeasible"
+    with pytest.raises(ValueError, match="must start with one of"):
+        invalid_code("why")  # every env reason names its kind
     assert check_discrete(np.array([3]), 5) == 3
     for bad, err in (
         (1.0, TypeError),
@@ -57,7 +71,7 @@ def test_fim_noop_spends_the_slot_and_selects_nothing() -> None:
     order, objective, left = list(env.state.order), env.state.objective, env.budget_left
     obs, r, term, trunc, info = env.step(3)
     assert r == PEN and not term and not trunc
-    assert info["invalid_action"] and "already selected" in info["invalid_reason"]
+    assert info["invalid_action"] and info["invalid_code"] == MASKED
     assert env.state.order == order and env.state.objective == objective
     assert env.budget_left == left - 1 and obs["budget_left"][0] == pytest.approx((left - 1) / 10)
     assert not env.step(4)[4]["invalid_action"]
@@ -113,7 +127,7 @@ def test_landmark_noop_slot_updates_with_the_valid_picks_only() -> None:
     env.reset(seed=4)
     env.step(5)
     _obs, r, _term, _trunc, info = env.step(5)  # masked: the step closes with one landmark
-    assert info["invalid_action"] and info["last_selection"] == (5,)
+    assert info["invalid_action"] and info["last_selection"].tolist() == [5, -1]  # -1: padding
     ref = gym.make("selenv/LandmarkSelection-v1", horizon=3, k=1).unwrapped  # same flight
     ref.reset(seed=4)
     _obs, r_ref, *_ = ref.step(5)
@@ -132,7 +146,7 @@ def test_cl_noop_on_the_last_slot_equals_stopping() -> None:
     assert r1 == r1_ref
     _obs, r2, _t, _tr, info = env.step(0)  # pair 0 again: masked, spends the last slot
     _obs, r2_ref, *_ = ref.step(ref.n_pairs)  # stop
-    assert info["invalid_action"] and "already processed" in info["invalid_reason"]
+    assert info["invalid_action"] and info["invalid_code"] == MASKED
     assert env.sim.k == ref.sim.k == 2
     assert r2 == pytest.approx(r2_ref + PEN, rel=1e-12, abs=1e-12)
     np.testing.assert_array_equal(env.sim.P, ref.sim.P)
@@ -152,7 +166,8 @@ def test_clustering_noop_keeps_the_clustering_and_runs_the_filter(action_mode: s
         bad, keep = int(np.flatnonzero(~env.action_masks())[0]), 0
     _obs, r, _t, _tr, info = env.step(bad)
     _obs, r_ref, *_ = ref.step(keep)
-    assert info["invalid_action"] and info["invalid_reason"].startswith(("infeasible", "masked"))
+    assert info["invalid_action"]
+    assert info["invalid_code"] == (INFEASIBLE if action_mode == "assignment" else MASKED)
     np.testing.assert_array_equal(env.bank.labels, labels)
     assert env.bank.k == ref.bank.k == 1
     assert r == pytest.approx(r_ref + PEN, rel=1e-12)

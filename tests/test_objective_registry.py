@@ -256,7 +256,7 @@ def test_user_objective_in_the_envs(user_objective) -> None:
     picked = list(base.state.order)
     want = objective_value(problem.Q0, problem.G, picked, USER, base.interest)
     np.testing.assert_allclose([info["objective"], total], [want, want], rtol=1e-9)
-    assert info["objective_name"] == USER
+    assert base.objective == USER
     lm = gym.make("selenv/LandmarkSelection-v1", objective=USER, n_landmarks=8, horizon=3)
     lm.reset(seed=0)
     _, _, _, _, info = lm.step(0)

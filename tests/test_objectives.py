@@ -181,7 +181,7 @@ def test_logdet_default_matches_a_fresh_logdet_gain_state() -> None:
     env = gym.make(FIM_ID, n_candidates=8, budget=4).unwrapped
     obs, info = env.reset(seed=3)
     ref = LogDetGainState(env.problem.Q0, env.problem.G, track_gains=True, track_whitened=True)
-    assert info["objective_name"] == "logdet"
+    assert env.objective == "logdet"
     for a in (5, 0, 11, 2):
         np.testing.assert_allclose(
             obs["gain"], np.where(ref.selected, 0.0, ref.gains).astype(np.float32),
@@ -257,7 +257,7 @@ def test_fim_env_return_is_f_of_the_selected_set_and_agents_optimise_it(objectiv
         f = _position_f(env.problem, picks, objective)
         assert ret == pytest.approx(f, rel=1e-9, abs=1e-9)
         assert info["objective"] == pytest.approx(f, rel=1e-9, abs=1e-9)
-        assert info["objective_name"] == objective
+        assert env.objective == objective
         results[name] = (f, picks)
     problem = env.problem
     naive = _naive_greedy(
@@ -303,7 +303,7 @@ def test_landmark_position_cost_is_that_of_the_ekf_posterior(objective: str) -> 
             a = agent.act(obs, info)
             picks.append(a)
             obs, r, done, _, info = env.step(a)
-        assert info["objective_name"] == objective
+        assert env.objective == objective
         assert info["objective"] == pytest.approx(post_trace(picks), rel=1e-6)
         assert r == -info["objective"]
         assert costs[tuple(sorted(picks))] == pytest.approx(min(costs.values()), rel=1e-9)

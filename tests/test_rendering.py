@@ -155,12 +155,13 @@ def test_cl_scheduling_frames(renderer, model):
     _, info = env.reset(seed=0)
 
     def frame() -> np.ndarray:
-        draw = lambda fig: draw_cl_scheduling(fig, env.sim, env.pairs, info["processed"], "CL")  # noqa: E731
+        processed = np.flatnonzero(info["processed"]).tolist()
+        draw = lambda fig: draw_cl_scheduling(fig, env.sim, env.pairs, processed, "CL")  # noqa: E731
         return check_frame(renderer.render(draw))
 
     f0 = frame()
     _, _, _, _, info = env.step(first_allowed(info))  # one pair processed, step still open
-    assert info["processed"]
+    assert info["processed"].any()
     f1 = frame()
     assert not np.array_equal(f0, f1)
     for _ in range(4):

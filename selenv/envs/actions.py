@@ -14,13 +14,19 @@ Gymnasium's rule is that every element of ``env.action_space`` is a legal input 
   ========== ==========================================================================
   noop       (default) no selection or clustering changes; the rest of the step
              happens (a budget slot or a time step is spent, so episodes stay bounded);
-             ``info["invalid_action"] = True``, ``info["invalid_reason"]`` says why;
-             the reward gets ``invalid_action_penalty`` (default 0) added
-  raise      ``ValueError`` naming the action and the reason (heuristics, ``selenv
-             bench``: a buggy agent is caught)
+             ``info["invalid_action"] = True`` and ``info["invalid_code"]`` says why
+             (:data:`INVALID_CODES`); the reward gets ``invalid_action_penalty``
+             (default 0) added
+  raise      ``ValueError`` naming the action and the reason in words (heuristics,
+             ``selenv bench``, debugging: a buggy agent is caught)
   terminate  the episode ends (``terminated=True``) with reward
              ``invalid_action_penalty``, as PettingZoo's illegal-move wrappers do
   ========== ==========================================================================
+
+Every step's ``info`` holds ``invalid_action`` (bool) and ``invalid_code`` (int, an index into
+:data:`INVALID_CODES`, also ``env.metadata["invalid_codes"]``), valid steps and resets included,
+so that learners that batch ``info`` (TorchRL, Tianshou) see the same keys and dtypes at every
+step.
 
 Masks are unaffected by the mode: ``action_masks()``, ``info["action_mask"]`` and
 ``obs["action_mask"]`` always say which actions are valid.
@@ -37,16 +43,45 @@ import numpy as np
 from selenv.scenarios.validation import describe
 
 __all__ = [
+    "INFEASIBLE",
     "INVALID_ACTION_MODES",
+    "INVALID_CODES",
+    "MASKED",
     "MAX_PENALTY",
     "InvalidActionRule",
     "check_discrete",
+    "invalid_code",
 ]
 
 INVALID_ACTION_MODES = ("noop", "raise", "terminate")
 #: largest ``|invalid_action_penalty|``
 MAX_PENALTY = 1e6
 PENALTY_RANGE = f"[{-MAX_PENALTY:g}, {MAX_PENALTY:g}]"
+#: ``info["invalid_code"]`` -> meaning: ``0`` a valid action; ``1`` ``"masked"``: the action's
+#: mask entry is False (a candidate already taken, a pair without a measurement, an edit the
+#: state limit forbids); ``2`` ``"infeasible"``: an action the mask does not cover that breaks a
+#: constraint (a ReceiverClustering assignment over the state limit)
+INVALID_CODES = ("valid", "masked", "infeasible")
+#: the codes of ``"masked"`` and ``"infeasible"``
+MASKED, INFEASIBLE = 1, 2
+
+
+def invalid_code(reason: str | None) -> int:
+    """The ``info["invalid_code"]`` of an invalid-action reason (``None``: valid, code 0).
+
+    A reason is written ``"<kind>: <details>"`` with ``<kind>`` one of :data:`INVALID_CODES`.
+
+    Raises:
+        ValueError: the reason does not start with a known kind (an env bug, not user input).
+    """
+    if reason is None:
+        return 0
+    kind = reason.split(":", 1)[0]
+    if kind not in INVALID_CODES[1:]:
+        raise ValueError(
+            f"invalid-action reason {reason!r} must start with one of {INVALID_CODES[1:]}"
+        )
+    return INVALID_CODES.index(kind)
 
 
 def check_discrete(action: Any, n: int, name: str = "action") -> int:
@@ -121,7 +156,5 @@ class InvalidActionRule:
 
     @staticmethod
     def info(reason: str | None) -> dict[str, Any]:
-        """The step's ``info`` entries: ``invalid_action`` and, if invalid, ``invalid_reason``."""
-        if reason is None:
-            return {"invalid_action": False}
-        return {"invalid_action": True, "invalid_reason": reason}
+        """The step's ``info`` entries: ``invalid_action`` (bool), ``invalid_code`` (int)."""
+        return {"invalid_action": reason is not None, "invalid_code": invalid_code(reason)}

@@ -50,6 +50,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from selenv.envs.actions import INVALID_CODES
 from selenv.envs.conventions import KnownKeywords
 from selenv.envs.vector_attrs import SubEnvAttributes
 from selenv.envs.vector_memory import PROBE_ABOVE, check_vector_memory
@@ -113,6 +114,7 @@ class BatchedVectorEnv(SubEnvAttributes, KnownKeywords, VectorEnv):
     metadata: dict[str, Any] = {  # noqa: RUF012
         "autoreset_mode": AutoresetMode.NEXT_STEP,
         "render_modes": ["rgb_array"],
+        "invalid_codes": INVALID_CODES,
     }
 
     def __new__(cls, *args: Any, **kwargs: Any) -> BatchedVectorEnv:

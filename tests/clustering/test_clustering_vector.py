@@ -16,6 +16,7 @@ import pytest
 
 import selenv  # noqa: F401  (registers the envs and agents)
 from selenv.agents import make as make_agent
+from selenv.envs.actions import INFEASIBLE
 from selenv.envs.vector_check import check_vector_equivalence, random_masked_action
 from selenv.families.clustering.batched import clustering_costs
 from selenv.families.clustering.env import ReceiverClusteringEnv, edit_action_count
@@ -148,15 +149,15 @@ def test_invalid_actions_noop_and_terminate_match_single_envs(action_mode: str) 
         assert counts["autoresets"] >= 6
 
 
-def test_invalid_reason_is_reported_only_for_invalid_sub_envs() -> None:
+def test_invalid_code_is_reported_for_every_sub_env() -> None:
     env = ReceiverClusteringVectorEnv(3)
     obs, _ = env.reset(seed=0)
     actions = obs["assignment"].copy()
     actions[1] = 0  # one cluster of 30 receivers: infeasible
     _, rewards, _, _, info = env.step(actions)
     assert info["invalid_action"].tolist() == [False, True, False]
-    assert info["_invalid_reason"].tolist() == [False, True, False]
-    assert "infeasible" in info["invalid_reason"][1]
+    assert info["_invalid_code"].all()  # the same keys at every step, for every sub-env
+    assert info["invalid_code"].tolist() == [0, INFEASIBLE, 0]
 
 
 def test_same_step_mode_reports_the_terminating_reason_in_final_info() -> None:
@@ -168,9 +169,9 @@ def test_same_step_mode_reports_the_terminating_reason_in_final_info() -> None:
     assert terminated.tolist() == [True, False, False]
     assert info["_final_info"].tolist() == [True, False, False]
     final = info["final_info"]
-    assert final["_invalid_reason"].tolist() == [True, False, False]
-    assert "infeasible" in final["invalid_reason"][0]
-    assert not info.get("_invalid_reason", np.zeros(3, bool)).any()
+    assert final["_invalid_code"].tolist() == [True, False, False]
+    assert final["invalid_code"][0] == INFEASIBLE
+    assert info["invalid_code"].tolist() == [0, 0, 0]  # the new episode's reset info: valid
     assert obs["time"][0, 0] == 0.0  # the new episode's first observation
 
 

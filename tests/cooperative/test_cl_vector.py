@@ -11,6 +11,7 @@ import pytest
 
 import selenv  # noqa: F401
 from selenv.agents import make
+from selenv.envs.actions import MASKED
 from selenv.envs.vector_check import check_vector_equivalence
 from selenv.families.cooperative import batched
 from selenv.families.cooperative import scenario as sc
@@ -153,8 +154,7 @@ def test_invalid_action_modes_per_sub_env() -> None:
             continue
         _, rew, term, _, info = env.step(again)
         assert info["invalid_action"].tolist() == [False, True, False]
-        assert info["_invalid_reason"].tolist() == [False, True, False]
-        assert "already processed" in info["invalid_reason"][1]
+        assert info["invalid_code"].tolist() == [0, MASKED, 0]
         assert term.tolist() == [False, mode == "terminate", False]
         if mode == "terminate":
             assert rew[1] == 0.0

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import selenv
+from selenv.envs.actions import MASKED
 from selenv.envs.vector_check import check_vector_equivalence, random_masked_action
 from selenv.families.fim.env import FIMSelectionEnv
 from selenv.families.fim.scenario import config_from, make_problem, make_problems
@@ -111,14 +112,13 @@ def test_invalid_actions_match_the_single_env(mode: str) -> None:
     assert counts["autoresets"] >= 2 * 4
 
 
-def test_invalid_noop_reports_the_reason_only_where_invalid() -> None:
+def test_invalid_noop_reports_the_code_where_invalid() -> None:
     venv = FIMSelectionVectorEnv(3, **SMALL)
     venv.reset(seed=0)
     venv.step(np.array([1, 2, 3]))
     _, rew, term, _, info = venv.step(np.array([1, 5, 3]))  # sub-envs 0 and 2 repeat a pick
     np.testing.assert_array_equal(info["invalid_action"], [True, False, True])
-    np.testing.assert_array_equal(info["_invalid_reason"], [True, False, True])
-    assert info["invalid_reason"][0] == "masked: candidate 1 is already selected"
+    np.testing.assert_array_equal(info["invalid_code"], [MASKED, 0, MASKED])
     assert rew[0] == 0.0 and rew[1] > 0.0 and not term.any()
     np.testing.assert_array_equal(info["n_selected"], [1, 2, 1])
     np.testing.assert_array_equal(venv.budget_left, [2, 2, 2])

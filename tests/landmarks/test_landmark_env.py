@@ -37,8 +37,8 @@ def _play(env, agent, seed):
         obs, r, done, trunc, info = env.step(a)
         assert env.observation_space.contains(obs)
         rewards.append(r)
-        if len(info["picks"]) == 0 or done:
-            sels.append(info["last_selection"])
+        if info["picks"][0] < 0 or done:  # no pick open: an update just happened
+            sels.append(tuple(j for j in info["last_selection"].tolist() if j >= 0))
             costs.append(info["objective"])
     return np.array(rewards), sels, np.array(costs), info
 

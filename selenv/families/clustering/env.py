@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.families.clustering.batched import assignment_masks, edit_masks, swap_pairs
@@ -302,7 +302,9 @@ def clustering_observation_space(n: int, mask_size: int | None = None) -> spaces
     """Observation space over ``n`` receivers; ``mask_size`` adds ``action_mask``."""
     space: dict[str, spaces.Space[Any]] = {
         "assignment": spaces.Box(0, n - 1, (n,), np.int64),
-        "cluster_size": spaces.Box(1, n, (n,), np.int64),
+        # sizes are >= 1; the bound is 0 because vector learners fill the slots of sub-envs
+        # that did not end with zeros (TorchRL's batched GymEnv, info["final_obs"])
+        "cluster_size": spaces.Box(0, n, (n,), np.int64),
         "sigma": spaces.Box(0.0, np.inf, (n, 2), np.float32),
         "position_var": spaces.Box(0.0, np.inf, (n,), np.float32),
         "cost": spaces.Box(0.0, np.inf, (4,), np.float32),
@@ -488,8 +490,9 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
 
     An infeasible clustering or a masked edit is handled by ``invalid_action``
     (:mod:`selenv.envs.actions`): ``"noop"`` (default) keeps the current clustering and runs
-    the filter step (``info["invalid_action"]``, ``info["invalid_reason"]`` naming the violated
-    cluster), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode. Labels
+    the filter step (``info["invalid_action"]``; ``info["invalid_code"]`` 2, ``"infeasible"``,
+    or 1, ``"masked"``), ``"raise"`` raises ``ValueError`` naming the violated cluster,
+    ``"terminate"`` ends the episode. Labels
     outside ``[0, n)``, a wrong shape or non-integers are a ``ValueError`` / ``TypeError``.
 
     ## Observation Space
@@ -564,7 +567,11 @@ class ReceiverClusteringEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], An
       deprecated in favour of v1.
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
+        "invalid_codes": INVALID_CODES,
+    }
 
     def __init__(
         self,

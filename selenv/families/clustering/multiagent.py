@@ -33,7 +33,7 @@ label whose cluster has room (``size < max_size``) and every unused label. Its o
 always allowed, so the mask is never all zeros. With ``n_max_states=None`` every action is
 allowed. A masked label (a full cluster) is handled by ``invalid_action``
 (:mod:`selenv.envs.actions`): ``"noop"`` (default) keeps the receiver where it is
-(``infos[agent]["invalid_action"]``, ``["invalid_reason"]``; ``invalid_action_penalty`` is
+(``infos[agent]["invalid_action"]``, ``["invalid_code"]``; ``invalid_action_penalty`` is
 added to its reward), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode for
 every agent (the offenders' reward is the penalty, the others' 0). An out-of-range or
 non-integer action is a ``ValueError``/``TypeError`` naming the agent and the action in every
@@ -120,7 +120,7 @@ from pettingzoo import AECEnv, ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import KnownKeywords, check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.families.clustering.env import (
@@ -221,6 +221,7 @@ class ReceiverClusteringParallelEnv(KnownKeywords, ParallelEnv):
         "render_modes": ["rgb_array", "human"],
         "render_fps": 10,
         "is_parallelizable": True,
+        "invalid_codes": INVALID_CODES,
     }
 
     def __init__(

@@ -29,8 +29,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from gymnasium.vector import AutoresetMode
 
+from selenv.envs.actions import invalid_code
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.envs.vector import BatchedVectorEnv, check_num_envs
@@ -74,8 +74,7 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
     and ``action_mask (B, mask)`` (int8) when the single env observes it; actions ``(B, n)``
     labels (assignment mode) or ``(B,)`` edit indices (edit mode). :meth:`action_masks` is
     ``(B, n * n)`` or ``(B, 1 + n^2 + n(n-1)/2)`` bool. Infos hold the single env's keys as
-    ``(B, ...)`` arrays with Gymnasium's ``"_key"`` masks (``invalid_reason`` only for the
-    sub-envs whose action was invalid).
+    ``(B, ...)`` arrays with Gymnasium's ``"_key"`` masks (``invalid_code`` ``(B,)`` int64).
 
     Invalid actions, per sub-env, by ``invalid_action``: ``"noop"`` keeps that sub-env's
     clustering and steps it; ``"terminate"`` ends its episode (reset at the next step);
@@ -92,7 +91,7 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
-        "autoreset_mode": AutoresetMode.NEXT_STEP,
+        **BatchedVectorEnv.metadata,
         "render_modes": ["rgb_array"],
         "render_fps": 10,
     }
@@ -166,20 +165,6 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
         self._renderer = Renderer(render_mode, self.metadata["render_fps"])
 
     # -- vector API -----------------------------------------------------------------------------
-    def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-env (see :class:`~selenv.envs.vector.BatchedVectorEnv`).
-
-        ``invalid_reason`` is reported (its ``"_invalid_reason"`` mask true) only for the
-        sub-envs whose action was invalid, in ``infos`` or, for a sub-env that ended in
-        ``SAME_STEP`` mode, in ``infos["final_info"]``.
-        """
-        obs, rewards, terminated, truncated, infos = super().step(actions)
-        for part in (infos, infos.get("final_info")):
-            if isinstance(part, dict) and "invalid_reason" in part:
-                given = [reason is not None for reason in part["invalid_reason"]]
-                part["_invalid_reason"] &= np.array(given, dtype=np.bool_)
-        return obs, rewards, terminated, truncated, infos
-
     def action_masks(self) -> np.ndarray:
         """``(B, mask)`` bool: each sub-env's ``action_masks()`` (edit or per-receiver masks)."""
         return self._masks.copy()
@@ -287,8 +272,7 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
             costs[stay] = bank_costs([banks[j] for j in stay.tolist()])
         infos = self._infos(idx, banks, costs, changed)
         infos["invalid_action"] = invalid
-        if bad:  # None for the valid ones: step() clears their "_invalid_reason" mask
-            infos["invalid_reason"] = reasons
+        infos["invalid_code"] = np.array([invalid_code(r) for r in reasons], dtype=np.int64)
         return rewards, terminated, np.zeros(idx.size, np.bool_), infos
 
     def _observe(self) -> dict[str, np.ndarray]:
@@ -398,4 +382,5 @@ class ReceiverClusteringVectorEnv(BatchedVectorEnv):
                 [bank.n_cost_evaluations for bank in banks], dtype=np.int64
             ),
             "invalid_action": np.zeros(idx.size, np.bool_),
+            "invalid_code": np.zeros(idx.size, np.int64),
         }

@@ -12,7 +12,7 @@ from gymnasium import spaces
 
 from selenv.core.linalg import logdet_spd
 from selenv.core.objectives import get_objective, objective_names
-from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import (
     EpisodeLengthSpec,
     check_known_keywords,
@@ -147,7 +147,11 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     step: the processed pair's update, plus, on the action that ends a filter step, the change
     from the next propagation and its ZUPT and beacon updates. Rewards telescope: the return
     is the objective at the first step minus the final one, so maximising it minimises the
-    final uncertainty. ``info["objective"]`` is the objective now (lower is better).
+    final uncertainty. ``info["objective"]`` is the objective now (lower is better); the
+    other keys, the same with the same shapes at every step: ``k``, ``position_errors (A,)``
+    (m), ``processed (P,)`` bool (the pairs processed in the open filter step),
+    ``action_mask (P + 1,)``, ``invalid_action`` and ``invalid_code``
+    (:data:`~selenv.envs.actions.INVALID_CODES`).
 
     ## Starting State
     A new seeded realisation per reset (input, measurement noise and initial errors); tracks
@@ -199,7 +203,11 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
       recordings); deprecated in favour of v1.
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
+        "invalid_codes": INVALID_CODES,
+    }
 
     def __init__(
         self,
@@ -443,13 +451,19 @@ class CLSchedulingEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
             "action_mask": mask.astype(np.int8),
         }
 
+    def _processed_mask(self) -> np.ndarray:
+        """``(P,)`` bool: the pairs processed in the current filter step."""
+        out = np.zeros(self.n_pairs, dtype=np.bool_)
+        out[sorted(self._done_pairs)] = True
+        return out
+
     def _info(self, reason: str | None = None, mask: np.ndarray | None = None) -> dict[str, Any]:
         sim = self.sim
         return {
             "objective": self.objective_value(),
             "k": sim.k,
             "position_errors": sim.position_errors(),
-            "processed": sorted(self._done_pairs),
+            "processed": self._processed_mask(),
             "action_mask": self.action_masks() if mask is None else mask,
             **self.invalid_rule.info(reason),
         }

@@ -12,9 +12,10 @@ from typing import Any
 
 import numpy as np
 
+from selenv.envs.actions import MASKED
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
-from selenv.envs.vector import BatchedVectorEnv, merge_infos
+from selenv.envs.vector import BatchedVectorEnv
 from selenv.families.cooperative import batched
 from selenv.families.cooperative.env import CLSchedulingEnv, agent_objective
 from selenv.families.cooperative.scenario import (
@@ -59,9 +60,9 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
 
     Spaces: the single env's, batched: observations ``Dict`` of ``(B, ...)`` arrays, actions
     ``MultiDiscrete([P + 1] * B)``; :meth:`action_masks` is ``(B, P + 1)`` bool; infos carry the
-    single env's keys batched (``processed`` an object array of lists, ``invalid_reason``
-    where an action was invalid). ``invalid_action="raise"`` raises a ``ValueError`` naming
-    the sub-env before any sub-env steps.
+    single env's keys batched (``processed`` ``(B, P)`` bool, ``invalid_code`` ``(B,)`` int64).
+    ``invalid_action="raise"`` raises a ``ValueError`` naming the sub-env before any sub-env
+    steps.
 
     Previews: :meth:`preview_gains` is the ``(B, P)`` single env's ``preview_gain`` of every
     open pair of every sub-env, one batched fusion per state (cached until the next step or
@@ -262,19 +263,10 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         return super().reset(seed=seed, options=options)
 
     def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-env (see :class:`~selenv.envs.vector.BatchedVectorEnv`).
-
-        ``info["invalid_reason"]`` (with its ``"_invalid_reason"`` mask) is added for the
-        sub-envs whose action was invalid, as the single env reports it only then.
-        """
+        """Step every sub-env (see :class:`~selenv.envs.vector.BatchedVectorEnv`)."""
         self._reasons = {}
         self._previews = None
-        obs, rewards, terminated, truncated, infos = super().step(actions)
-        if self._reasons:
-            rows = np.array(sorted(self._reasons), dtype=np.intp)
-            reasons = [self._reasons[int(i)] for i in rows]
-            merge_infos(infos, {"invalid_reason": reasons}, rows, self.num_envs)
-        return obs, rewards, terminated, truncated, infos
+        return super().step(actions)
 
     def _step_envs(
         self, actions: np.ndarray, idx: np.ndarray
@@ -425,13 +417,15 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
         """The single env's info keys for the sub-envs ``idx``, batched."""
         truth = self.states[self.k[idx]]
         err = self.x[idx, :, :2] - truth[:, :, :2]
+        invalid = np.array([int(i) in self._reasons for i in idx], dtype=np.bool_)
         return {
             "objective": self._objective[idx].copy(),
             "k": self.k[idx].copy(),
             "position_errors": np.sqrt(np.sum(err * err, axis=-1)),
-            "processed": [np.flatnonzero(row).tolist() for row in self._done_pairs[idx]],
+            "processed": self._done_pairs[idx].copy(),
             "action_mask": self._masks[idx].copy(),
-            "invalid_action": np.array([int(i) in self._reasons for i in idx], dtype=np.bool_),
+            "invalid_action": invalid,
+            "invalid_code": np.where(invalid, MASKED, 0),
         }
 
     # -- public ------------------------------------------------------------------------------

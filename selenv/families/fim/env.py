@@ -10,7 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.core.objectives import get_objective, objective_names
-from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec, check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.families.fim.batched import FIMBatchState, SubEnvGainState, batched_features
@@ -209,7 +209,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
     agents``. Already-selected candidates are masked (:meth:`action_masks`,
     ``info["action_mask"]``, ``obs["action_mask"]``). Picking a masked candidate is handled by
     ``invalid_action`` (:mod:`selenv.envs.actions`): ``"noop"`` (default) spends the budget
-    slot without selecting anything (``info["invalid_action"]``, ``info["invalid_reason"]``),
+    slot without selecting anything (``info["invalid_action"]``, ``info["invalid_code"]``),
     ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the episode. A non-integer or
     out-of-range action is a ``TypeError`` / ``ValueError`` in every mode.
 
@@ -234,7 +234,7 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
 
     ## Rewards
     The gain of the pick in ``log det FIM`` (nats), so the undiscounted return is ``f(F)``.
-    ``info["objective"]`` is ``f`` after the step, ``info["objective_name"]`` its name.
+    ``info["objective"]`` is ``f`` after the step (its name: ``env.unwrapped.objective``).
     ``objective="trace"`` (A-optimal, eq. 6) or ``"max_eig"`` (E-optimal, eq. 7) score the
     target position ``(x, y)`` instead (``E`` selects them; :mod:`selenv.core.objectives`):
     ``f(F) = tr(E P0 E^T) - tr(E P_F E^T)`` (the decrease of the position MSE bound, m^2) or
@@ -297,7 +297,11 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
       0.1's episodes); deprecated in favour of v1.
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 4}  # noqa: RUF012
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 4,
+        "invalid_codes": INVALID_CODES,
+    }
 
     def __init__(
         self,
@@ -443,7 +447,6 @@ class FIMSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64
         s = self.state
         return {
             "objective": s.objective,
-            "objective_name": self.objective,
             "action_mask": ~s.selected,
             "n_selected": int(self.core.count[0]),
             **self.invalid_rule.info(reason),

@@ -42,7 +42,7 @@ contributes no gradient. The episode ends for all agents together when every bud
 ## Invalid actions
 A masked pick of an acting agent is handled by ``invalid_action`` (:mod:`selenv.envs.actions`):
 ``"noop"`` (default) spends that agent's budget slot without a pick
-(``infos[agent]["invalid_action"]``, ``["invalid_reason"]``; ``invalid_action_penalty`` is
+(``infos[agent]["invalid_action"]``, ``["invalid_code"]``; ``invalid_action_penalty`` is
 added to that agent's reward), ``"raise"`` raises ``ValueError``, ``"terminate"`` ends the
 episode for everyone (the offender's reward is the penalty, the others' 0). A step must give an
 action for exactly the live agents; a missing one, a non-integer or an out-of-range action is
@@ -77,7 +77,7 @@ from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from selenv.core.information import LogDetGainState
-from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import KnownKeywords, check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.families.fim.env import (
@@ -119,6 +119,7 @@ class FIMSelectionParallelEnv(KnownKeywords, ParallelEnv):
         "render_modes": ["rgb_array", "human"],
         "render_fps": 4,
         "is_parallelizable": True,
+        "invalid_codes": INVALID_CODES,
     }
 
     def __init__(

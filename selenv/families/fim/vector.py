@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode
 
+from selenv.envs.actions import MASKED
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.envs.vector import BatchedVectorEnv, check_num_envs
@@ -75,17 +75,16 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
     calls, :func:`~selenv.core.objectives.criterion_gains`, per sub-env that picked.
 
     Invalid actions (a masked candidate), per sub-env as the single env: ``"noop"`` spends the
-    slot (reward ``invalid_action_penalty``, ``info["invalid_action"]``,
-    ``info["invalid_reason"]`` where it happened); ``"terminate"`` ends that sub-env's episode;
+    slot (reward ``invalid_action_penalty``, ``info["invalid_action"]``, ``info["invalid_code"]``
+    where it happened); ``"terminate"`` ends that sub-env's episode;
     ``"raise"``: ``ValueError`` naming the sub-env, before any sub-env is stepped.
 
-    Infos: the single env's keys batched (``objective (B,)``, ``objective_name``,
-    ``action_mask (B, N)``, ``n_selected``, ``invalid_action``, ``invalid_reason``) with
-    Gymnasium's ``_key`` masks.
+    Infos: the single env's keys batched (``objective (B,)``, ``action_mask (B, N)``,
+    ``n_selected``, ``invalid_action``, ``invalid_code``) with Gymnasium's ``_key`` masks.
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
-        "autoreset_mode": AutoresetMode.NEXT_STEP,
+        **BatchedVectorEnv.metadata,
         "render_modes": ["rgb_array"],
         "render_fps": 4,
     }
@@ -136,7 +135,6 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
         self._steps = np.zeros(B, dtype=np.intp)
         self._features = np.zeros((B, self.n, 4), np.float32)
         self._sources: list[tuple[FIMProblemBatch, int] | None] = [None] * B
-        self._names = np.full(B, self.objective)
         self._renderer: Renderer | None = None
 
     # -- per sub-env views -------------------------------------------------------------------
@@ -184,13 +182,6 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
             renderer.close()
         super().close(**kwargs)
 
-    def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-env (autoresetting those that ended); see the class docstring."""
-        obs, rewards, terminated, truncated, infos = super().step(actions)
-        if "invalid_reason" in infos:  # reported only where the action was invalid
-            infos["_invalid_reason"] &= infos["invalid_action"]
-        return obs, rewards, terminated, truncated, infos
-
     # -- BatchedVectorEnv hooks --------------------------------------------------------------
     def _reset_envs(self, idx: np.ndarray, options: dict[str, Any]) -> dict[str, Any]:
         rngs = [self.np_randoms[i] for i in idx]
@@ -224,7 +215,7 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
             rewards,
             terminated,
             np.zeros(idx.size, dtype=np.bool_),
-            self._infos(idx, invalid, actions),
+            self._infos(idx, invalid),
         )
 
     def _observe(self) -> dict[str, np.ndarray]:
@@ -233,24 +224,17 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
         return fim_observations(core.gains, core.Z, core.selected, self._features, frac)
 
     # -- helpers -------------------------------------------------------------------------------
-    def _infos(
-        self, idx: np.ndarray, invalid: np.ndarray | None, actions: np.ndarray | None = None
-    ) -> dict[str, Any]:
-        """The single env's info keys for sub-envs ``idx`` (and their ``actions``), batched."""
-        core, k = self.core, idx.size
-        out: dict[str, Any] = {
+    def _infos(self, idx: np.ndarray, invalid: np.ndarray | None) -> dict[str, Any]:
+        """The single env's info keys for sub-envs ``idx`` batched (``invalid``: ``(k,)``)."""
+        core = self.core
+        bad = np.zeros(idx.size, np.bool_) if invalid is None else invalid
+        return {
             "objective": core.objective[idx],
-            "objective_name": self._names[:k],
             "action_mask": np.logical_not(core.selected[idx]),
             "n_selected": core.count[idx],
-            "invalid_action": np.zeros(k, np.bool_) if invalid is None else invalid,
+            "invalid_action": bad,
+            "invalid_code": np.where(bad, MASKED, 0),
         }
-        if invalid is not None and actions is not None and invalid.any():
-            out["invalid_reason"] = [
-                f"masked: candidate {a} is already selected" if bad else None
-                for a, bad in zip(actions.tolist(), invalid.tolist(), strict=True)
-            ]
-        return out
 
     def _check_actions(self, actions: Any) -> np.ndarray:
         """``(B,)`` candidate indices: shape, dtype and range checked for every sub-env."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,7 +13,7 @@ import numpy as np
 from selenv.core.information import information_matrix
 from selenv.core.linalg import FloatArray
 from selenv.core.objectives import get_objective, objective_names
-from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import (
     EpisodeLengthSpec,
     check_known_keywords,
@@ -51,12 +52,23 @@ __all__ = [
     "landmark_features",
     "landmark_interest",
     "landmark_settings",
+    "padded_picks",
 ]
 
 #: the built-in objectives (every registered one is accepted: :func:`objective_names`)
 OBJECTIVES = ("logdet", "det", "trace", "max_eig")
 
 _ROW0 = np.zeros(1, dtype=np.intp)  # the single env is row 0 of a batch of one
+
+
+def padded_picks(picks: Sequence[int], k: int) -> np.ndarray:
+    """``(k,)`` int64: ``picks`` in order, padded with ``-1``.
+
+    The fixed-shape form of ``info["picks"]`` and ``info["last_selection"]``.
+    """
+    out = np.full(k, -1, dtype=np.int64)
+    out[: len(picks)] = picks
+    return out
 
 
 def landmark_cost(P: FloatArray, objective: str) -> float:
@@ -262,9 +274,13 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
     reward is minus the cost eq. (11) of the posterior (``-log det P``, ``-det P`` or, with
     ``"trace"`` / ``"max_eig"``, ``-tr(P[:3, :3])`` / ``-lambda_max(P[:3, :3])``), so the
     return is minus the paper's objective eq. (12).
-    ``info["objective"]`` is that cost after the latest update, ``info["objective_name"]`` the
-    ``objective`` and ``info["position_error"]`` the true position error (m) of that posterior
-    estimate (``k`` is the index of the step whose picks are open).
+    ``info["objective"]`` is that cost after the latest update (its name:
+    ``env.unwrapped.objective``) and ``info["position_error"]`` the true position error (m) of
+    that posterior estimate (``k`` is the index of the step whose picks are open).
+    ``info["picks"]`` (the landmarks picked so far in the open step) and
+    ``info["last_selection"]`` (those the latest update used) are ``(k,)`` int64 arrays in pick
+    order, padded with ``-1`` (``last_selection`` is all ``-1`` before the first update), so
+    every step's ``info`` has the same keys, shapes and dtypes.
 
     ## Starting State
     A new seeded flight per ``reset``: landmark layout, IMU noise, initial error (Table I),
@@ -309,7 +325,11 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
       deprecated in favour of v1.
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
+        "invalid_codes": INVALID_CODES,
+    }
 
     def __init__(
         self,
@@ -511,11 +531,10 @@ class LandmarkSelectionEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.
         mask = self.action_masks() if not self._done else np.ones(self.n, bool)
         return {
             "objective": self._cost,
-            "objective_name": self.objective,
             "position_error": self._error,
             "k": ekf.k,
-            "picks": tuple(self.picks),
-            "last_selection": self.last_selection,
+            "picks": padded_picks(self.picks, self.k),
+            "last_selection": padded_picks(self.last_selection or (), self.k),
             "action_mask": mask,
             **self.invalid_rule.info(reason),
         }

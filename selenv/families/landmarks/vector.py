@@ -17,10 +17,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.vector import AutoresetMode
 
+from selenv.envs.actions import MASKED
 from selenv.envs.rendering import Renderer
-from selenv.envs.vector import BatchedVectorEnv, check_num_envs, merge_infos
+from selenv.envs.vector import BatchedVectorEnv, check_num_envs
 from selenv.families.landmarks.batched import (
     SelectionBatch,
     add_picks,
@@ -68,7 +68,7 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
-        "autoreset_mode": AutoresetMode.NEXT_STEP,
+        **BatchedVectorEnv.metadata,
         "render_modes": ["rgb_array"],
         "render_fps": 10,
     }
@@ -138,19 +138,9 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
             "budget_left": np.zeros((B, 1), np.float32),
             "action_mask": np.zeros((B, N), np.int8),
         }
-        self._names = np.full(B, self.objective, dtype=object)
-        self._partial: list[tuple[dict[str, Any], np.ndarray]] = []
         self._renderer: Renderer | None = None
 
     # -- gymnasium.vector API ----------------------------------------------------------------
-    def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-env (see :class:`~selenv.envs.vector.BatchedVectorEnv`)."""
-        self._partial = []
-        obs, rewards, terminated, truncated, infos = super().step(actions)
-        for new, idx in self._partial:  # keys only some sub-envs report (invalid_reason)
-            merge_infos(infos, new, idx, self.num_envs)
-        return obs, rewards, terminated, truncated, infos
-
     @property
     def budget_left(self) -> np.ndarray:
         """``(B,)``: the single env's ``budget_left`` per sub-env (picks left in its step)."""
@@ -247,11 +237,11 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
         terminated = np.zeros(g, dtype=np.bool_)
         if masked.any():
             j = int(np.flatnonzero(masked)[0])
-            rule.check(f"sub-env {int(idx[j])}: action {int(a[j])}", self._reason(int(a[j])))
-            rewards[masked] = rule.penalty  # noop: added to the reward; terminate: the reward
-            self._partial.append(
-                ({"invalid_reason": [self._reason(int(v)) for v in a[masked]]}, idx[masked])
+            rule.check(
+                f"sub-env {int(idx[j])}: action {int(a[j])}",
+                f"masked: landmark {int(a[j])} is already picked in this step",
             )
+            rewards[masked] = rule.penalty  # noop: added to the reward; terminate: the reward
             if rule.terminates:
                 terminated[masked] = True
                 self._done[idx[masked]] = True
@@ -293,10 +283,6 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
         return {key: value.copy() for key, value in self._obs.items()}
 
     # -- helpers -------------------------------------------------------------------------------
-    @staticmethod
-    def _reason(a: int) -> str:
-        return f"masked: landmark {a} is already picked in this step"
-
     def _open(self, rows: np.ndarray) -> None:
         """Gain states at the new predictions of ``rows``: ``Q0 = P_pred^-1``, no pick."""
         H, h = aoa_candidates(self._x[rows], self._landmarks[rows])
@@ -332,20 +318,18 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
 
     def _infos(self, idx: np.ndarray, invalid: np.ndarray) -> dict[str, Any]:
         """The single env's info keys for ``idx``, batched."""
-        picks = [tuple(self._picks[i, : self._n_picks[i]].tolist()) for i in idx]
-        last = [
-            None if self._n_last[i] < 0 else tuple(self._last[i, : self._n_last[i]].tolist())
-            for i in idx
-        ]
+        slot = np.arange(self.k)
+        picks = np.where(slot < self._n_picks[idx, None], self._picks[idx], -1)
+        last = np.where(slot < self._n_last[idx, None], self._last[idx], -1)
         mask = ~self._sel.selected[idx]
         mask[self._done[idx]] = True
         return {
             "objective": self._cost[idx],
-            "objective_name": self._names[idx],
             "position_error": self._error[idx],
             "k": self._k[idx],
             "picks": picks,
             "last_selection": last,
             "action_mask": mask,
             "invalid_action": invalid,
+            "invalid_code": np.where(invalid, MASKED, 0),
         }
