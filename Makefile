@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	# torch first, so that nothing later resolves another build
 	$(PY) -c "import torch" 2>/dev/null || { test -n "$(TORCH_INDEX)" && $(PIP) install --quiet --retries 0 --timeout 20 --index-url "$(TORCH_INDEX)" -c constraints.txt "$(TORCH)"; } || $(PIP) install --quiet -c constraints.txt "$(TORCH)"
-	$(PIP) install --quiet -c constraints.txt -e '.[dev,ray,torchrl,docs]'
+	$(PIP) install --quiet -c constraints.txt -e '.[dev,ray,torchrl,clients,docs]'
 	$(PY) -c "import torch; print('selenv: torch', torch.__version__, '(CUDA build)' if torch.version.cuda else '(CPU build)')"
 	touch $(STAMP)
 

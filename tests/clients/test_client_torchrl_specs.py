@@ -1,33 +1,30 @@
-"""TorchRL interop: GymEnv, GymWrapper over the native vector envs, PettingZooWrapper.
+"""TorchRL interop, single envs: ``GymEnv`` specs and masked rollouts, ``PettingZooWrapper``.
 
 What a TorchRL user writes first, on default keywords: ``check_env_specs`` (reset / step /
 rand_step agree with the declared specs) and a masked rollout (the ``ActionMask`` transform
 for the Gymnasium ids, the wrapper's own mask handling for the PettingZoo modules) in which
 every action taken is allowed by the mask it was taken under. Needs the ``torchrl`` extra.
+The batched and collector paths are in ``test_client_torchrl.py``.
 """
 
 from __future__ import annotations
 
 import warnings
 
-import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.vector import AutoresetMode
 
 torchrl = pytest.importorskip("torchrl")
 torch = pytest.importorskip("torch")
 
-from torchrl.envs import GymEnv, GymWrapper, TransformedEnv  # noqa: E402
+from torchrl.envs import GymEnv, TransformedEnv  # noqa: E402
 from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: E402
 from torchrl.envs.transforms import ActionMask  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
 import selenv  # noqa: E402, F401  (registers the ids)
-from selenv.families import ENV_IDS, FAMILIES  # noqa: E402
+from selenv.families import ENV_IDS  # noqa: E402
 from selenv.multiagent import fim_selection_v0, receiver_clustering_v1  # noqa: E402
-
-VECTOR_IDS = [f.current_id for f in FAMILIES if f.vector_class is not None]
 
 
 def _masked_rollout_ok(td: object, steps: int) -> None:
@@ -63,19 +60,6 @@ def test_gymenv_assignment_mode_specs() -> None:
     check_env_specs(env, seed=0)
     td = env.rollout(5, break_when_any_done=False)
     assert td["action"].shape[0] == 5 and td["action_mask"].shape[-1] == 30 * 30
-    env.close()
-
-
-@pytest.mark.parametrize("env_id", VECTOR_IDS)
-def test_gymwrapper_over_the_native_vector_env(env_id: str) -> None:
-    kw = MASKED_KWARGS.get(env_id, {})
-    venv = gym.make_vec(env_id, num_envs=3, autoreset_mode=AutoresetMode.DISABLED, **kw)
-    assert type(venv).__module__.startswith("selenv.families.")  # the native one, not a loop
-    env = TransformedEnv(GymWrapper(venv), ActionMask())
-    assert tuple(env.batch_size) == (3,)
-    check_env_specs(env, seed=0)
-    td = env.rollout(10, break_when_any_done=False)
-    _masked_rollout_ok(td, 10)
     env.close()
 
 
