@@ -8,6 +8,7 @@ algorithms' arguments (a few hundred steps), never env keywords.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -15,7 +16,13 @@ import numpy as np
 import pytest
 import supersuit as ss
 from gymnasium.utils.env_checker import check_env as gym_check_env
-from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, state_test
+from pettingzoo.test import (
+    api_test,
+    max_cycles_test,
+    parallel_api_test,
+    parallel_seed_test,
+    state_test,
+)
 from sb3_contrib import MaskablePPO
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
@@ -25,7 +32,7 @@ from stable_baselines3.common.utils import set_random_seed
 
 import selenv  # noqa: F401  (registers the ids)
 from selenv.envs import ENV_IDS
-from selenv.multiagent import fim_selection_v0, receiver_clustering_v1
+from selenv.multiagent import fim_selection_v0, receiver_clustering_v0, receiver_clustering_v1
 
 MODULES = [fim_selection_v0, receiver_clustering_v1]
 PPO_ARGS: dict[str, Any] = {"n_steps": 64, "batch_size": 64, "n_epochs": 1, "seed": 0}
@@ -131,6 +138,39 @@ def test_pettingzoo_tests_on_defaults(module: Any) -> None:
     parallel_seed_test(module.parallel_env)
     api_test(module.env(), num_cycles=20)
     state_test(module.env(), module.parallel_env(), num_cycles=5)
+
+
+@pytest.mark.parametrize(
+    "module",
+    [fim_selection_v0, receiver_clustering_v0, receiver_clustering_v1],
+    ids=lambda m: m.__name__.rsplit(".", 1)[-1],
+)
+def test_pettingzoo_max_cycles(module: Any) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # receiver_clustering_v0
+        max_cycles_test(module)
+        assert module.parallel_env().metadata["name"] == module.__name__.rsplit(".", 1)[-1]
+        assert module.env().metadata["name"] == module.__name__.rsplit(".", 1)[-1]
+    for bad, err in ((0, ValueError), (2.0, TypeError), (True, TypeError)):
+        with pytest.raises(err, match="max_cycles"):
+            module.parallel_env(max_cycles=bad)
+
+
+@pytest.mark.parametrize("module", MODULES, ids=lambda m: m.__name__.rsplit(".", 1)[-1])
+def test_max_cycles_beyond_the_episode_changes_nothing(module: Any) -> None:
+    """A cap longer than the episode: the same steps, rewards and ends as no cap."""
+    runs = []
+    for cap in (None, 10**6):
+        env = module.parallel_env(max_cycles=cap)
+        obs, _ = env.reset(seed=3)
+        rng, trace = np.random.default_rng(0), []
+        while env.agents:
+            masks = {a: obs[a]["action_mask"] for a in env.agents}
+            acts = {a: int(np.argmax(rng.random(m.shape) + m)) for a, m in masks.items()}
+            obs, rew, term, trunc, _ = env.step(acts)
+            trace.append((sorted(rew.items()), sorted(term.items()), sorted(trunc.items())))
+        runs.append(trace)
+    assert runs[0] == runs[1] and not any(t for _, _, tr in runs[0] for _, t in tr)
 
 
 @pytest.mark.parametrize("module", MODULES, ids=lambda m: m.__name__.rsplit(".", 1)[-1])

@@ -122,6 +122,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import KnownKeywords, check_render_mode
+from selenv.envs.cycles import MaxCycles
 from selenv.envs.rendering import Renderer
 from selenv.families.clustering.env import (
     clustering_config,
@@ -192,7 +193,7 @@ def resolve_moves(
     return new, accepted
 
 
-class ReceiverClusteringParallelEnv(KnownKeywords, ParallelEnv):
+class ReceiverClusteringParallelEnv(MaxCycles, KnownKeywords, ParallelEnv):
     """Parallel multi-agent receiver clustering; see the module docstring for the manual.
 
     Args:
@@ -210,6 +211,8 @@ class ReceiverClusteringParallelEnv(KnownKeywords, ParallelEnv):
         invalid_action: ``"noop"``, ``"raise"`` or ``"terminate"`` (module docstring).
         invalid_action_penalty: reward added for a masked label (float, default 0).
         render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
+        max_cycles: ``None`` (default: the episode ends as the env says) or an int ``N >= 1``:
+            PettingZoo's cap, every live agent truncated after ``N`` parallel steps.
         preset: ``"multipath"`` (time-varying noise, default) or ``"paper"`` (fixed ``sigma``).
         p_enter: per-step probability of entering the degraded state (``None``: 0.01).
         p_leave: per-step probability of leaving it (``None``: 0.05).
@@ -244,8 +247,10 @@ class ReceiverClusteringParallelEnv(KnownKeywords, ParallelEnv):
         p_enter: float | None = None,
         p_leave: float | None = None,
         degraded_factor: float | None = None,
+        max_cycles: int | None = None,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
+        self._set_max_cycles(max_cycles)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         self.config = clustering_config(
             n_agents=n_agents,
@@ -327,11 +332,12 @@ class ReceiverClusteringParallelEnv(KnownKeywords, ParallelEnv):
         self._bank = ClusterFilterBank(self.problem, labels)
         self.last_order = None
         self.agents = list(self.possible_agents)
+        self._start_cycles()
         masks = label_masks(self.bank.labels, self.max_size)
         infos = self._infos(masks, None, changed=False)
         return self._observations(masks), infos
 
-    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
+    def _step_once(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
         """Resolve the joint cluster choice, re-cluster, filter; shared reward ``-J``."""
         if not self.agents:
             raise RuntimeError("episode is over: call reset()")
@@ -463,16 +469,22 @@ def _v0_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
     return {"preset": "paper", **kwargs}
 
 
+def _named_v0(env: ReceiverClusteringParallelEnv) -> ReceiverClusteringParallelEnv:
+    env.metadata = {**env.metadata, "name": "receiver_clustering_v0"}
+    return env
+
+
 def parallel_env_v0(**kwargs: Any) -> ReceiverClusteringParallelEnv:
     """``receiver_clustering_v0.parallel_env``: :func:`parallel_env` with 0.1's defaults."""
-    return parallel_env(**_v0_kwargs(kwargs))
+    return _named_v0(parallel_env(**_v0_kwargs(kwargs)))
 
 
 def raw_env_v0(**kwargs: Any) -> AECEnv:
     """``receiver_clustering_v0.raw_env``: :func:`raw_env` with 0.1's defaults."""
-    return raw_env(**_v0_kwargs(kwargs))
+    return parallel_to_aec(_named_v0(parallel_env(**_v0_kwargs(kwargs))))
 
 
 def env_v0(**kwargs: Any) -> AECEnv:
     """``receiver_clustering_v0.env``: :func:`env` with 0.1's defaults."""
-    return env(**_v0_kwargs(kwargs))
+    aec = parallel_to_aec(_named_v0(parallel_env(**_v0_kwargs(kwargs))))
+    return wrappers.OrderEnforcingWrapper(wrappers.AssertOutOfBoundsWrapper(aec))

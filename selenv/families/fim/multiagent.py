@@ -79,6 +79,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from selenv.core.information import LogDetGainState
 from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete
 from selenv.envs.conventions import KnownKeywords, check_render_mode
+from selenv.envs.cycles import MaxCycles
 from selenv.envs.rendering import Renderer
 from selenv.families.fim.env import (
     candidate_features,
@@ -94,7 +95,7 @@ __all__ = ["FIMSelectionParallelEnv", "env", "parallel_env", "raw_env"]
 MODES = ("independent", "cooperative")
 
 
-class FIMSelectionParallelEnv(KnownKeywords, ParallelEnv):
+class FIMSelectionParallelEnv(MaxCycles, KnownKeywords, ParallelEnv):
     """Parallel multi-agent FIM selection; see the module docstring for the manual.
 
     Args:
@@ -112,6 +113,8 @@ class FIMSelectionParallelEnv(KnownKeywords, ParallelEnv):
         invalid_action: ``"noop"``, ``"raise"`` or ``"terminate"`` (module docstring).
         invalid_action_penalty: reward added for an invalid pick (float, default 0).
         render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
+        max_cycles: ``None`` (default: the episode ends as the env says) or an int ``N >= 1``:
+            PettingZoo's cap, every live agent truncated after ``N`` parallel steps.
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
@@ -135,8 +138,10 @@ class FIMSelectionParallelEnv(KnownKeywords, ParallelEnv):
         invalid_action: str = "noop",
         invalid_action_penalty: float = 0.0,
         render_mode: str | None = None,
+        max_cycles: int | None = None,
     ) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata)
+        self._set_max_cycles(max_cycles)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
         check_choice(mode, "mode", MODES)
         overrides: dict[str, Any] = {"n_candidates": n_candidates, "randomize": randomize}
@@ -237,12 +242,13 @@ class FIMSelectionParallelEnv(KnownKeywords, ParallelEnv):
         self._features = candidate_features(P)
         self._count = dict.fromkeys(self.possible_agents, 0)
         self.agents = list(self.possible_agents)
+        self._start_cycles()
         return (
             {a: self._obs(a) for a in self.agents},
             {a: self._info(a) for a in self.agents},
         )
 
-    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
+    def _step_once(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
         """Apply the acting agents' picks; the shared reward is the centre's log-det gain."""
         if not self.agents:
             raise RuntimeError("episode is over: call reset()")
