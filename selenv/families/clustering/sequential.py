@@ -1,0 +1,258 @@
+"""ReceiverClustering with one ``Discrete`` action and an exact mask: one receiver placed per step.
+
+Each filter step of :class:`~selenv.families.clustering.env.ReceiverClusteringEnv` becomes
+``n`` env steps. At the ``i``-th, the action ``j`` places receiver ``i`` in the new clustering:
+``j < i`` joins the cluster receiver ``j`` is in, ``j == i`` opens a new cluster, ``j > i`` is
+not allowed (receiver ``j`` is not placed yet). The mask is exact: ``j < i`` is allowed iff
+``j``'s new cluster holds fewer than ``max_size`` receivers, ``j == i`` always, so every
+sequence of allowed actions builds a clustering that meets the state limit, and every such
+clustering is built by at least one (its canonical sequence: each receiver joins the lowest
+receiver of its cluster). After receiver ``n - 1`` the assignment env re-clusters and runs its
+filter step; that env step's reward is the assignment env's (``-J``), the others' 0, so the
+return equals the assignment env's return for the same clusterings.
+
+Built on the assignment env (composition, same seeds, same filters): an agent that plays the
+assignment env plays this one through :class:`SequentialAgent`, with the same trajectory.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from selenv.agents.base import Agent
+from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete, invalid_code
+
+__all__ = ["ReceiverClusteringSequentialEnv", "SequentialAgent", "placement_actions"]
+
+#: keywords the sequential env fixes on its assignment env
+FIXED = ("action_mode", "obs_mask")
+
+
+class ReceiverClusteringSequentialEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+    """One receiver placed per step (module docstring); keywords: the assignment env's.
+
+    Args:
+        invalid_action: ``"noop"``: a masked action voids this filter step's new clustering
+            (the filter step runs with the current one, as the assignment env's no-op), the
+            receiver is placed alone so the step can go on, and ``invalid_action_penalty``
+            is added to the reward; ``"raise"``; ``"terminate"``
+            (:mod:`selenv.envs.actions`).
+        invalid_action_penalty: float in ``[-1e6, 1e6]``.
+        render_mode: ``None``, ``"rgb_array"`` or ``"human"`` (the assignment env's frames).
+        **config: every other keyword of ``ReceiverClusteringEnv`` (``n_agents``,
+            ``n_max_states``, ``horizon``, ``preset``, ...), validated by it;
+            ``action_mode`` and ``obs_mask`` are fixed.
+
+    Observation: the assignment env's (``assignment``, ``cluster_size``, ``sigma``,
+    ``position_var``, ``cost``, ``time``) plus ``receiver (n,)`` one-hot of the receiver the
+    next action places, ``new_assignment (n,)`` the lowest receiver of each placed receiver's
+    new cluster (``-1``: not placed yet) and ``action_mask (n,)``. ``info``: the assignment
+    env's keys (``action_mask`` the ``(n,)`` mask) and ``receiver``, the same at every step.
+    """
+
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
+        "invalid_codes": INVALID_CODES,
+    }
+
+    def __init__(
+        self,
+        *,
+        invalid_action: str = "noop",
+        invalid_action_penalty: float = 0.0,
+        render_mode: str | None = None,
+        **config: Any,
+    ) -> None:
+        from selenv.families.clustering.env import ReceiverClusteringEnv
+
+        fixed = sorted(set(config) & set(FIXED))
+        if fixed:
+            raise TypeError(
+                f"{fixed} cannot be set: the sequential env always places one receiver per "
+                "step (use ReceiverClustering's assignment or edit action_mode on -v1)"
+            )
+        self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
+        self.inner = ReceiverClusteringEnv(
+            action_mode="assignment", obs_mask=False, invalid_action="raise",
+            render_mode=render_mode, **config,
+        )  # fmt: skip
+        self.render_mode = self.inner.render_mode
+        self.n, self.max_size, self.horizon = self.inner.n, self.inner.max_size, self.inner.horizon
+        self.max_episode_steps = self.horizon * self.n
+        n = self.n
+        inner_space = self.inner.observation_space
+        assert isinstance(inner_space, spaces.Dict)
+        self.observation_space = spaces.Dict(
+            {
+                **inner_space.spaces,
+                "receiver": spaces.MultiBinary(n),
+                "new_assignment": spaces.Box(-1, n - 1, (n,), np.int64),
+                "action_mask": spaces.MultiBinary(n),
+            }
+        )
+        self.action_space = spaces.Discrete(n)
+        self._inner_obs: dict[str, np.ndarray] = {}
+        self._inner_info: dict[str, Any] = {}
+        self._receiver = 0
+        self._new = np.full(n, -1, dtype=np.int64)
+        self._sizes = np.zeros(n, dtype=np.int64)  # by the cluster's lowest receiver
+        self._void = False
+        self._done = False
+
+    # -- the assignment env underneath -----------------------------------------------------------
+    @property
+    def bank(self) -> Any:
+        """The assignment env's cluster filters (its current clustering)."""
+        return self.inner.bank
+
+    @property
+    def receiver(self) -> int:
+        """The receiver the next action places (0 at the start of every filter step)."""
+        return self._receiver
+
+    @property
+    def inner_observation(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """The assignment env's latest ``(obs, info)`` (what an assignment agent acts on)."""
+        return self._inner_obs, self._inner_info
+
+    def action_masks(self) -> np.ndarray:
+        """``(n,)`` bool: the clusters receiver :attr:`receiver` may join, or open its own."""
+        i, mask = self._receiver, np.zeros(self.n, dtype=np.bool_)
+        if i > 0:
+            mask[:i] = self._sizes[self._new[:i]] < self.max_size
+        mask[i] = True
+        return mask
+
+    # -- Gymnasium API -------------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Reset the assignment env (same seed, same episode) and open a filter step."""
+        self._inner_obs, self._inner_info = self.inner.reset(seed=seed, options=options)
+        # one generator: the assignment env's, which draws every random number
+        self._np_random, self._np_random_seed = self.inner.np_random, self.inner.np_random_seed
+        self._open()
+        self._done = False
+        return self._obs(), self._info(None)
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Place receiver :attr:`receiver`; after the last one, re-cluster and filter."""
+        if self._done:
+            raise RuntimeError("episode is over: call reset()")
+        i = self._receiver
+        j = check_discrete(action, self.n)
+        reason = None if self.action_masks()[j] else self._why(i, j)
+        rule = self.invalid_rule
+        if rule.check(f"action {j} (placing receiver {i})", reason) and rule.terminates:
+            self._done = True
+            return self._obs(), rule.penalty, True, False, self._info(reason)
+        reward = rule.penalty if reason else 0.0
+        lead = i if reason is not None or j == i else int(self._new[j])
+        self._void |= reason is not None
+        self._new[i] = lead
+        self._sizes[lead] += 1
+        terminated = False
+        if i + 1 < self.n:
+            self._receiver = i + 1
+        else:
+            labels = self.bank.labels.copy() if self._void else self._new.copy()
+            obs, r, terminated, truncated, info = self.inner.step(labels)
+            self._inner_obs, self._inner_info = obs, info
+            reward += float(r)
+            self._done = bool(terminated or truncated)
+            self._open()
+        return self._obs(), reward, terminated, False, self._info(reason)
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override, unused-ignore]
+        """The assignment env's frame of the current clustering."""
+        return self.inner.render()
+
+    def close(self) -> None:
+        """Close the assignment env's render window, if any."""
+        self.inner.close()
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _open(self) -> None:
+        self._receiver, self._void = 0, False
+        self._new[:] = -1
+        self._sizes[:] = 0
+
+    def _why(self, i: int, j: int) -> str:
+        if j > i:
+            return f"masked: receiver {j} is not placed yet (placing receiver {i})"
+        return f"masked: receiver {j}'s cluster already holds max_size={self.max_size} receivers"
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        receiver = np.zeros(self.n, dtype=np.int8)
+        receiver[self._receiver] = 1
+        return {
+            **self._inner_obs,
+            "receiver": receiver,
+            "new_assignment": self._new.copy(),
+            "action_mask": self.action_masks().astype(np.int8),
+        }
+
+    def _info(self, reason: str | None) -> dict[str, Any]:
+        return {
+            **self._inner_info,
+            "action_mask": self.action_masks(),
+            "receiver": self._receiver,
+            "invalid_action": reason is not None,
+            "invalid_code": invalid_code(reason),
+        }
+
+
+def placement_actions(labels: np.ndarray) -> np.ndarray:
+    """``(n,)`` int64: the canonical actions that build the clustering ``labels``.
+
+    Receiver ``i`` joins the lowest receiver of its cluster (``i`` itself if it is the lowest,
+    which opens the cluster). Allowed at every step when ``labels`` meets the state limit.
+    """
+    labels = np.asarray(labels)
+    out = np.empty(labels.size, dtype=np.int64)
+    first: dict[int, int] = {}
+    for i, lab in enumerate(labels.tolist()):
+        out[i] = first.setdefault(lab, i)
+    return out
+
+
+class SequentialAgent(Agent):
+    """An agent of the assignment env playing :class:`ReceiverClusteringSequentialEnv`.
+
+    At the first step of each filter step it asks ``agent`` for the clustering (on the
+    assignment env's own observation, info and state), then plays its
+    :func:`placement_actions` one receiver at a time: the same clusterings, filters and
+    return as ``agent`` on the assignment env with the same seed.
+    """
+
+    def __init__(self, agent: Any) -> None:
+        self.agent = agent
+        self.name = getattr(agent, "name", type(agent).__name__)
+        self._env: ReceiverClusteringSequentialEnv | None = None
+        self._plan = np.zeros(0, dtype=np.int64)
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Bind to the sequential env (wrapped or not) and reset ``agent`` on its assignment env."""
+        base = env.unwrapped
+        if not isinstance(base, ReceiverClusteringSequentialEnv):
+            raise TypeError(
+                f"SequentialAgent plays ReceiverClusteringSequentialEnv, got {type(base).__name__}"
+            )
+        self._env = base
+        self.agent.reset(base.inner, seed=seed)
+
+    def act(self, obs: Any, info: Any) -> int:
+        """The next receiver's placement (the plan is made at the filter step's first)."""
+        env = self._env
+        if env is None:
+            raise RuntimeError("call reset(env) before act()")
+        if env.receiver == 0:
+            inner_obs, inner_info = env.inner_observation
+            labels = np.asarray(self.agent.act(inner_obs, inner_info))
+            self._plan = placement_actions(labels)
+        return int(self._plan[env.receiver])
