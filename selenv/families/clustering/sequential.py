@@ -24,7 +24,8 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.agents.base import Agent
-from selenv.envs.actions import INVALID_CODES, InvalidActionRule, check_discrete, invalid_code
+from selenv.envs.actions import InvalidActionRule, check_discrete, invalid_code
+from selenv.families.clustering.env import ReceiverClusteringEnv
 
 __all__ = ["ReceiverClusteringSequentialEnv", "SequentialAgent", "placement_actions"]
 
@@ -54,11 +55,7 @@ class ReceiverClusteringSequentialEnv(gym.Env[dict[str, np.ndarray], np.int64]):
     env's keys (``action_mask`` the ``(n,)`` mask) and ``receiver``, the same at every step.
     """
 
-    metadata: dict[str, Any] = {  # noqa: RUF012
-        "render_modes": ["rgb_array", "human"],
-        "render_fps": 10,
-        "invalid_codes": INVALID_CODES,
-    }
+    metadata: dict[str, Any] = ReceiverClusteringEnv.metadata  # its frames and codes
 
     def __init__(
         self,
@@ -68,8 +65,6 @@ class ReceiverClusteringSequentialEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         render_mode: str | None = None,
         **config: Any,
     ) -> None:
-        from selenv.families.clustering.env import ReceiverClusteringEnv
-
         fixed = sorted(set(config) & set(FIXED))
         if fixed:
             raise TypeError(
