@@ -52,6 +52,12 @@ def test_rule_validation_and_behaviour() -> None:
     assert INVALID_CODES[MASKED] == "masked" and INVALID_CODES[INFEASIBLE] == "infeasible"
     with pytest.raises(ValueError, match="must start with one of"):
         invalid_code("why")  # every env reason names its kind
+    batched = InvalidActionRule.masked_info(np.array([False, True]))
+    assert batched["invalid_action"].tolist() == [False, True]
+    assert (
+        batched["invalid_code"].tolist() == [0, MASKED]
+        and batched["invalid_code"].dtype == np.int64
+    )
     assert check_discrete(np.array([3]), 5) == 3
     for bad, err in (
         (1.0, TypeError),

@@ -158,3 +158,16 @@ class InvalidActionRule:
     def info(reason: str | None) -> dict[str, Any]:
         """The step's ``info`` entries: ``invalid_action`` (bool), ``invalid_code`` (int)."""
         return {"invalid_action": reason is not None, "invalid_code": invalid_code(reason)}
+
+    @staticmethod
+    def masked_info(invalid: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`info` batched, for sub-envs whose only invalid actions are masked ones.
+
+        ``invalid`` ``(k,)`` bool -> ``invalid_action`` (it) and ``invalid_code`` ``(k,)``
+        int64 (:data:`MASKED` where invalid, else 0).
+        """
+        invalid = np.asarray(invalid, dtype=np.bool_)
+        return {
+            "invalid_action": invalid,
+            "invalid_code": np.where(invalid, MASKED, 0).astype(np.int64),
+        }

@@ -454,8 +454,11 @@ def raw_env(**kwargs: Any) -> AECEnv:
 
 def env(**kwargs: Any) -> AECEnv:
     """The AEC version with PettingZoo's standard wrappers (bounds check, call order)."""
-    aec = wrappers.AssertOutOfBoundsWrapper(raw_env(**kwargs))
-    return wrappers.OrderEnforcingWrapper(aec)
+    return _standard_wrappers(raw_env(**kwargs))
+
+
+def _standard_wrappers(aec: AECEnv) -> AECEnv:
+    return wrappers.OrderEnforcingWrapper(wrappers.AssertOutOfBoundsWrapper(aec))
 
 
 def _v0_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -486,5 +489,4 @@ def raw_env_v0(**kwargs: Any) -> AECEnv:
 
 def env_v0(**kwargs: Any) -> AECEnv:
     """``receiver_clustering_v0.env``: :func:`env` with 0.1's defaults."""
-    aec = parallel_to_aec(_named_v0(parallel_env(**_v0_kwargs(kwargs))))
-    return wrappers.OrderEnforcingWrapper(wrappers.AssertOutOfBoundsWrapper(aec))
+    return _standard_wrappers(parallel_to_aec(_named_v0(parallel_env(**_v0_kwargs(kwargs)))))

@@ -24,7 +24,7 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.agents.base import Agent
-from selenv.envs.actions import InvalidActionRule, check_discrete, invalid_code
+from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.families.clustering.env import ReceiverClusteringEnv
 
 __all__ = ["ReceiverClusteringSequentialEnv", "SequentialAgent", "placement_actions"]
@@ -197,8 +197,7 @@ class ReceiverClusteringSequentialEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             **self._inner_info,
             "action_mask": self.action_masks(),
             "receiver": self._receiver,
-            "invalid_action": reason is not None,
-            "invalid_code": invalid_code(reason),
+            **InvalidActionRule.info(reason),
         }
 
 

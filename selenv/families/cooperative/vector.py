@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from selenv.envs.actions import MASKED
+from selenv.envs.actions import InvalidActionRule
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.envs.vector import BatchedVectorEnv
@@ -424,8 +424,7 @@ class CLSchedulingVectorEnv(BatchedVectorEnv):
             "position_errors": np.sqrt(np.sum(err * err, axis=-1)),
             "processed": self._done_pairs[idx].copy(),
             "action_mask": self._masks[idx].copy(),
-            "invalid_action": invalid,
-            "invalid_code": np.where(invalid, MASKED, 0),
+            **InvalidActionRule.masked_info(invalid),
         }
 
     # -- public ------------------------------------------------------------------------------

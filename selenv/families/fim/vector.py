@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from selenv.envs.actions import MASKED
+from selenv.envs.actions import InvalidActionRule
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
 from selenv.envs.vector import BatchedVectorEnv, check_num_envs
@@ -232,8 +232,7 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
             "objective": core.objective[idx],
             "action_mask": np.logical_not(core.selected[idx]),
             "n_selected": core.count[idx],
-            "invalid_action": bad,
-            "invalid_code": np.where(bad, MASKED, 0),
+            **InvalidActionRule.masked_info(bad),
         }
 
     def _check_actions(self, actions: Any) -> np.ndarray:

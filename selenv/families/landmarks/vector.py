@@ -18,7 +18,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from selenv.envs.actions import MASKED
+from selenv.envs.actions import InvalidActionRule
 from selenv.envs.rendering import Renderer
 from selenv.envs.vector import BatchedVectorEnv, check_num_envs
 from selenv.families.landmarks.batched import (
@@ -330,6 +330,5 @@ class LandmarkSelectionVectorEnv(BatchedVectorEnv):
             "picks": picks,
             "last_selection": last,
             "action_mask": mask,
-            "invalid_action": invalid,
-            "invalid_code": np.where(invalid, MASKED, 0),
+            **InvalidActionRule.masked_info(invalid),
         }
