@@ -19,6 +19,7 @@ from selenv.agents.base import (
     default_agents,
     make,
     parse_spec,
+    register_adapted,
     register_agent,
 )
 from selenv.agents.learned import register_policies
@@ -45,3 +46,5 @@ for _family in FAMILIES:
         importlib.import_module(_module)  # registers the family's agents
 # the shipped learned policies: the families' PolicySpec records, their old names and `learned`
 register_policies()
+# versions with another action space: every agent of the version before, through its adapter
+register_adapted()

@@ -15,6 +15,8 @@ the objective: they call the solvers and the scenario.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import importlib
 import inspect
 from abc import ABC, abstractmethod
@@ -26,7 +28,7 @@ import gymnasium as gym
 import numpy as np
 
 from selenv._signals import hold_signals
-from selenv.families import version_ids
+from selenv.families import ADAPTED, version_ids
 from selenv.suggest import with_suggestion
 
 __all__ = [
@@ -38,6 +40,7 @@ __all__ = [
     "default_agents",
     "make",
     "parse_spec",
+    "register_adapted",
     "register_agent",
     "unknown_agent_message",
 ]
@@ -157,16 +160,52 @@ def register_agent(spec: AgentSpec) -> None:
     """Register ``spec`` under its name for each of its env ids (re-registering replaces).
 
     With ``spec.all_versions`` an id stands for every registered version of its family
-    (:func:`~selenv.families.version_ids`).
+    (:func:`~selenv.families.version_ids`) whose action space it shares: a version with
+    another action space (:data:`~selenv.families.ADAPTED`) gets the agent through
+    :func:`register_adapted`, unless ``spec.env_ids`` names it.
     """
     ids = spec.env_ids
     if spec.all_versions:
-        ids = tuple(dict.fromkeys(v for env_id in ids for v in version_ids(env_id)))
+        ids = tuple(
+            dict.fromkeys(
+                v
+                for env_id in ids
+                for v in version_ids(env_id)
+                if v == env_id or v not in ADAPTED
+            )
+        )
     for env_id in ids:
         AGENTS.setdefault(spec.name, {})[env_id] = spec
         names = _ORDER.setdefault(env_id, [])
         if spec.name not in names:
             names.append(spec.name)
+
+
+def register_adapted() -> None:
+    """Register every agent of an adapted version's source on it, through the adapter.
+
+    For each ``target -> (source, adapter)`` of :data:`~selenv.families.ADAPTED` (e.g.
+    ``ReceiverClustering-v2 -> (-v1, SequentialAgent)``), an agent of ``source`` not
+    registered on ``target`` itself is registered there as ``adapter(agent)``, with its
+    description and flags; it plays the same episodes as on ``source``.
+    """
+    for target, (source, adapter) in ADAPTED.items():
+        for name in agents_for(source):
+            if target in AGENTS[name]:
+                continue
+            spec = AGENTS[name][source]
+            factory = functools.partial(_build_adapted, spec, adapter)
+            register_agent(
+                dataclasses.replace(
+                    spec, env_ids=(target,), factory=factory, kwargs={}, all_versions=False
+                )
+            )
+
+
+def _build_adapted(spec: AgentSpec, adapter: str, **options: Any) -> Agent:
+    module, _, attr = adapter.partition(":")
+    wrap: Callable[[Agent], Agent] = getattr(importlib.import_module(module), attr)
+    return wrap(spec.build(**options))
 
 
 def agents_for(env_id: str) -> list[str]:

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from selenv.agents.base import AGENTS, Agent, AgentSpec, _check_options, register_agent
-from selenv.families import FAMILIES
+from selenv.families import ADAPTED, FAMILIES
 from selenv.families.policy import PolicySpec, Standing
 from selenv.families.spec import load_attr
 
@@ -107,7 +107,15 @@ def resolve_learned(
 
 
 def list_note(name: str, env_id: str) -> str:
-    """What ``selenv list`` adds to a learned agent's line: its standing, or why it is retired."""
+    """What ``selenv list`` adds to a learned agent's line: its standing, or why it is retired.
+
+    On a version that plays an older one's agents (:data:`~selenv.families.ADAPTED`), the
+    older version's standings: the agent plays the same episodes there.
+    """
+    if env_id in ADAPTED:
+        source = ADAPTED[env_id][0]
+        note = list_note(name, source)
+        return f"{note} (on {source}: the same episodes)" if note else note
     if name == "learned":
         return learned_choice(env_id)
     try:

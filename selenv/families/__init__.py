@@ -16,6 +16,7 @@ from selenv.families import clustering, cooperative, fim, landmarks
 from selenv.families.spec import FamilySpec
 
 __all__ = [
+    "ADAPTED",
     "ALL_ENV_IDS",
     "ENV_IDS",
     "ENV_VERSIONS",
@@ -35,6 +36,14 @@ ENV_VERSIONS: tuple[EnvVersion, ...] = tuple(v for f in FAMILIES for v in f.vers
 ENV_IDS: tuple[str, ...] = tuple(f.current_id for f in FAMILIES)
 #: every registered Gymnasium id, older versions included
 ALL_ENV_IDS: tuple[str, ...] = tuple(v.env_id for v in ENV_VERSIONS)
+
+#: current id -> ``(older id, "module:adapter")``: the older version's agents play the current
+#: one through the adapter (:attr:`FamilySpec.agent_adapter`)
+ADAPTED: dict[str, tuple[str, str]] = {
+    f.current_id: (f.adapted_from, f.agent_adapter)
+    for f in FAMILIES
+    if f.adapted_from is not None and f.agent_adapter is not None
+}
 
 _BY_ID = {v.env_id: f for f in FAMILIES for v in f.versions}
 _BY_MODULE = {m: f for f in FAMILIES for m in f.multiagent_modules}

@@ -24,7 +24,16 @@ from gymnasium.wrappers import RenderCollection
 
 from selenv.envs.versions import EnvVersion
 
-__all__ = ["FamilySpec", "build_env", "env_factories", "load_attr", "vector_factories"]
+__all__ = [
+    "FamilySpec",
+    "FrozenVersion",
+    "build_env",
+    "build_vector_env",
+    "env_factories",
+    "frozen_factories",
+    "load_attr",
+    "vector_factories",
+]
 
 
 def load_attr(path: str) -> Any:
@@ -36,6 +45,24 @@ def load_attr(path: str) -> Any:
 
 
 @dataclass(frozen=True, kw_only=True)
+class FrozenVersion:
+    """A version between ``-v0`` and the current one, still registered, never changed again.
+
+    Gymnasium's rule: a change that alters results gets a new id and the old id keeps its
+    behaviour, so results published against it stay reproducible from the id alone.
+
+    Args:
+        env_class: ``"module:Class"`` of that version's Gymnasium env.
+        vector_class: ``"module:Class"`` of its native vector env (``None``: none).
+        change: one line: what the next version changed (the docs' version table).
+    """
+
+    env_class: str
+    vector_class: str | None = None
+    change: str = ""
+
+
+@dataclass(frozen=True, kw_only=True)
 class FamilySpec:
     """Everything the package needs to know of one env family.
 
@@ -43,7 +70,7 @@ class FamilySpec:
         name: folder name under ``selenv/families`` (``"fim"``).
         env_name: the Gymnasium name; ids are ``selenv/<env_name>-v<N>``.
         title: one line: the decision problem and its paper.
-        env_class: ``"module:Class"`` of the Gymnasium env.
+        env_class: ``"module:Class"`` of the current version's Gymnasium env.
         v0_kwargs: keyword defaults registered with ``-v0`` (release 0.1's configuration).
         v0_presets: preset names that meant another preset in release 0.1 (``-v0`` maps them).
         views: ``"module:attr"`` of the family's candidate views, ``{name: factory(env)}``; the
@@ -67,6 +94,14 @@ class FamilySpec:
         vector_class: ``"module:Class"`` of the family's native batched vector env (a
             :class:`~selenv.envs.vector.BatchedVectorEnv`), registered as the ids'
             ``vector_entry_point``; ``None``: ``gymnasium.make_vec`` loops over single envs.
+        frozen: the superseded versions ``-v1`` ... ``-vK`` (oldest first), still registered;
+            the current version is ``-v(K+1)``. ``-v0`` builds the oldest class (release
+            0.1's), ``frozen[0].env_class`` when there is one.
+        agent_adapter: ``"module:attr"`` of ``adapter(agent)``, which makes an agent of the
+            newest frozen version play the current one (``None``: an agent plays every version
+            as it is). The agent registry registers every agent of ``-vK`` on the current id
+            through it, so heuristics and shipped policies keep working when the action space
+            changes.
     """
 
     name: str
@@ -83,17 +118,51 @@ class FamilySpec:
     multiagent_v0: str | None = None
     has_v0: bool = True
     vector_class: str | None = None
+    frozen: tuple[FrozenVersion, ...] = ()
+    agent_adapter: str | None = None
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier() or not self.env_name.isidentifier():
             raise ValueError(f"name and env_name must be identifiers, got {self!r}")
+        if self.agent_adapter is not None and not self.frozen:
+            raise ValueError(f"{self.name}: agent_adapter needs a frozen version to adapt")
         for attr in ("v0_kwargs", "v0_presets"):
             object.__setattr__(self, attr, MappingProxyType(dict(getattr(self, attr))))
 
     @property
+    def version(self) -> int:
+        """The current version number (``1 + len(frozen)``)."""
+        return 1 + len(self.frozen)
+
+    @property
     def current_id(self) -> str:
-        """The current id, ``selenv/<env_name>-v1``."""
-        return f"selenv/{self.env_name}-v1"
+        """The current id, ``selenv/<env_name>-v<version>``."""
+        return self.version_id(self.version)
+
+    def version_id(self, version: int) -> str:
+        """``selenv/<env_name>-v<version>``."""
+        return f"selenv/{self.env_name}-v{version}"
+
+    @property
+    def agents_id(self) -> str:
+        """The id the family's agents and shipped policies are written for (and trained on).
+
+        The current id, or :attr:`adapted_from` when the current version plays them through
+        :attr:`agent_adapter`.
+        """
+        return self.adapted_from or self.current_id
+
+    @property
+    def adapted_from(self) -> str | None:
+        """The id whose agents play the current one through :attr:`agent_adapter` (or ``None``)."""
+        return None if self.agent_adapter is None else self.version_id(len(self.frozen))
+
+    def classes(self, version: int) -> tuple[str, str | None]:
+        """``(env_class, vector_class)`` of ``-v<version>`` (``0``: release 0.1's classes)."""
+        if version == self.version or not self.frozen:
+            return self.env_class, self.vector_class
+        old = self.frozen[max(version, 1) - 1]
+        return old.env_class, old.vector_class
 
     @property
     def multiagent_modules(self) -> tuple[str, ...]:
@@ -103,24 +172,26 @@ class FamilySpec:
 
     @property
     def versions(self) -> tuple[EnvVersion, ...]:
-        """``-v0`` (release 0.1, if :attr:`has_v0`) and ``-v1`` (current), with entry points."""
+        """``-v0`` (release 0.1, if :attr:`has_v0`), the frozen versions and the current one.
+
+        Entry points: ``make_env`` / ``make_vector_env`` (current), ``make_env_v<N>`` /
+        ``make_vector_env_v<N>`` (older) in the family's package.
+        """
         package = f"selenv.families.{self.name}"
-        vector = self.vector_class is not None
-        v1 = EnvVersion(
-            env_id=self.current_id,
-            entry_point=f"{package}:make_env",
-            vector_entry_point=f"{package}:make_vector_env" if vector else None,
-        )
-        if not self.has_v0:
-            return (v1,)
-        v0 = EnvVersion(
-            env_id=f"selenv/{self.env_name}-v0",
-            entry_point=f"{package}:make_env_v0",
-            vector_entry_point=f"{package}:make_vector_env_v0" if vector else None,
-            kwargs=self.v0_kwargs,
-            superseded_by=self.current_id,
-        )
-        return (v0, v1)
+        out = []
+        for version in range(0 if self.has_v0 else 1, self.version + 1):
+            suffix = "" if version == self.version else f"_v{version}"
+            vector = self.classes(version)[1] is not None
+            out.append(
+                EnvVersion(
+                    env_id=self.version_id(version),
+                    entry_point=f"{package}:make_env{suffix}",
+                    vector_entry_point=f"{package}:make_vector_env{suffix}" if vector else None,
+                    kwargs=self.v0_kwargs if version == 0 else {},
+                    superseded_by=None if version == self.version else self.current_id,
+                )
+            )
+        return tuple(out)
 
 
 def build_env(entry: str, render_mode: Any = None, **kwargs: Any) -> gym.Env[Any, Any]:
@@ -163,7 +234,7 @@ def env_factories(spec: FamilySpec) -> tuple[EnvFactory, EnvFactory]:
         preset = kwargs.get("preset")
         if isinstance(preset, str) and preset in spec.v0_presets:
             kwargs["preset"] = spec.v0_presets[preset]
-        return make_env(**kwargs)
+        return build_env(spec.classes(0)[0], **kwargs)
 
     make_env.__doc__ = f"``{spec.current_id}``: a ``{spec.env_class.split(':')[1]}``."
     make_env_v0.__doc__ = f"``selenv/{spec.env_name}-v0`` (release 0.1; deprecated)."
@@ -186,19 +257,51 @@ def vector_factories(spec: FamilySpec) -> tuple[VectorFactory, VectorFactory]:
     def make_vector_env(num_envs: int = 1, **kwargs: Any) -> Any:
         if spec.vector_class is None:
             raise ValueError(f"{spec.current_id} has no native vector env")
-        mode = kwargs.pop("autoreset_mode", None)
-        venv = load_attr(spec.vector_class)(num_envs=num_envs, **kwargs)
-        if mode is not None:
-            venv.set_autoreset_mode(mode)
-        return venv
+        return build_vector_env(spec.vector_class, num_envs, **kwargs)
 
     def make_vector_env_v0(num_envs: int = 1, **kwargs: Any) -> Any:
         warn_deprecated(f"selenv/{spec.env_name}-v0", spec.current_id)
         preset = kwargs.get("preset")
         if isinstance(preset, str) and preset in spec.v0_presets:
             kwargs["preset"] = spec.v0_presets[preset]
-        return make_vector_env(num_envs, **kwargs)
+        vector_class = spec.classes(0)[1]
+        if vector_class is None:
+            raise ValueError(f"selenv/{spec.env_name}-v0 has no native vector env")
+        return build_vector_env(vector_class, num_envs, **kwargs)
 
     make_vector_env.__doc__ = f"``gymnasium.make_vec('{spec.current_id}', num_envs=B)``."
     make_vector_env_v0.__doc__ = f"``selenv/{spec.env_name}-v0``'s vector env (deprecated)."
     return make_vector_env, make_vector_env_v0
+
+
+def build_vector_env(entry: str, num_envs: int, **kwargs: Any) -> Any:
+    """``Class(num_envs=num_envs, **kwargs)``; ``autoreset_mode``, if given, selects the mode."""
+    mode = kwargs.pop("autoreset_mode", None)
+    venv = load_attr(entry)(num_envs=num_envs, **kwargs)
+    if mode is not None:
+        venv.set_autoreset_mode(mode)
+    return venv
+
+
+def frozen_factories(spec: FamilySpec, version: int) -> tuple[EnvFactory, VectorFactory]:
+    """The entry points ``(make_env_vN, make_vector_env_vN)`` of the frozen ``-v<version>``.
+
+    They build that version's classes (:attr:`FamilySpec.frozen`) with the user's keywords;
+    Gymnasium's ``make`` itself warns that a newer version exists.
+    """
+    if not 1 <= version < spec.version:
+        raise ValueError(f"{spec.name}: -v{version} is not a frozen version")
+    env_class, vector_class = spec.classes(version)
+    env_id = spec.version_id(version)
+
+    def make_env_frozen(**kwargs: Any) -> gym.Env[Any, Any]:
+        return build_env(env_class, **kwargs)
+
+    def make_vector_env_frozen(num_envs: int = 1, **kwargs: Any) -> Any:
+        if vector_class is None:
+            raise ValueError(f"{env_id} has no native vector env")
+        return build_vector_env(vector_class, num_envs, **kwargs)
+
+    make_env_frozen.__doc__ = f"``{env_id}`` (frozen; {spec.current_id} is current)."
+    make_vector_env_frozen.__doc__ = f"``gymnasium.make_vec('{env_id}', num_envs=B)`` (frozen)."
+    return make_env_frozen, make_vector_env_frozen

@@ -25,6 +25,7 @@ from gymnasium import spaces
 
 from selenv.agents.base import Agent
 from selenv.envs.actions import InvalidActionRule, check_discrete
+from selenv.envs.conventions import EpisodeLengthSpec
 from selenv.families.clustering.env import ReceiverClusteringEnv
 
 __all__ = ["ReceiverClusteringSequentialEnv", "SequentialAgent", "placement_actions"]
@@ -33,7 +34,7 @@ __all__ = ["ReceiverClusteringSequentialEnv", "SequentialAgent", "placement_acti
 FIXED = ("action_mode", "obs_mask")
 
 
-class ReceiverClusteringSequentialEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
     """One receiver placed per step (module docstring); keywords: the assignment env's.
 
     Args:

@@ -58,7 +58,7 @@ FIM_ENV_ID = "selenv/FIMSelection-v1"
 CHECKPOINT_DIR = checkpoint_dir()
 #: env id -> the shipped checkpoint the ``ppo`` agent loads by default
 DEFAULT_CHECKPOINTS = {
-    f.current_id: CHECKPOINT_DIR / f.checkpoint for f in FAMILIES if f.checkpoint is not None
+    f.agents_id: CHECKPOINT_DIR / f.checkpoint for f in FAMILIES if f.checkpoint is not None
 }
 
 
