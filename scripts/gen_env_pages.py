@@ -32,6 +32,7 @@ import gymnasium as gym
 from gymnasium import spaces
 
 from selenv.atomic import write_text
+from selenv.families.spec import load_attr
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "environments"
@@ -208,7 +209,23 @@ def family_page(spec: Any) -> str:
         f"{HEADER}\n# {spec.env_name}\n\n{first.strip()}\n\n{_table(rows)}\n{picture}"
         f"Spaces above are at the default keywords. {links}Agents that play it "
         f"(`.venv/bin/selenv list`; the [bench CLI](../guide/bench_cli.md) compares them):\n\n"
-        f"| agent | what it does |\n|---|---|\n{agents}\n\n{myst(body)}"
+        f"| agent | what it does |\n|---|---|\n{agents}\n\n{myst(body)}{_frozen(spec)}"
+    )
+
+
+def _frozen(spec: Any) -> str:
+    """The newest frozen version's docstring (the dynamics the current one keeps), if any."""
+    if not spec.frozen:
+        return ""
+    old = spec.frozen[-1]
+    doc = inspect.getdoc(load_attr(old.env_class)) or ""
+    first, _, body = doc.partition("\n")
+    body = "\n".join("#" + line if line.startswith("## ") else line for line in body.splitlines())
+    version = spec.version_id(len(spec.frozen))
+    return (
+        f"\n\n## `{version}` (frozen)\n\n{first.strip()} Still registered and unchanged; "
+        f"the current version changed: {old.change}. Its reference, whose dynamics, noise and "
+        f"cost the current version keeps:\n\n{myst(body)}"
     )
 
 

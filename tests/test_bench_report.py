@@ -29,7 +29,7 @@ DOCUMENTED = {
     "fim": ("so the undiscounted return is ``f(F)``", "higher"),
     "landmarks": ("the return is minus the paper's objective eq. (12)", "lower"),
     "cooperative": ('``info["objective"]`` is the objective now (lower is better)', "lower"),
-    "clustering": ('``-J`` after the filter step; ``info["objective"]`` is ``J``', "lower"),
+    "clustering": ('``-J`` after each filter step; ``info["objective"]`` is ``J``', "lower"),
 }
 STEPS = 40  # steps of a random episode checked per env
 

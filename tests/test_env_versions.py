@@ -19,7 +19,14 @@ import pytest
 
 import selenv
 from selenv.agents import agents_for
-from selenv.families import ALL_ENV_IDS, ENV_IDS, ENV_VERSIONS, family_of, version_ids
+from selenv.families import (
+    ADAPTED,
+    ALL_ENV_IDS,
+    ENV_IDS,
+    ENV_VERSIONS,
+    family_of,
+    version_ids,
+)
 
 DATA = Path(__file__).parent / "data" / "episodes_v0.json"
 RECORD = json.loads(DATA.read_text())
@@ -105,7 +112,7 @@ def test_v1_defaults_are_the_benchmark_presets() -> None:
     with pytest.warns(DeprecationWarning, match="CLScheduling-v1"):
         cl0 = gym.make("selenv/CLScheduling-v0").unwrapped
     assert (cl0.config.n_agents, cl0.budget, cl0.horizon, cl0.objective) == (4, 2, 200, "logdet")
-    with pytest.warns(DeprecationWarning, match="ReceiverClustering-v1"):
+    with pytest.warns(DeprecationWarning, match="ReceiverClustering-v2"):
         assert gym.make("selenv/ReceiverClustering-v0").unwrapped.preset == "paper"
     fim1 = gym.make("selenv/FIMSelection-v1", preset="example2").unwrapped
     with pytest.warns(DeprecationWarning):
@@ -127,19 +134,22 @@ def test_v0_keywords_still_override_and_are_validated() -> None:
 
 def test_version_table_registration_and_agents() -> None:
     assert set(ENV_IDS) <= set(ALL_ENV_IDS) <= set(gym.registry)
-    assert all(i.endswith("-v1") for i in ENV_IDS) and len(ENV_IDS) == 4
+    assert [i.rsplit("-v", 1)[1] for i in ENV_IDS] == ["1", "1", "1", "2"] and len(ENV_IDS) == 4
     assert {family_of(i) for i in ALL_ENV_IDS} == {family_of(i) for i in ENV_IDS}
     for v in ENV_VERSIONS:
         assert gym.spec(v.env_id).kwargs == dict(v.kwargs)
         assert v.env_id in version_ids(v.env_id)
     assert family_of("selenv.multiagent.fim_selection_v0") == "selenv.multiagent.fim_selection_v0"
     for new in ENV_IDS:  # heuristics apply to every version; the shipped policies to theirs
-        old = new.replace("-v1", "-v0")
-        names = agents_for(new)
+        old = new.rsplit("-v", 1)[0] + "-v0"
+        source = ADAPTED.get(new, (new,))[0]  # ReceiverClustering-v2 plays -v1's agents
+        names = agents_for(source)
         learned = {a for a in names if a in ("ppo", "cem", "learned") or a.startswith("ppo_")}
         assert "ppo" in learned
-        assert set(agents_for(old)) == set(agents_for(new)) - learned
+        assert set(agents_for(old)) == set(agents_for(source)) - learned
+        assert set(agents_for(new)) == set(names)
         assert "greedy" in agents_for(old) or "ga" in agents_for(old)
+    assert set(ADAPTED) == {"selenv/ReceiverClustering-v2"}
     assert selenv.ENV_IDS == ENV_IDS
 
 

@@ -23,8 +23,14 @@ SHORT = {
     "selenv/LandmarkSelection-v1": {"horizon": 2},
     "selenv/CLScheduling-v1": {"horizon": 2},
     "selenv/ReceiverClustering-v1": {"horizon": 3},
+    # 4 placements per filter step, 8 steps per episode
+    "selenv/ReceiverClustering-v2": {"n_agents": 4, "horizon": 2},
 }
 IDS = [f.current_id for f in FAMILIES if f.vector_class is not None]
+#: the frozen versions with a native vector env (their own keywords, still batched)
+FROZEN_IDS = [
+    f.version_id(k) for f in FAMILIES for k in range(1, f.version) if f.classes(k)[1] is not None
+]
 
 
 def _actions(venv: BatchedVectorEnv, rng: np.random.Generator) -> np.ndarray:
@@ -45,13 +51,13 @@ def _row(obs: dict, b: int) -> dict:
     return {k: np.asarray(v)[b].copy() for k, v in obs.items()}
 
 
-@pytest.mark.parametrize("env_id", IDS)
+@pytest.mark.parametrize("env_id", IDS + FROZEN_IDS)
 def test_make_vec_returns_the_native_env_for_every_version(env_id: str) -> None:
     venv = gym.make_vec(env_id, num_envs=2)
     assert isinstance(venv, BatchedVectorEnv)
     assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     venv.close()
-    old = env_id.replace("-v1", "-v0")
+    old = env_id.rsplit("-v", 1)[0] + "-v0"
     with pytest.warns(DeprecationWarning, match="reproduces selenv 0.1"):
         venv0 = gym.make_vec(old, num_envs=2)
     assert isinstance(venv0, BatchedVectorEnv)
@@ -61,7 +67,7 @@ def test_make_vec_returns_the_native_env_for_every_version(env_id: str) -> None:
     loop.close()
 
 
-@pytest.mark.parametrize("env_id", IDS)
+@pytest.mark.parametrize("env_id", IDS + FROZEN_IDS)
 def test_same_step_and_next_step_give_the_same_episodes(env_id: str) -> None:
     kw = SHORT[env_id]
     nxt = gym.make_vec(env_id, num_envs=3, **kw)
@@ -97,7 +103,7 @@ def test_same_step_and_next_step_give_the_same_episodes(env_id: str) -> None:
     same.close()
 
 
-@pytest.mark.parametrize("env_id", IDS)
+@pytest.mark.parametrize("env_id", IDS + FROZEN_IDS)
 def test_disabled_mode_refuses_a_finished_sub_env_until_reset(env_id: str) -> None:
     kw = SHORT[env_id]
     venv = gym.make_vec(env_id, num_envs=2, autoreset_mode=AutoresetMode.DISABLED, **kw)
@@ -116,7 +122,7 @@ def test_disabled_mode_refuses_a_finished_sub_env_until_reset(env_id: str) -> No
     venv.close()
 
 
-@pytest.mark.parametrize("env_id", IDS)
+@pytest.mark.parametrize("env_id", IDS + FROZEN_IDS)
 def test_observations_handed_out_are_not_overwritten(env_id: str) -> None:
     venv = gym.make_vec(env_id, num_envs=2, **SHORT[env_id])
     rng = np.random.default_rng(0)
@@ -128,7 +134,7 @@ def test_observations_handed_out_are_not_overwritten(env_id: str) -> None:
     venv.close()
 
 
-@pytest.mark.parametrize("env_id", IDS)
+@pytest.mark.parametrize("env_id", IDS + FROZEN_IDS)
 def test_same_seed_same_batch_and_seed_forms(env_id: str) -> None:
     kw = SHORT[env_id]
     a = gym.make_vec(env_id, num_envs=3, **kw)

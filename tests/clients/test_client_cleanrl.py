@@ -22,15 +22,13 @@ nn = torch.nn
 import selenv  # noqa: E402, F401  (registers the ids)
 from selenv.families import FAMILIES  # noqa: E402
 
+#: every current id at its default keywords (ReceiverClustering-v2 included: one Discrete)
 IDS = [f.current_id for f in FAMILIES]
-#: ReceiverClustering's default assignment action is a MultiDiscrete (one label per receiver),
-#: which CleanRL's Discrete PPO does not handle; its ``action_mode="edit"`` is one Discrete
-DISCRETE = {"selenv/ReceiverClustering-v1": {"action_mode": "edit"}}
 
 
 def make_env(env_id: str) -> Callable[[], gym.Env]:
     def thunk() -> gym.Env:
-        env = gym.make(env_id, **DISCRETE.get(env_id, {}))
+        env = gym.make(env_id)
         env = gym.wrappers.FlattenObservation(env)
         return gym.wrappers.RecordEpisodeStatistics(env)
 
@@ -161,7 +159,7 @@ def test_cleanrl_ppo_on_sync_vector_env(env_id: str) -> None:
 @pytest.mark.parametrize("env_id", IDS)
 def test_cleanrl_ppo_on_the_native_vector_env(env_id: str) -> None:
     torch.set_num_threads(1)
-    venv = gym.make_vec(env_id, num_envs=4, **DISCRETE.get(env_id, {}))
+    venv = gym.make_vec(env_id, num_envs=4)
     assert type(venv).__module__.startswith("selenv.families.")  # the native one
     envs = gym.wrappers.vector.FlattenObservation(venv)
     _check(ppo(envs))

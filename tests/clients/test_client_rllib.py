@@ -6,7 +6,7 @@ separate processes that never import the test module), and trains one iteration:
 * the plain ids of all four envs with ``ray.init(runtime_env={
   "worker_process_setup_hook": "selenv.register"})`` (selenv's ids registered in every worker);
 * Gymnasium's module-prefixed id ``"selenv:selenv/ReceiverClustering-v1"`` (Gymnasium imports
-  ``selenv`` before making the env), no hook: MultiDiscrete actions;
+  ``selenv`` before making the env), no hook: the frozen version's MultiDiscrete actions;
 * the control: the plain id without the hook fails in the env runners with Gymnasium's
   ``NamespaceNotFound`` (logged by RLlib before its own build error; what the two ways above
   fix).
@@ -30,7 +30,7 @@ IDS = [
     "selenv/FIMSelection-v1",
     "selenv/LandmarkSelection-v1",
     "selenv/CLScheduling-v1",
-    "selenv/ReceiverClustering-v1",
+    "selenv/ReceiverClustering-v2",
 ]
 
 SCRIPT = r"""

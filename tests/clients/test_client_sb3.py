@@ -2,8 +2,8 @@
 
 SB3's own ``make_vec_env`` (a ``DummyVectorEnv`` of ``gym.make(id)``) and its
 ``MultiInputPolicy`` for the ``Dict`` observations; MaskablePPO reads each env's
-``action_masks()`` through SB3's ``env_method``, for ReceiverClustering the per-receiver masks
-of its MultiDiscrete action. 256 steps each; the rollout buffer must hold finite numbers.
+``action_masks()`` through SB3's ``env_method`` (ReceiverClustering-v2: the exact mask of its
+one Discrete placement). 256 steps each; the rollout buffer must hold finite numbers.
 """
 
 from __future__ import annotations

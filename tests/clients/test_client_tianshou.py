@@ -32,16 +32,13 @@ from tianshou.utils.net.discrete import DiscreteActor, DiscreteCritic  # noqa: E
 import selenv  # noqa: E402, F401  (registers the ids)
 from selenv.families import FAMILIES  # noqa: E402
 
+#: every current id at its default keywords (one Discrete action each)
 IDS = [f.current_id for f in FAMILIES]
-#: ReceiverClustering's default action is a MultiDiscrete; DQN and a Categorical actor need
-#: one Discrete: its ``action_mode="edit"``
-DISCRETE = {"selenv/ReceiverClustering-v1": {"action_mode": "edit"}}
 STEPS = 1000
 
 
 def _envs(env_id: str, n: int) -> DummyVectorEnv:
-    kw = DISCRETE.get(env_id, {})
-    envs = DummyVectorEnv([lambda: FlattenObservation(gym.make(env_id, **kw)) for _ in range(n)])
+    envs = DummyVectorEnv([lambda: FlattenObservation(gym.make(env_id)) for _ in range(n)])
     envs.seed(0)
     return envs
 
@@ -85,7 +82,7 @@ def test_tianshou_trains_with_flatten_observation_only(env_id: str, algo: str) -
     torch.manual_seed(0)
     torch.set_num_threads(1)
     envs = _envs(env_id, 4)
-    probe = FlattenObservation(gym.make(env_id, **DISCRETE.get(env_id, {})))
+    probe = FlattenObservation(gym.make(env_id))
     obs_dim, space = probe.observation_space.shape[0], probe.action_space
     algorithm, params = (_dqn if algo == "dqn" else _ppo)(envs, obs_dim, space)
     result = algorithm.run_training(params)

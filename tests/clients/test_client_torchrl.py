@@ -41,11 +41,7 @@ from selenv.families import FAMILIES  # noqa: E402
 from selenv.multiagent import fim_selection_v0, receiver_clustering_v1  # noqa: E402
 
 ALL_IDS = sorted(i for i in gym.registry if i.startswith("selenv/"))
-V1_IDS = [f.current_id for f in FAMILIES]
-#: ReceiverClustering's default observes the per-receiver masks flattened (n * n,) for its
-#: MultiDiscrete action, which ``ActionMask`` cannot match; ``action_mode="edit"`` is a
-#: masked ``Discrete``
-MASKED = {"selenv/ReceiverClustering-v1": {"action_mode": "edit"}}
+CURRENT_IDS = [f.current_id for f in FAMILIES]
 
 
 def _finite(td: object) -> None:
@@ -108,10 +104,10 @@ def test_batched_gymenv_on_the_plain_id_from_a_script(tmp_path: pathlib.Path) ->
 
 
 @pytest.mark.parametrize("mode", [AutoresetMode.SAME_STEP, AutoresetMode.DISABLED])
-@pytest.mark.parametrize("env_id", V1_IDS)
+@pytest.mark.parametrize("env_id", CURRENT_IDS)
 def test_gymwrapper_over_make_vec_with_action_mask(env_id: str, mode: AutoresetMode) -> None:
     torch.set_num_threads(1)
-    venv = gym.make_vec(env_id, num_envs=2, autoreset_mode=mode, **MASKED.get(env_id, {}))
+    venv = gym.make_vec(env_id, num_envs=2, autoreset_mode=mode)
     assert type(venv).__module__.startswith("selenv.families.")  # the native one
     env = TransformedEnv(GymWrapper(venv), ActionMask())
     try:

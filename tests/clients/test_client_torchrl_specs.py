@@ -39,23 +39,17 @@ def _masked_rollout_ok(td: object, steps: int) -> None:
     assert td.batch_size[-1] == steps  # type: ignore[attr-defined]
 
 
-#: keywords under which the env's ``action_mask`` has the shape of its one-hot action
-#: (ReceiverClustering's assignment mode observes the per-receiver masks flattened to
-#: ``(n * n,)``, MaskablePPO's MultiDiscrete layout; its edit mode is a masked ``Discrete``)
-MASKED_KWARGS = {"selenv/ReceiverClustering-v1": {"action_mode": "edit"}}
-
-
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_gymenv_specs_and_masked_rollout(env_id: str) -> None:
-    env = TransformedEnv(GymEnv(env_id, **MASKED_KWARGS.get(env_id, {})), ActionMask())
+    env = TransformedEnv(GymEnv(env_id), ActionMask())
     check_env_specs(env, seed=0)
     td = env.rollout(12, break_when_any_done=False)
     _masked_rollout_ok(td, 12)
     env.close()
 
 
-def test_gymenv_assignment_mode_specs() -> None:
-    """The assignment mode (MultiDiscrete actions) passes the spec check and rolls out."""
+def test_gymenv_frozen_assignment_mode_specs() -> None:
+    """ReceiverClustering-v1's assignment mode (MultiDiscrete actions) passes and rolls out."""
     env = GymEnv("selenv/ReceiverClustering-v1")
     check_env_specs(env, seed=0)
     td = env.rollout(5, break_when_any_done=False)

@@ -35,25 +35,95 @@ FIXED = ("action_mode", "obs_mask")
 
 
 class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
-    """One receiver placed per step (module docstring); keywords: the assignment env's.
+    """``selenv/ReceiverClustering-v2``: GNSS receivers clustered one receiver per step.
 
-    Args:
-        invalid_action: ``"noop"``: a masked action voids this filter step's new clustering
-            (the filter step runs with the current one, as the assignment env's no-op), the
-            receiver is placed alone so the step can go on, and ``invalid_action_penalty``
-            is added to the reward; ``"raise"``; ``"terminate"``
-            (:mod:`selenv.envs.actions`).
-        invalid_action_penalty: float in ``[-1e6, 1e6]``.
-        render_mode: ``None``, ``"rgb_array"`` or ``"human"`` (the assignment env's frames).
-        **config: every other keyword of ``ReceiverClusteringEnv`` (``n_agents``,
-            ``n_max_states``, ``horizon``, ``preset``, ...), validated by it;
-            ``action_mode`` and ``obs_mask`` are fixed.
+    ## Description
+    The dynamic clustering problem of Greiff, Di Cairano & Berntorp (2022) with one
+    ``Discrete`` action and an exact mask. The receivers, their shared bias, the cluster
+    Kalman filters, the noise model (``preset``), the information and the cost eq. (10)
+    ``J = a_G J_G + a_C J_C + a_L J_L`` are those of ``selenv/ReceiverClustering-v1``
+    (:class:`~selenv.families.clustering.env.ReceiverClusteringEnv`, whose docstring has them;
+    this env runs one underneath, :attr:`inner`). Only the way a clustering is chosen differs:
+    each filter step's new clustering is built receiver by receiver, ``n_agents`` env steps
+    per filter step, so generic masked ``Discrete`` code (CleanRL's PPO, DQN, TorchRL's
+    ``ActionMask``, MaskablePPO) runs on it unchanged.
 
-    Observation: the assignment env's (``assignment``, ``cluster_size``, ``sigma``,
-    ``position_var``, ``cost``, ``time``) plus ``receiver (n,)`` one-hot of the receiver the
-    next action places, ``new_assignment (n,)`` the lowest receiver of each placed receiver's
-    new cluster (``-1``: not placed yet) and ``action_mask (n,)``. ``info``: the assignment
-    env's keys (``action_mask`` the ``(n,)`` mask) and ``receiver``, the same at every step.
+    ## Action Space
+    ``Discrete(n)``. At the ``i``-th step of a filter step, action ``j`` places receiver ``i``:
+    ``j < i`` joins the new cluster of receiver ``j``, ``j == i`` opens a new cluster,
+    ``j > i`` is masked (receiver ``j`` is not placed yet). The mask is exact: ``j < i`` is
+    allowed iff ``j``'s new cluster holds fewer than ``max_size = (n_max_states - 2) // 4``
+    receivers, so every sequence of allowed actions builds a clustering within the state
+    limit, and every such clustering is built by one (:func:`placement_actions`: each receiver
+    joins the lowest receiver of its cluster). :meth:`action_masks` is the ``(n,)`` bool mask.
+    Keeping the current clustering is the placement sequence of its labels.
+
+    A masked action is handled by ``invalid_action`` (:mod:`selenv.envs.actions`):
+    ``"noop"`` (default) places the receiver alone, voids this filter step's new clustering
+    (the filter step keeps the current one, as ``-v1``'s no-op) and adds
+    ``invalid_action_penalty`` (``info["invalid_code"]`` 1, ``"masked"``); ``"raise"``
+    raises ``ValueError``; ``"terminate"`` ends the episode. Out-of-range, bool or float
+    actions are a ``ValueError`` / ``TypeError``.
+
+    ## Observation Space
+    ``Dict``: the ``-v1`` keys ``assignment (n,)`` (current clustering), ``cluster_size (n,)``,
+    ``sigma (n, 2)``, ``position_var (n,)``, ``cost (4,)`` ``(J, J_G, J_C, J_L)``,
+    ``time (1,)``, and ``receiver (n,)`` one-hot of the receiver the next action places,
+    ``new_assignment (n,)`` each placed receiver's new cluster by its lowest receiver (``-1``:
+    not placed yet) and ``action_mask (n,)`` (int8).
+
+    ## Rewards
+    ``-J`` after each filter step; ``info["objective"]`` is ``J``. The reward is paid at the
+    step that places the last receiver, 0 at the other steps (plus the invalid-action
+    penalty): the return equals ``-v1``'s for the same clusterings. ``info`` has ``-v1``'s
+    keys (``objective``, ``J_G``, ``J_C``, ``J_L``, ``n_clusters``, ``changed``, ``k``,
+    ``cost_evaluations``, as after the latest filter step), ``action_mask`` ``(n,)``,
+    ``receiver`` and ``invalid_action`` / ``invalid_code``, the same keys at every step.
+
+    ## Starting State
+    As ``-v1`` (its ``reset`` options included: ``options={"clustering": labels}``); receiver
+    0 is the first placed.
+
+    ## Episode End
+    Terminates after ``horizon`` filter steps, ``horizon * n_agents`` env steps
+    (``env.spec.max_episode_steps``), or at a masked action with
+    ``invalid_action="terminate"``.
+
+    ## Arguments
+    ``gymnasium.make("selenv/ReceiverClustering-v2", invalid_action="noop",
+    invalid_action_penalty=0.0, render_mode=None, **config)``: ``config`` is every other
+    keyword of ``-v1`` (``n_agents=30``, ``n_max_states=14``, ``horizon=500``,
+    ``preset="multipath"``, ...; the same defaults and ranges, validated by it);
+    ``action_mode`` and ``obs_mask`` are refused (``TypeError``). ``render_mode``: ``None``,
+    ``"rgb_array"`` or ``"human"`` (``-v1``'s frame of the current clustering).
+
+    ## Agents
+    Every agent of ``-v1`` plays this env through :class:`SequentialAgent`
+    (``selenv.agents.make(name, "selenv/ReceiverClustering-v2")`` wraps it): it asks for the
+    clustering at a filter step's first placement and plays its placements, the same episode
+    and return as on ``-v1`` with the same seed.
+
+    ## Vector Env
+    ``gymnasium.make_vec("selenv/ReceiverClustering-v2", num_envs=B, **kwargs)`` returns the
+    native
+    :class:`~selenv.families.clustering.sequential_vector.ReceiverClusteringSequentialVectorEnv`:
+    placements in ``(B, n)`` arrays, the filter steps of the sub-envs that placed their last
+    receiver batched by ``-v1``'s vector env. Sub-env ``b`` reproduces this env reset with
+    seed ``s + b`` and driven by the same actions; Gymnasium's three autoreset modes.
+
+    ## PettingZoo
+    ``selenv.multiagent.receiver_clustering_v1`` keeps per-receiver actions (each receiver
+    picks a label at every filter step; the joint state limit is applied to the joint
+    action by the module's rule, documented there).
+
+    ## Version History
+    * v2: one ``Discrete`` placement per step with an exact mask (``-v1``'s
+      ``MultiDiscrete`` labels could be infeasible under a per-receiver mask; its edit mode
+      reaches only local edits per filter step). Same dynamics, costs and seeds as v1.
+    * v1: time-varying noise (``preset="multipath"``), the assignment mode's mask observed;
+      frozen (``selenv/ReceiverClustering-v1`` still builds
+      :class:`~selenv.families.clustering.env.ReceiverClusteringEnv`).
+    * v0: release 0.1 (fixed receiver noise); deprecated.
     """
 
     metadata: dict[str, Any] = ReceiverClusteringEnv.metadata  # its frames and codes

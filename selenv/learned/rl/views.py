@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from selenv.envs.views import N_FEATURES, CandidateView, IdentityView, candidate_space
-from selenv.families import FAMILIES
+from selenv.families import ADAPTED, FAMILIES
 from selenv.families.spec import load_attr
 from selenv.learned.rl._moved import moved_attr
 
@@ -34,10 +34,14 @@ __all__ = [
 _FAMILY_VIEW_CLASSES = ("CLView", "ClusteringEditView")
 
 
-#: env id (every registered version) -> {view name -> factory of the view from the env}; the
-#: first name is the default. Built from the family records (their ``views``).
+#: env id (every registered version whose agents are the family's own, not adapted ones) ->
+#: {view name -> factory of the view from the env}; the first name is the default. Built from
+#: the family records (their ``views``).
 VIEWS: dict[str, dict[str, Callable[[Any], CandidateView]]] = {
-    version.env_id: load_attr(spec.views) for spec in FAMILIES for version in spec.versions
+    version.env_id: load_attr(spec.views)
+    for spec in FAMILIES
+    for version in spec.versions
+    if version.env_id not in ADAPTED
 }
 
 
