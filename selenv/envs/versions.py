@@ -2,22 +2,29 @@
 
 Gymnasium's rule: any change that can alter an env's results bumps its version, so a result
 published against an id can be reproduced from the id alone. Every family
-(:mod:`selenv.families`) registers two ids built from its record:
+(:mod:`selenv.families`) registers its ids from its record: ``-v0`` (release 0.1), the frozen
+versions (:attr:`~selenv.families.spec.FamilySpec.frozen`, still registered and never changed)
+and the current one:
 
 ========================= ============================================= ======================
-family                    ``-v0`` (release 0.1)                          ``-v1`` (current)
+family                    ``-v0`` (release 0.1)                          ``-v1``
 ========================= ============================================= ======================
 ``CLScheduling``          ``preset="dense"`` (4 agents, budget 2,        ``preset="benchmark"``
-                          horizon 200, log det)
+                          horizon 200, log det)                          (current)
 ``FIMSelection``          ``preset="example2" / "example3"`` mean the    the paper's stationary
                           moving-target scenarios (``*_moving``)         Examples 2 and 3
-``LandmarkSelection``     unchanged                                      unchanged
+                                                                         (current)
+``LandmarkSelection``     unchanged                                      unchanged (current)
 ``ReceiverClustering``    ``preset="paper"`` (fixed receiver noise),     ``preset="multipath"``,
-                          ``obs_mask=False`` (no ``action_mask`` in the  the mask observed
-                          assignment mode's observation)
+                          ``obs_mask=False`` (no ``action_mask`` in the  the mask observed;
+                          assignment mode's observation)                 frozen: ``-v2`` (one
+                                                                         ``Discrete`` placement
+                                                                         per step, exact mask)
+                                                                         is current
 ========================= ============================================= ======================
 
-``-v0`` ids emit a ``DeprecationWarning`` pointing to ``-v1`` when made. The lookups over the
+``-v0`` ids emit a ``DeprecationWarning`` pointing to the current id when made; Gymnasium
+itself warns that a newer version exists when a frozen id is made. The lookups over the
 registered ids (``family_of``, ``version_ids``) are in :mod:`selenv.families`.
 """
 

@@ -6,6 +6,10 @@ cluster, i.e. ``max_size = (N_max - 2) // 4`` receivers (Problem 1). Here every 
 agent that chooses its own cluster each step; the filters, the cost eq. (10) and the
 re-initialisation of new clusters (Algorithm 2, lines 17-19) are those of
 ``selenv/ReceiverClustering-v1`` (:class:`~selenv.families.clustering.filters.ClusterFilterBank`).
+The receivers choose together, one action each per filter step, so a joint choice can overfill
+a cluster; the module resolves it by the rule below (the single-agent
+``selenv/ReceiverClustering-v2`` instead builds the clustering one receiver per step under an
+exact mask).
 
 | | |
 |---|---|
