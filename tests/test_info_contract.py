@@ -24,7 +24,7 @@ SHORT: dict[str, dict[str, Any]] = {  # short episodes; the schema does not depe
     "FIMSelection": {"n_candidates": 10, "budget": 4},
     "LandmarkSelection": {"horizon": 3},
     "CLScheduling": {"horizon": 3, "budget": 2},  # two pairs per step: the first is masked
-    "ReceiverClustering": {"horizon": 4},
+    "ReceiverClustering": {"horizon": 3, "n_agents": 6},  # -v2: 6 placements per filter step
 }
 
 
@@ -91,7 +91,20 @@ def test_single_env_info_schema_is_fixed(env_id: str, mode: str) -> None:
     assert invalid_seen, "the walk never found an invalid action"
 
 
-VECTOR_IDS = [i for i in ALL_IDS if i.endswith("-v1")]
+VECTOR_IDS = [i for i in ALL_IDS if not i.endswith("-v0") and gym.spec(i).vector_entry_point]
+
+
+@pytest.mark.parametrize("env_id", ALL_IDS)
+def test_info_keys_that_are_observation_keys_have_their_shape(env_id: str) -> None:
+    """TorchRL stores the info keys beside the observation keys: a shared name needs one shape."""
+    env = gym.make(env_id, **_short(env_id))
+    obs, info = env.reset(seed=0)
+    shared = set(obs) & set(info)
+    for key in shared:
+        assert np.shape(info[key]) == np.shape(obs[key]), key
+    obs, _, _, _, info = env.step(_valid_action(env, info))
+    for key in set(obs) & set(info):
+        assert np.shape(info[key]) == np.shape(obs[key]), key
 
 
 @pytest.mark.parametrize("env_id", VECTOR_IDS)

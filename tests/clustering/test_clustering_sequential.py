@@ -72,7 +72,7 @@ def test_gymnasium_check_env_and_spaces() -> None:
     check_env(env, skip_render_check=True)
     obs, info = env.reset(seed=1)
     assert env.observation_space.contains(obs) and env.action_space.n == 6
-    assert obs["receiver"].tolist() == [1, 0, 0, 0, 0, 0] and info["receiver"] == 0
+    assert obs["receiver"].tolist() == [1, 0, 0, 0, 0, 0] and info["placing"] == 0
     assert env.action_masks().tolist() == [True] + [False] * 5  # receiver 0 opens a cluster
 
 
@@ -93,7 +93,7 @@ def test_an_assignment_agent_replays_its_episode(agent_name: str) -> None:
         assert not info["invalid_action"]  # the canonical placements are always allowed
         ret += r
         steps += 1
-        if info["receiver"] == 0:  # a filter step ran
+        if info["placing"] == 0:  # a filter step ran
             objectives.append(info["objective"])
     while not ref_done:
         ref_obs, r, ref_done, _, ref_info = ref.step(ref_agent.act(ref_obs, ref_info))

@@ -62,7 +62,7 @@ def test_sub_envs_replay_the_single_env(invalid_action: str) -> None:
             for key, value in info.items():
                 np.testing.assert_allclose(infos[key][b], value, rtol=1e-12, err_msg=key)
             counts["invalid"] += int(info["invalid_code"] == MASKED)
-            counts["filter_steps"] += int(info["receiver"] == 0)
+            counts["filter_steps"] += int(info["placing"] == 0)
         counts["ends"] += int((term | trunc).sum())
         pending = term | trunc
     assert counts["invalid"] >= 5 and counts["ends"] >= 2 and counts["filter_steps"] >= 10

@@ -78,7 +78,8 @@ class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.nd
     penalty): the return equals ``-v1``'s for the same clusterings. ``info`` has ``-v1``'s
     keys (``objective``, ``J_G``, ``J_C``, ``J_L``, ``n_clusters``, ``changed``, ``k``,
     ``cost_evaluations``, as after the latest filter step), ``action_mask`` ``(n,)``,
-    ``receiver`` and ``invalid_action`` / ``invalid_code``, the same keys at every step.
+    ``placing`` (the index of the receiver the next action places) and ``invalid_action`` /
+    ``invalid_code``, the same keys at every step.
 
     ## Starting State
     As ``-v1`` (its ``reset`` options included: ``options={"clustering": labels}``); receiver
@@ -267,7 +268,7 @@ class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.nd
         return {
             **self._inner_info,
             "action_mask": self.action_masks(),
-            "receiver": self._receiver,
+            "placing": self._receiver,
             **InvalidActionRule.info(reason),
         }
 

@@ -241,7 +241,7 @@ class ReceiverClusteringSequentialVectorEnv(BatchedVectorEnv):
         return {
             **{key: self._carried[key][idx].copy() for key in _CARRIED},
             "action_mask": self._masks(idx),
-            "receiver": self.receivers[idx].copy(),
+            "placing": self.receivers[idx].copy(),
             "invalid_action": invalid.copy(),
             "invalid_code": np.array([invalid_code(r) for r in reasons], dtype=np.int64),
         }
