@@ -5,7 +5,9 @@ One process, one BLAS thread (``OPENBLAS_NUM_THREADS=1`` if unset, and threadpoo
 a table once, so a change of load hits all of them alike. Times are medians over ``--rounds``;
 a ratio is the median of the per-round ratios. Random masked actions are sampled outside the
 timed calls; episode ends inside a block are part of the step (the vector envs autoreset) and
-untimed for single envs. Printed as Markdown tables:
+untimed for single envs. A ReceiverClustering-v2 step places one receiver and every
+``n_agents``-th runs the filter step: its blocks are whole filter steps (:func:`cycle`), so its
+time per step is the mean over one. Printed as Markdown tables:
 
 1. **native vs SyncVectorEnv** at ``B = --batch`` (64): total steps/s of
    ``gymnasium.make_vec(id, num_envs=B)`` (the family's native vector env) and of
@@ -47,6 +49,7 @@ import numpy as np
 import selenv  # noqa: F401  (registers the ids)
 from selenv.atomic import write_json as atomic_write_json
 from selenv.families import FAMILIES
+from selenv.families.clustering.sequential import ReceiverClusteringSequentialEnv
 from selenv.threads import limit_threads
 
 CARTPOLE = "CartPole-v1"
@@ -56,6 +59,7 @@ SIZES: dict[str, tuple[str, list[int], dict[str, Any]]] = {
     "selenv/LandmarkSelection-v1": ("n_landmarks", [10, 20, 30, 60, 120], {}),
     "selenv/CLScheduling-v1": ("n_agents", [3, 4, 6, 8, 12, 16], {}),
     "selenv/ReceiverClustering-v1": ("n_agents", [10, 20, 30, 60], {}),
+    "selenv/ReceiverClustering-v2": ("n_agents", [10, 20, 30, 60], {}),
 }
 SCALING_B = (1, 4, 16, 64, 256, 1024)
 
@@ -117,12 +121,34 @@ class CartPoleRunner(Runner):
         return self.rng.integers(0, 2, self.num_envs)
 
 
+def cycle(env_id: str, **kw: Any) -> int:
+    """Env steps per step of the dynamics: ``n_agents`` on ReceiverClustering-v2, else 1.
+
+    A ReceiverClustering-v2 step places one receiver; every ``n_agents``-th runs the filter
+    step. Blocks of whole cycles are timed, so a time per step is the mean over a cycle.
+    """
+    if env_id == CARTPOLE:
+        return 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        env = gym.make(env_id, **kw)
+    base = env.unwrapped
+    env.close()
+    return int(base.n) if isinstance(base, ReceiverClusteringSequentialEnv) else 1
+
+
+def whole_cycles(steps: int, period: int) -> int:
+    """``steps`` rounded up to a multiple of ``period``."""
+    return -(-steps // period) * period
+
+
 def vector(env_id: str, B: int, steps: int, mode: str | None = None, **kw: Any) -> Runner:
     """A runner over ``make_vec(env_id, num_envs=B)`` (``mode``: Gymnasium's vectorization)."""
     if env_id == CARTPOLE:
         mode = mode or "vector_entry_point"
         return CartPoleRunner(lambda: gym.make_vec(env_id, B, vectorization_mode=mode), steps)
     extra = {} if mode is None else {"vectorization_mode": mode}
+    steps = whole_cycles(steps, cycle(env_id, **kw))
     return Runner(lambda: gym.make_vec(env_id, num_envs=B, **extra, **kw), steps)
 
 
@@ -174,7 +200,7 @@ class Single:
 
     def __init__(self, env_id: str, steps: int, resets: int, seed: int = 0) -> None:
         self.env = gym.make(env_id)
-        self.steps, self.resets = steps, resets
+        self.steps, self.resets = whole_cycles(steps, cycle(env_id)), resets
         self.rng = np.random.default_rng(seed)
         self.seed = seed
         self.space = self.env.action_space

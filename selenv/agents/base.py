@@ -168,10 +168,7 @@ def register_agent(spec: AgentSpec) -> None:
     if spec.all_versions:
         ids = tuple(
             dict.fromkeys(
-                v
-                for env_id in ids
-                for v in version_ids(env_id)
-                if v == env_id or v not in ADAPTED
+                v for env_id in ids for v in version_ids(env_id) if v == env_id or v not in ADAPTED
             )
         )
     for env_id in ids:

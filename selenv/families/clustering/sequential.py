@@ -293,12 +293,14 @@ class SequentialAgent(Agent):
     At the first step of each filter step it asks ``agent`` for the clustering (on the
     assignment env's own observation, info and state), then plays its
     :func:`placement_actions` one receiver at a time: the same clusterings, filters and
-    return as ``agent`` on the assignment env with the same seed.
+    return as ``agent`` on the assignment env with the same seed. ``agent`` is the wrapped
+    agent (its ``name`` names it).
     """
+
+    name = "sequential"
 
     def __init__(self, agent: Any) -> None:
         self.agent = agent
-        self.name = getattr(agent, "name", type(agent).__name__)
         self._env: ReceiverClusteringSequentialEnv | None = None
         self._plan = np.zeros(0, dtype=np.int64)
 

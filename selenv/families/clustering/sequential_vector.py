@@ -187,8 +187,7 @@ class ReceiverClusteringSequentialVectorEnv(BatchedVectorEnv):
         B, n = self.num_envs, self.n
         if arr.shape not in ((B,), (B, 1)):
             raise ValueError(
-                f"actions must have shape ({B},) (one placement per sub-env), got shape "
-                f"{arr.shape}"
+                f"actions must have shape ({B},) (one placement per sub-env), got shape {arr.shape}"
             )
         if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
             raise ArgumentTypeError(
