@@ -312,6 +312,10 @@ def _learned_factory(env_id: str, **options: Any) -> LearnedAgent:
 
 
 def learned_target(env_id: str) -> str | None:
-    """The record ``learned`` plays on ``env_id`` at its defaults (``None``: no ``learned``)."""
-    found = resolve_learned(env_id)
+    """The record ``learned`` plays on ``env_id`` at its defaults (``None``: no ``learned``).
+
+    On a version that plays an older one's agents (:data:`~selenv.families.ADAPTED`), the
+    older version's record (``learned`` there is wrapped by the adapter).
+    """
+    found = resolve_learned(ADAPTED.get(env_id, (env_id,))[0])
     return None if found is None else found[0].name

@@ -154,3 +154,41 @@ def test_info_schema_is_fixed_over_an_episode() -> None:
         _, _, done, _, info = env.step(int(np.argmax(rng.random(mask.shape) + mask)))
         got = {k: (np.asarray(v).dtype.kind, np.asarray(v).shape) for k, v in info.items()}
         assert got == want and all(kind in "biuf" for kind, _ in got.values())
+
+
+V1, V2 = "selenv/ReceiverClustering-v1", "selenv/ReceiverClustering-v2"
+
+
+def test_the_registry_plays_every_v1_agent_on_v2_through_the_adapter() -> None:
+    from selenv.agents import AGENTS, agents_for
+    from selenv.agents.learned import learned_target, list_note
+
+    assert agents_for(V2) == agents_for(V1)
+    for name in agents_for(V1):
+        a1, a2 = AGENTS[name][V1], AGENTS[name][V2]
+        assert (a2.learned, a2.default, a2.deprecated) == (a1.learned, a1.default, a1.deprecated)
+        assert a2.description == a1.description
+    assert isinstance(make("greedy", V2), SequentialAgent)
+    assert not isinstance(make("greedy", V1), SequentialAgent)
+    assert learned_target(V2) == learned_target(V1) is not None
+    assert list_note("learned", V2) == f"{list_note('learned', V1)} (on {V1}: the same episodes)"
+    with pytest.raises(ValueError, match="no option"):
+        make("greedy", V2, no_such_option=1)  # the wrapped agent's options are checked
+
+
+@pytest.mark.parametrize("agent_name", ["greedy", "learned"])
+def test_an_agent_made_for_v2_plays_v1s_episode(agent_name: str) -> None:
+    kw = {"horizon": 6}
+    env, ref = gym.make(V2, **kw), gym.make(V1, **kw)
+    returns = []
+    for e, env_id in ((env, V2), (ref, V1)):
+        agent = make(agent_name, env_id)
+        obs, info = e.reset(seed=4)
+        agent.reset(e, seed=4)
+        total, done = 0.0, False
+        while not done:
+            obs, r, done, trunc, info = e.step(agent.act(obs, info))
+            total += r
+        returns.append((total, info["objective"], info["cost_evaluations"]))
+    np.testing.assert_allclose(returns[0][:2], returns[1][:2], rtol=1e-12)
+    assert returns[0][2] == returns[1][2]  # the same searches ran
