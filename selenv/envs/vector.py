@@ -57,7 +57,7 @@ from selenv.envs.vector_memory import PROBE_ABOVE, check_vector_memory
 from selenv.scenarios.validation import ArgumentTypeError, describe
 from selenv.threads import small_blas
 
-__all__ = ["BatchedVectorEnv", "check_num_envs", "merge_infos"]
+__all__ = ["BatchedVectorEnv", "check_discrete_actions", "check_num_envs", "merge_infos"]
 
 #: largest ``num_envs`` accepted (a guard against a typo allocating the machine's memory)
 MAX_NUM_ENVS = 1 << 16
@@ -70,6 +70,36 @@ def check_num_envs(num_envs: Any) -> int:
     if not 1 <= num_envs <= MAX_NUM_ENVS:
         raise ValueError(f"num_envs must lie in [1, {MAX_NUM_ENVS}], got {num_envs}")
     return int(num_envs)
+
+
+def check_discrete_actions(actions: Any, num_envs: int, n: int, what: str) -> np.ndarray:
+    """``(B,)`` int64 actions of ``Discrete(n)`` sub-envs: shape, dtype and range checked.
+
+    ``(B, 1)`` is accepted. ``what`` names one sub-env's action in the messages
+    (``"candidate index"``).
+
+    Raises:
+        ValueError: another shape, or an action outside ``[0, n)`` (naming the sub-env).
+        TypeError: not integers (bools and floats are refused, never rounded).
+    """
+    arr = np.asarray(actions)
+    if arr.shape not in ((num_envs,), (num_envs, 1)):
+        raise ValueError(
+            f"actions must have shape ({num_envs},) (one {what} per sub-env), got shape {arr.shape}"
+        )
+    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
+        raise ArgumentTypeError(
+            f"actions must be integers in [0, {n}), got {describe(actions)} of dtype {arr.dtype}"
+        )
+    arr = arr.reshape(num_envs).astype(np.int64, copy=False)
+    bad = (arr < 0) | (arr >= n)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"actions[{i}] (sub-env {i}) = {arr[i]} is out of range: expected an integer in "
+            f"[0, {n})"
+        )
+    return arr
 
 
 def merge_infos(infos: dict[str, Any], new: dict[str, Any], idx: np.ndarray, n: int) -> None:

@@ -255,27 +255,28 @@ def vector_factories(spec: FamilySpec) -> tuple[VectorFactory, VectorFactory]:
     from selenv.envs.versions import warn_deprecated
 
     def make_vector_env(num_envs: int = 1, **kwargs: Any) -> Any:
-        if spec.vector_class is None:
-            raise ValueError(f"{spec.current_id} has no native vector env")
-        return build_vector_env(spec.vector_class, num_envs, **kwargs)
+        return build_vector_env(spec.vector_class, spec.current_id, num_envs, **kwargs)
 
     def make_vector_env_v0(num_envs: int = 1, **kwargs: Any) -> Any:
         warn_deprecated(f"selenv/{spec.env_name}-v0", spec.current_id)
         preset = kwargs.get("preset")
         if isinstance(preset, str) and preset in spec.v0_presets:
             kwargs["preset"] = spec.v0_presets[preset]
-        vector_class = spec.classes(0)[1]
-        if vector_class is None:
-            raise ValueError(f"selenv/{spec.env_name}-v0 has no native vector env")
-        return build_vector_env(vector_class, num_envs, **kwargs)
+        return build_vector_env(spec.classes(0)[1], spec.version_id(0), num_envs, **kwargs)
 
     make_vector_env.__doc__ = f"``gymnasium.make_vec('{spec.current_id}', num_envs=B)``."
     make_vector_env_v0.__doc__ = f"``selenv/{spec.env_name}-v0``'s vector env (deprecated)."
     return make_vector_env, make_vector_env_v0
 
 
-def build_vector_env(entry: str, num_envs: int, **kwargs: Any) -> Any:
-    """``Class(num_envs=num_envs, **kwargs)``; ``autoreset_mode``, if given, selects the mode."""
+def build_vector_env(entry: str | None, env_id: str, num_envs: int, **kwargs: Any) -> Any:
+    """``Class(num_envs=num_envs, **kwargs)``; ``autoreset_mode``, if given, selects the mode.
+
+    Raises:
+        ValueError: ``entry`` is ``None`` (``env_id`` has no native vector env).
+    """
+    if entry is None:
+        raise ValueError(f"{env_id} has no native vector env")
     mode = kwargs.pop("autoreset_mode", None)
     venv = load_attr(entry)(num_envs=num_envs, **kwargs)
     if mode is not None:
@@ -298,9 +299,7 @@ def frozen_factories(spec: FamilySpec, version: int) -> tuple[EnvFactory, Vector
         return build_env(env_class, **kwargs)
 
     def make_vector_env_frozen(num_envs: int = 1, **kwargs: Any) -> Any:
-        if vector_class is None:
-            raise ValueError(f"{env_id} has no native vector env")
-        return build_vector_env(vector_class, num_envs, **kwargs)
+        return build_vector_env(vector_class, env_id, num_envs, **kwargs)
 
     make_env_frozen.__doc__ = f"``{env_id}`` (frozen; {spec.current_id} is current)."
     make_vector_env_frozen.__doc__ = f"``gymnasium.make_vec('{env_id}', num_envs=B)`` (frozen)."

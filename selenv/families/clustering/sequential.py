@@ -28,10 +28,36 @@ from selenv.envs.actions import InvalidActionRule, check_discrete
 from selenv.envs.conventions import EpisodeLengthSpec
 from selenv.families.clustering.env import ReceiverClusteringEnv
 
-__all__ = ["ReceiverClusteringSequentialEnv", "SequentialAgent", "placement_actions"]
+__all__ = [
+    "ReceiverClusteringSequentialEnv",
+    "SequentialAgent",
+    "assignment_keywords",
+    "placement_actions",
+]
 
 #: keywords the sequential env fixes on its assignment env
 FIXED = ("action_mode", "obs_mask")
+
+
+def assignment_keywords(render_mode: str | None, config: dict[str, Any]) -> dict[str, Any]:
+    """The keywords of the assignment env (or vector env) a sequential env runs underneath.
+
+    Raises:
+        TypeError: ``config`` sets one of :data:`FIXED`.
+    """
+    fixed = sorted(set(config) & set(FIXED))
+    if fixed:
+        raise TypeError(
+            f"{fixed} cannot be set: the sequential env always places one receiver per step "
+            "(use ReceiverClustering's assignment or edit action_mode on -v1)"
+        )
+    return {
+        "action_mode": "assignment",
+        "obs_mask": False,
+        "invalid_action": "raise",  # the placements only ever build feasible clusterings
+        "render_mode": render_mode,
+        **config,
+    }
 
 
 class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.ndarray], np.int64]):
@@ -137,17 +163,9 @@ class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.nd
         render_mode: str | None = None,
         **config: Any,
     ) -> None:
-        fixed = sorted(set(config) & set(FIXED))
-        if fixed:
-            raise TypeError(
-                f"{fixed} cannot be set: the sequential env always places one receiver per "
-                "step (use ReceiverClustering's assignment or edit action_mode on -v1)"
-            )
+        inner_keywords = assignment_keywords(render_mode, config)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        self.inner = ReceiverClusteringEnv(
-            action_mode="assignment", obs_mask=False, invalid_action="raise",
-            render_mode=render_mode, **config,
-        )  # fmt: skip
+        self.inner = ReceiverClusteringEnv(**inner_keywords)
         self.render_mode = self.inner.render_mode
         self.n, self.max_size, self.horizon = self.inner.n, self.inner.max_size, self.inner.horizon
         self.max_episode_steps = self.horizon * self.n

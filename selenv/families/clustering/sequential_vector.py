@@ -19,10 +19,12 @@ import numpy as np
 from gymnasium import spaces
 
 from selenv.envs.actions import InvalidActionRule, invalid_code
-from selenv.envs.vector import BatchedVectorEnv, check_num_envs
-from selenv.families.clustering.sequential import FIXED, ReceiverClusteringSequentialEnv
+from selenv.envs.vector import BatchedVectorEnv, check_discrete_actions, check_num_envs
+from selenv.families.clustering.sequential import (
+    ReceiverClusteringSequentialEnv,
+    assignment_keywords,
+)
 from selenv.families.clustering.vector import ReceiverClusteringVectorEnv
-from selenv.scenarios.validation import ArgumentTypeError, describe
 
 __all__ = ["ReceiverClusteringSequentialVectorEnv"]
 
@@ -71,17 +73,9 @@ class ReceiverClusteringSequentialVectorEnv(BatchedVectorEnv):
         **config: Any,
     ) -> None:
         B = check_num_envs(num_envs)
-        fixed = sorted(set(config) & set(FIXED))
-        if fixed:
-            raise TypeError(
-                f"{fixed} cannot be set: the sequential env always places one receiver per "
-                "step (use ReceiverClustering's assignment or edit action_mode on -v1)"
-            )
+        inner_keywords = assignment_keywords(render_mode, config)
         self.invalid_rule = InvalidActionRule(invalid_action, invalid_action_penalty)
-        self.inner = ReceiverClusteringVectorEnv(
-            B, action_mode="assignment", obs_mask=False, invalid_action="raise",
-            render_mode=render_mode, **config,
-        )  # fmt: skip
+        self.inner = ReceiverClusteringVectorEnv(B, **inner_keywords)
         self.n, self.max_size, self.horizon = self.inner.n, self.inner.max_size, self.inner.horizon
         n = self.n
         inner_space = self.inner.single_observation_space
@@ -183,26 +177,7 @@ class ReceiverClusteringSequentialVectorEnv(BatchedVectorEnv):
 
     def _check_actions(self, actions: Any) -> np.ndarray:
         """``(B,)`` placements: shape, dtype and range checked for every sub-env."""
-        arr = np.asarray(actions)
-        B, n = self.num_envs, self.n
-        if arr.shape not in ((B,), (B, 1)):
-            raise ValueError(
-                f"actions must have shape ({B},) (one placement per sub-env), got shape {arr.shape}"
-            )
-        if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
-            raise ArgumentTypeError(
-                f"actions must be integers in [0, {n}), got {describe(actions)} of dtype "
-                f"{arr.dtype}"
-            )
-        arr = arr.reshape(B).astype(np.int64, copy=False)
-        bad = (arr < 0) | (arr >= n)
-        if bad.any():
-            b = int(np.flatnonzero(bad)[0])
-            raise ValueError(
-                f"actions[{b}] (sub-env {b}) = {arr[b]} is out of range: expected an integer "
-                f"in [0, {n})"
-            )
-        return arr
+        return check_discrete_actions(actions, self.num_envs, self.n, "placement")
 
     # -- helpers --------------------------------------------------------------------------------
     def _open(self, idx: np.ndarray) -> None:

@@ -23,7 +23,7 @@ from gymnasium import spaces
 from selenv.envs.actions import InvalidActionRule
 from selenv.envs.conventions import check_render_mode
 from selenv.envs.rendering import Renderer
-from selenv.envs.vector import BatchedVectorEnv, check_num_envs
+from selenv.envs.vector import BatchedVectorEnv, check_discrete_actions, check_num_envs
 from selenv.families.fim.batched import FIMBatchState, SubEnvGainState, batched_features
 from selenv.families.fim.env import (
     FIMSelectionEnv,
@@ -237,27 +237,8 @@ class FIMSelectionVectorEnv(BatchedVectorEnv):
 
     def _check_actions(self, actions: Any) -> np.ndarray:
         """``(B,)`` candidate indices: shape, dtype and range checked for every sub-env."""
-        arr = np.asarray(actions)
-        B, n = self.num_envs, self.n
-        if arr.shape not in ((B,), (B, 1)):
-            raise ValueError(
-                f"actions must have shape ({B},) (one candidate index per sub-env), "
-                f"got shape {arr.shape}"
-            )
-        if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
-            raise ArgumentTypeError(
-                f"actions must be integers in [0, {n}), got {describe(actions)} "
-                f"of dtype {arr.dtype}"
-            )
-        arr = arr.reshape(B).astype(np.intp, copy=False)
-        bad = (arr < 0) | (arr >= n)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(
-                f"actions[{i}] (sub-env {i}) = {arr[i]} is out of range: expected an integer "
-                f"in [0, {n})"
-            )
-        return arr
+        arr = check_discrete_actions(actions, self.num_envs, self.n, "candidate index")
+        return arr.astype(np.intp, copy=False)
 
     def _sub_env(self, i: Any) -> int:
         if isinstance(i, bool) or not isinstance(i, int | np.integer):
