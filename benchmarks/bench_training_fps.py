@@ -1,21 +1,27 @@
-"""MaskablePPO training fps: the native vector envs against the DummyVecEnv path.
+"""MaskablePPO training fps of each family against SB3's PPO on CartPole-v1, in one process.
 
 For each family, the training script's own defaults (``Config()`` of ``train_fim_ppo``,
 ``train_landmark_ppo``, ``train_cl_ppo``, ``train_clustering_ppo``: env keywords, candidate
-view, ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, network), two ways:
+view, ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, network), up to four contenders:
 
-* **DummyVecEnv** (``"before"`` in the JSON): ``DummyVecEnv`` over ``n_envs``
-  ``gymnasium.make`` envs in their candidate view, and for ReceiverClustering the per-edit MLP
-  scorer (``--scorer mlp``);
-* **native** (``"after"``): the script's default, ``vec_env="native"`` (``NativeVecEnv`` over
-  ``gymnasium.make_vec``) and for ReceiverClustering the factorised edit scorer.
+* **dummy**: ``DummyVecEnv`` over ``n_envs`` ``gymnasium.make`` envs in their candidate view,
+  and for ReceiverClustering the per-edit MLP scorer (``--scorer mlp``);
+* **native**: the script's default, ``vec_env="native"`` (``NativeVecEnv`` over
+  ``gymnasium.make_vec``) and for ReceiverClustering the factorised edit scorer;
+* **compiled**: native with the scorer compiled (``--compile``,
+  :func:`selenv.learned.rl.compiled.compile_policy`);
+* **CartPole**: SB3's ``PPO("MlpPolicy")`` on ``make_vec_env("CartPole-v1", n_envs)`` with the
+  same ``n_envs``, ``n_steps``, ``batch_size`` and ``n_epochs`` (the anchor).
 
-fps = environment steps / wall seconds of ``model.learn(rollouts * n_envs * n_steps)`` (rollout
-collection and the PPO update; the model is built outside the timing), one BLAS and one torch
-thread, interleaved rounds, median.
+Each model is built and warmed up by one untimed rollout and update (TorchInductor compiles
+there); then the rounds are interleaved: each times one ``learn()`` of ``--rollouts`` rollouts
+per contender, continuing the same model. fps = environment steps / wall seconds of
+``learn()`` (rollout collection and the PPO update), median over the rounds; a ratio is the
+median of the per-round ratios. One BLAS and one torch thread.
 
     .venv/bin/python benchmarks/bench_training_fps.py [--rounds 3] [--rollouts 1]
-        [--families fim landmarks cl clustering] [--json PATH]
+        [--families fim landmarks cl clustering] [--contenders dummy native compiled]
+        [--json PATH]
 """
 
 from __future__ import annotations
@@ -29,11 +35,14 @@ from typing import Any
 
 import gymnasium as gym
 import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import selenv  # noqa: F401
 from selenv.learned.rl.candidate_policy import CandidateScorer, make_ppo
+from selenv.learned.rl.compiled import compile_policy
 from selenv.learned.rl.vec_env import make_native_vec_env
 from selenv.learned.rl.views import CandidateViewWrapper, view_for
 from selenv.threads import limit_threads
@@ -71,26 +80,53 @@ def _dummy(s: dict[str, Any]) -> DummyVecEnv:
     return venv
 
 
-def _extractor(s: dict[str, Any], after: bool) -> tuple[type[CandidateScorer], dict[str, Any]]:
+def _extractor(s: dict[str, Any], native: bool) -> tuple[type[CandidateScorer], dict[str, Any]]:
     cfg = s["cfg"]
     if s["mod"].__name__.endswith("train_clustering_ppo"):
         from selenv.learned.families.clustering_edits import scorer_policy_kwargs
 
-        return scorer_policy_kwargs(cfg.scorer if after else "mlp", cfg.edit_rank)
+        return scorer_policy_kwargs(cfg.scorer if native else "mlp", cfg.edit_rank)
     return CandidateScorer, {}
 
 
-def fps(s: dict[str, Any], after: bool, rollouts: int) -> float:
-    """Environment steps per second of one ``learn`` call (model built outside the timing)."""
+class Contender:
+    """One model, built and warmed up; :meth:`fps` times one ``learn()`` that continues it."""
+
+    def __init__(self, s: dict[str, Any], kind: str) -> None:
+        cfg = s["cfg"]
+        self.steps_per_rollout = cfg.n_envs * cfg.n_steps
+        if kind == "cartpole":
+            self.venv = make_vec_env("CartPole-v1", n_envs=cfg.n_envs, seed=cfg.seed)
+            self.model = PPO(
+                "MlpPolicy", self.venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+                n_epochs=cfg.n_epochs, seed=cfg.seed, device="cpu",
+            )  # fmt: skip
+        else:
+            self.venv, self.model = _family_model(s, kind)
+        self.model.learn(self.steps_per_rollout)  # warm-up (and TorchInductor's compile)
+
+    def fps(self, rollouts: int) -> float:
+        """Environment steps per second of one ``learn()`` of ``rollouts`` rollouts."""
+        before = self.model.num_timesteps
+        t = time.perf_counter()
+        self.model.learn(rollouts * self.steps_per_rollout, reset_num_timesteps=False)
+        return (self.model.num_timesteps - before) / (time.perf_counter() - t)
+
+    def close(self) -> None:  # noqa: D102
+        self.venv.close()
+
+
+def _family_model(s: dict[str, Any], kind: str) -> tuple[Any, Any]:
     cfg = s["cfg"]
+    native = kind in ("native", "compiled")
     venv = (
         make_native_vec_env(
             s["env_id"], cfg.n_envs, seed=cfg.seed, view=s["view"], env_kwargs=s["kwargs"]
         )
-        if after
+        if native
         else _dummy(s)
     )
-    extractor, extra = _extractor(s, after)
+    extractor, extra = _extractor(s, native)
     model = make_ppo(
         venv,
         cfg.algo,
@@ -111,12 +147,12 @@ def fps(s: dict[str, Any], after: bool, rollouts: int) -> float:
             },
         },
     )
-    steps = rollouts * cfg.n_envs * cfg.n_steps
-    t = time.perf_counter()
-    model.learn(steps)
-    wall = time.perf_counter() - t
-    venv.close()
-    return model.num_timesteps / wall
+    if kind == "compiled":
+        compile_policy(model.policy)
+    return venv, model
+
+
+KINDS = ("dummy", "native", "compiled")
 
 
 def main() -> None:
@@ -124,31 +160,45 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--rollouts", type=int, default=1, help="rollouts per learn() call")
     ap.add_argument("--families", nargs="*", default=list(FAMILIES), choices=list(FAMILIES))
+    ap.add_argument("--contenders", nargs="*", default=list(KINDS), choices=list(KINDS))
     ap.add_argument("--json", help="write the figures to this JSON file (atomically)")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     out: dict[str, Any] = {}
-    print("| env (script defaults) | DummyVecEnv | native | native / DummyVecEnv |")
-    print("|---|---|---|---|")
+    kinds = [k for k in KINDS if k in args.contenders]
+    head = [*(f"{k} fps" for k in kinds), "CartPole PPO fps", *(f"{k} / CartPole" for k in kinds)]
+    if "compiled" in kinds and "native" in kinds:
+        head.append("compiled / native")
+    print("| env (script defaults) | " + " | ".join(head) + " |")
+    print("|---|" + "---|" * len(head))
     with limit_threads(blas=1, torch=1):
         torch.set_num_threads(1)
         for family in args.families:
             s = _setup(family)
-            runs: dict[str, list[float]] = {"before": [], "after": []}
+            contenders = {k: Contender(s, k) for k in [*kinds, "cartpole"]}
+            runs: dict[str, list[float]] = {k: [] for k in contenders}
             for _ in range(args.rounds):
-                runs["before"].append(fps(s, False, args.rollouts))
-                runs["after"].append(fps(s, True, args.rollouts))
+                for k, c in contenders.items():
+                    runs[k].append(c.fps(args.rollouts))
+            for c in contenders.values():
+                c.close()
             med = {k: statistics.median(v) for k, v in runs.items()}
-            out[s["env_id"]] = {**med, "ratio": med["after"] / med["before"], "runs": runs}
-            print(
-                f"| {s['env_id']} | {med['before']:,.0f} fps | {med['after']:,.0f} fps | "
-                f"{med['after'] / med['before']:.1f}x |",
-                flush=True,
-            )
+            ratios = {f"{k}_vs_cartpole": _ratio(runs[k], runs["cartpole"]) for k in kinds}
+            if "compiled" in kinds and "native" in kinds:
+                ratios["compiled_vs_native"] = _ratio(runs["compiled"], runs["native"])
+            out[s["env_id"]] = {"fps": med, **ratios, "runs": runs}
+            cells = [*(f"{med[k]:,.0f}" for k in kinds), f"{med['cartpole']:,.0f}"]
+            cells += [f"{v:.3f}x" if "cartpole" in r else f"{v:.2f}x" for r, v in ratios.items()]
+            print(f"| {s['env_id']} | " + " | ".join(cells) + " |", flush=True)
     if args.json:
         from bench_vector import write_json  # the script's folder is on sys.path
 
         write_json(args.json, out)
+
+
+def _ratio(num: list[float], den: list[float]) -> float:
+    """Median of the per-round ratios."""
+    return statistics.median(a / b for a, b in zip(num, den, strict=True))
 
 
 if __name__ == "__main__":

@@ -233,7 +233,7 @@ class FactorisedEditScorer(CandidateScorer):
         rows = observations["whitened"].index_select(1, self.leave_rows)  # (B, n, 17)
         return rows.index_select(2, self.source_columns)
 
-    def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+    def scores(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         """``[scores (B, N), pooled (B, 2 H)]`` concatenated, ``(B, N + 2 H)``."""
         raw = th.clamp(observations["gain"], min=0.0)  # (B, N)
         mask = observations["action_mask"] > 0.5  # (B, N)

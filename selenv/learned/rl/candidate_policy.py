@@ -41,6 +41,8 @@ from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
+from selenv.learned.rl.compiled import compiled_forward
+
 __all__ = [
     "ALGORITHMS",
     "MASKED_LOGIT",
@@ -154,7 +156,13 @@ class CandidateScorer(BaseFeaturesExtractor):
         self.score_head = nn.Linear(hidden[-1], 1)
         self.gain_skip = nn.Parameter(th.tensor(float(gain_skip_init)))
 
-    def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:  # noqa: D102
+    def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        """:meth:`scores`, compiled once :func:`~selenv.learned.rl.compiled.compile_scorer` ran."""
+        fast = compiled_forward(self)
+        return self.scores(observations) if fast is None else fast(observations)
+
+    def scores(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        """``[scores (B, N), pooled (B, 2 hidden)]`` concatenated (the class docstring)."""
         raw = th.clamp(observations["gain"], min=0.0)  # (B, N)
         mask = observations["action_mask"] > 0.5  # (B, N) unselected candidates
         n = raw.shape[1]
