@@ -21,7 +21,7 @@ median of the per-round ratios. One BLAS and one torch thread.
 
     .venv/bin/python benchmarks/bench_training_fps.py [--rounds 3] [--rollouts 1]
         [--families fim landmarks cl clustering] [--contenders dummy native compiled]
-        [--json PATH]
+        [--shortlist M] [--json PATH]
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def _extractor(s: dict[str, Any], native: bool) -> tuple[type[CandidateScorer], 
 class Contender:
     """One model, built and warmed up; :meth:`fps` times one ``learn()`` that continues it."""
 
-    def __init__(self, s: dict[str, Any], kind: str) -> None:
+    def __init__(self, s: dict[str, Any], kind: str, shortlist: int = 0) -> None:
         cfg = s["cfg"]
         self.steps_per_rollout = cfg.n_envs * cfg.n_steps
         if kind == "cartpole":
@@ -102,7 +102,7 @@ class Contender:
                 n_epochs=cfg.n_epochs, seed=cfg.seed, device="cpu",
             )  # fmt: skip
         else:
-            self.venv, self.model = _family_model(s, kind)
+            self.venv, self.model = _family_model(s, kind, shortlist)
         self.model.learn(self.steps_per_rollout)  # warm-up (and TorchInductor's compile)
 
     def fps(self, rollouts: int) -> float:
@@ -116,7 +116,7 @@ class Contender:
         self.venv.close()
 
 
-def _family_model(s: dict[str, Any], kind: str) -> tuple[Any, Any]:
+def _family_model(s: dict[str, Any], kind: str, shortlist: int = 0) -> tuple[Any, Any]:
     cfg = s["cfg"]
     native = kind in ("native", "compiled")
     venv = (
@@ -127,6 +127,8 @@ def _family_model(s: dict[str, Any], kind: str) -> tuple[Any, Any]:
         else _dummy(s)
     )
     extractor, extra = _extractor(s, native)
+    if shortlist and native and extractor is CandidateScorer:
+        extra = {**extra, "shortlist": shortlist}
     model = make_ppo(
         venv,
         cfg.algo,
@@ -161,6 +163,10 @@ def main() -> None:
     ap.add_argument("--rollouts", type=int, default=1, help="rollouts per learn() call")
     ap.add_argument("--families", nargs="*", default=list(FAMILIES), choices=list(FAMILIES))
     ap.add_argument("--contenders", nargs="*", default=list(KINDS), choices=list(KINDS))
+    ap.add_argument(
+        "--shortlist", type=int, default=0,
+        help="m > 0: the native and compiled contenders score the m best-gain candidates only",
+    )  # fmt: skip
     ap.add_argument("--json", help="write the figures to this JSON file (atomically)")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
@@ -175,7 +181,7 @@ def main() -> None:
         torch.set_num_threads(1)
         for family in args.families:
             s = _setup(family)
-            contenders = {k: Contender(s, k) for k in [*kinds, "cartpole"]}
+            contenders = {k: Contender(s, k, args.shortlist) for k in [*kinds, "cartpole"]}
             runs: dict[str, list[float]] = {k: [] for k in contenders}
             for _ in range(args.rounds):
                 for k, c in contenders.items():

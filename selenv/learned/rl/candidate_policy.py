@@ -127,6 +127,11 @@ class CandidateScorer(BaseFeaturesExtractor):
         gain_skip_init: initial weight ``w`` of the skip ``w r_k`` (relative log gain) added to
             every score, a learnable scalar: 0 starts from a near-uniform policy; ``w > 0``
             starts from a softened greedy (``pi_k ∝ (g_k / max g)^w``).
+        shortlist: ``m > 0``: the network runs on the ``m`` unselected candidates of largest
+            ``gain`` only (its context and pooled embedding over them); the other candidates
+            get the masked logit, so the policy chooses among that shortlist. The update then
+            costs about ``m / N`` of the full pool's. The inference agent's ``top_m=m`` is the
+            same rule. 0 (default): every candidate.
     """
 
     def __init__(
@@ -135,7 +140,10 @@ class CandidateScorer(BaseFeaturesExtractor):
         hidden: tuple[int, ...] | list[int] = (64, 64),
         activation: str = "tanh",
         gain_skip_init: float = 0.0,
+        shortlist: int = 0,
     ) -> None:
+        if isinstance(shortlist, bool) or not isinstance(shortlist, int) or shortlist < 0:
+            raise ValueError(f"shortlist must be an int >= 0, got {shortlist!r}")
         layout = obs_layout(observation_space)
         hidden = [int(h) for h in hidden]
         if not hidden or min(hidden) < 1:
@@ -155,6 +163,7 @@ class CandidateScorer(BaseFeaturesExtractor):
         self.ctx_layers = nn.ModuleList(nn.Linear(a, b, bias=False) for a, b in pairwise(hidden))
         self.score_head = nn.Linear(hidden[-1], 1)
         self.gain_skip = nn.Parameter(th.tensor(float(gain_skip_init)))
+        self.shortlist = shortlist
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         """:meth:`scores`, compiled once :func:`~selenv.learned.rl.compiled.compile_scorer` ran."""
@@ -182,9 +191,27 @@ class CandidateScorer(BaseFeaturesExtractor):
             ],
             dim=-1,
         )
+        m = self.shortlist
+        if 0 < m < n:  # the m unselected candidates of largest gain (masked ones last)
+            idx = raw.masked_fill(~mask, -1.0).topk(m, dim=1).indices  # (B, m)
+            x = x.gather(1, idx.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
+            short, pooled = self._network(x, mask.gather(1, idx), rel.gather(1, idx))
+            scores = th.full_like(raw, MASKED_LOGIT).scatter(1, idx, short)
+        else:
+            scores, pooled = self._network(x, mask, rel)
+        return th.cat([scores, pooled], dim=-1)
+
+    def _network(
+        self, x: th.Tensor, mask: th.Tensor, rel: th.Tensor
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """Scores ``(B, K)`` and pooled embedding ``(B, 2 hidden)`` of ``K`` candidates.
+
+        ``x`` ``(B, K, in)`` their inputs, ``mask`` ``(B, K)`` the unselected ones, ``rel``
+        ``(B, K)`` their relative log gains.
+        """
         m = mask.unsqueeze(-1).to(x.dtype)
         count = m.sum(dim=1).clamp(min=1.0)  # (B, 1)
-        h = self.act(self.input_layer(x))  # (B, N, hidden)
+        h = self.act(self.input_layer(x))  # (B, K, hidden)
         for layer, ctx_layer in zip(self.set_layers, self.ctx_layers, strict=True):
             ctx = (h * m).sum(dim=1) / count  # masked mean over unselected candidates
             h = self.act(layer(h) + ctx_layer(ctx).unsqueeze(1))
@@ -196,8 +223,7 @@ class CandidateScorer(BaseFeaturesExtractor):
         scores = self.score_head(h).squeeze(-1) + self.gain_skip * rel
         # masked candidates get MaskablePPO's own masked logit, so plain PPO (which has no
         # action_masks argument) never samples them and MaskablePPO is unchanged
-        scores = scores.masked_fill(~mask, MASKED_LOGIT)
-        return th.cat([scores, pooled], dim=-1)
+        return scores.masked_fill(~mask, MASKED_LOGIT), pooled
 
 
 class ScoreSlice(nn.Module):

@@ -337,6 +337,15 @@ def _common_architecture(
         raise ValueError(f"{source}: incomplete architecture metadata: no 'net_arch.vf'")
     vf = bounded_widths(net["vf"], "architecture.net_arch.vf", source, allow_empty=True)
     extractor = {"hidden": hidden, "activation": activation, "gain_skip_init": float(skip)}
+    shortlist = arch.get("shortlist", 0)
+    limit = CHECKPOINT_LIMITS["max_candidates"]
+    if isinstance(shortlist, bool) or not isinstance(shortlist, int) or not 0 <= shortlist <= limit:
+        raise ValueError(
+            f"{source}: architecture.shortlist must be an int in [0, {limit}], got "
+            f"{shortlist!r:.80}"
+        )
+    if shortlist:
+        extractor["shortlist"] = shortlist
     return extractor, {"pi": [], "vf": vf}
 
 

@@ -185,6 +185,12 @@ class PPOConfig:
         "initial weight w of the gain skip w * gain in every candidate's logit "
         "(0: near-uniform start; > 0: a softened greedy)",
     )
+    shortlist: int = arg(
+        0,
+        "m > 0: the policy scores only the m unselected candidates of largest gain (the others "
+        "masked), so rollouts and updates cost about m / N of the whole pool's; 0: every "
+        "candidate (the candidate-scoring policies only)",
+    )
     # outputs
     out: str = arg("", "checkpoint path (.zip); its metadata goes next to it as .json")
     force: bool = run_arg("force", False)
@@ -665,6 +671,8 @@ def _check_train(cfg: PPOConfig, env_id: str, native: dict[str, Any] | None) -> 
     check_bounds(cfg)
     if cfg.algo not in ALGORITHMS:
         raise UsageError(f"--algo must be one of {sorted(ALGORITHMS)}, got {cfg.algo!r}")
+    if cfg.shortlist < 0:
+        raise UsageError(f"--shortlist must be an int >= 0 (0: all), got {cfg.shortlist}")
     if cfg.vec_env not in VEC_ENVS:
         raise UsageError(f"--vec-env must be one of {list(VEC_ENVS)}, got {cfg.vec_env!r}")
     if cfg.vec_env == "native" and native is None:
@@ -750,6 +758,7 @@ def _make_model(
                 "hidden": parse_hidden(cfg.hidden),
                 "activation": cfg.activation,
                 "gain_skip_init": cfg.gain_skip_init,
+                **({"shortlist": cfg.shortlist} if cfg.shortlist else {}),
                 **(extractor_kwargs or {}),
             },
         },
@@ -822,6 +831,7 @@ class _Record:
                 "hidden": parse_hidden(cfg.hidden),
                 "activation": cfg.activation,
                 "gain_skip_init": cfg.gain_skip_init,
+                **({"shortlist": cfg.shortlist} if cfg.shortlist else {}),
                 **self.extractor_kwargs,
                 "net_arch": {"pi": [], "vf": [64]},
                 "n_parameters": int(sum(p.numel() for p in model.policy.parameters())),
