@@ -6,7 +6,9 @@ baseline at 1 and ``random`` at 0 (both evaluated on the same held-out seeds) an
 recorded baseline (``brute_force``, ``rollout``, ...) as a line at its own normalised level,
 titled with the env id and its keyword arguments; below it, the same curve as the difference to
 greedy's mean return (in the env's return units, the first point left out of the scale), where
-the small differences between near-greedy policies and the references show. Usage::
+the small differences between near-greedy policies and the references show. The top axis of
+each panel reads the same points in wall minutes of the run (training plus the curve's own
+evaluations, as recorded), so a curve can be compared by time as well as by steps. Usage::
 
     .venv/bin/python scripts/plot_learning_curves.py runs/train_fim_ppo/policy.json \
         [more checkpoints (.json or .zip) ...] --out learning_curves.png
@@ -19,6 +21,7 @@ without a ``learning_curve`` (trained without ``--curve-every``), or whose curve
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import sys
@@ -75,6 +78,30 @@ def read_curve(path: Path) -> tuple[str, dict[str, Any]]:
     return title, curve
 
 
+def _wall_axis(ax: Any, steps: list[float], minutes: list[float]) -> None:
+    """A top axis in wall minutes, interpolated between the recorded points.
+
+    Left out when the points do not increase in both steps and time (a curve of one point,
+    or a resumed run whose clock restarted).
+    """
+    import numpy as np
+
+    pairs = list(zip(steps, minutes, strict=True))
+    if len(pairs) < 2 or any(b[0] <= a[0] or b[1] <= a[1] for a, b in itertools.pairwise(pairs)):
+        return
+    x, w = np.asarray(steps, dtype=float), np.asarray(minutes, dtype=float)
+    # extended linearly past both ends, so the axis margins get ticks at the same rate
+    far = 10.0 * (x[-1] - x[0])
+    lo, hi = (w[1] - w[0]) / (x[1] - x[0]), (w[-1] - w[-2]) / (x[-1] - x[-2])
+    x = np.concatenate([[x[0] - far], x, [x[-1] + far]])
+    w = np.concatenate([[w[0] - lo * far], w, [w[-1] + hi * far]])
+    axis = ax.secondary_xaxis(
+        "top", functions=(lambda v: np.interp(v, x, w), lambda v: np.interp(v, w, x))
+    )
+    axis.set_xlabel("wall minutes", fontsize=7)
+    axis.tick_params(labelsize=7)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Read every checkpoint's curve (all checked before drawing), draw, write ``--out``."""
     args = parse_args(argv)
@@ -118,6 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             color="tab:blue",
             label="policy",
         )
+        _wall_axis(top, steps, [p["wall_seconds"] / 60.0 for p in curve["points"]])
         top.set_title(title, fontsize=8, wrap=True)
         top.set_ylabel("normalised score")
         low.set_ylabel("return - greedy's")

@@ -171,3 +171,20 @@ def test_plot_script_writes_a_figure_and_refuses_a_checkpoint_without_curve(
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(plain) in err and "learning_curve" in err
     assert not other.exists()
+
+
+def test_the_wall_minutes_axis_reads_the_recorded_points() -> None:
+    from matplotlib.figure import Figure
+
+    script = load_script("plot_learning_curves")
+    ax = Figure().add_subplot()
+    script._wall_axis(ax, [0.0, 100.0, 300.0], [0.5, 1.5, 3.5])
+    (axis,) = ax.child_axes
+    forward, inverse = axis._functions
+    assert forward(100.0) == pytest.approx(1.5) and forward(200.0) == pytest.approx(2.5)
+    assert inverse(3.5) == pytest.approx(300.0)
+    assert forward(400.0) == pytest.approx(4.5)  # extended past the last point at its rate
+    for steps, minutes in (([0.0], [1.0]), ([0.0, 10.0, 20.0], [1.0, 3.0, 2.0])):
+        ax = Figure().add_subplot()
+        script._wall_axis(ax, steps, minutes)  # one point, or a clock that restarted: none
+        assert not ax.child_axes
