@@ -11,7 +11,8 @@ view, ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, network), up to fou
 * **compiled**: native with the scorer compiled (``--compile``,
   :func:`selenv.learned.rl.compiled.compile_policy`);
 * **CartPole**: SB3's ``PPO("MlpPolicy")`` on ``make_vec_env("CartPole-v1", n_envs)`` with the
-  same ``n_envs``, ``n_steps``, ``batch_size`` and ``n_epochs`` (the anchor).
+  same ``n_envs``, ``n_steps``, ``batch_size`` and ``n_epochs`` (the anchor). ``--n-envs`` /
+``--n-steps`` replace the scripts' rollout layout, for every contender alike.
 
 Each model is built and warmed up by one untimed rollout and update (TorchInductor compiles
 there); then the rounds are interleaved: each times one ``learn()`` of ``--rollouts`` rollouts
@@ -21,7 +22,7 @@ median of the per-round ratios. One BLAS and one torch thread.
 
     .venv/bin/python benchmarks/bench_training_fps.py [--rounds 3] [--rollouts 1]
         [--families fim landmarks cl clustering] [--contenders dummy native compiled]
-        [--shortlist M] [--json PATH]
+        [--shortlist M] [--n-envs B --n-steps T] [--json PATH]
 """
 
 from __future__ import annotations
@@ -55,10 +56,11 @@ FAMILIES = {
 }
 
 
-def _setup(family: str) -> dict[str, Any]:
+def _setup(family: str, layout: dict[str, int] | None = None) -> dict[str, Any]:
+    """The script's defaults (``layout``: ``n_envs`` / ``n_steps`` overriding them)."""
     module_name, view_spec = FAMILIES[family]
     mod = importlib.import_module(module_name)
-    cfg = mod.Config()
+    cfg = mod.Config(**(layout or {}))
     kwargs = cfg.kwargs()
     if family == "clustering":
         kwargs = {**kwargs, "action_mode": "edit"}
@@ -167,8 +169,11 @@ def main() -> None:
         "--shortlist", type=int, default=0,
         help="m > 0: the native and compiled contenders score the m best-gain candidates only",
     )  # fmt: skip
+    ap.add_argument("--n-envs", type=int, help="rollout layout (default: the script's)")
+    ap.add_argument("--n-steps", type=int, help="rollout layout (default: the script's)")
     ap.add_argument("--json", help="write the figures to this JSON file (atomically)")
     args = ap.parse_args()
+    layout = {k: v for k, v in (("n_envs", args.n_envs), ("n_steps", args.n_steps)) if v}
     warnings.simplefilter("ignore")
     out: dict[str, Any] = {}
     kinds = [k for k in KINDS if k in args.contenders]
@@ -180,7 +185,7 @@ def main() -> None:
     with limit_threads(blas=1, torch=1):
         torch.set_num_threads(1)
         for family in args.families:
-            s = _setup(family)
+            s = _setup(family, layout)
             contenders = {k: Contender(s, k, args.shortlist) for k in [*kinds, "cartpole"]}
             runs: dict[str, list[float]] = {k: [] for k in contenders}
             for _ in range(args.rounds):
