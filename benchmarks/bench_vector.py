@@ -21,7 +21,9 @@ time per step is the mean over one. Printed as Markdown tables:
    ``gymnasium.make("CartPole-v1")`` step and reset (the same wrappers on both).
 4. **scaling** (``--scaling``): native steps/s for ``B = 1 .. 1024`` with CartPoleVectorEnv's at
    the same ``B``, and the time per sub-env step against the family's size parameter
-   (candidates, landmarks, agents, receivers) with the fitted cost exponent ``t ~ size^p``.
+   (candidates, landmarks, agents, receivers) with the fitted cost exponent ``t ~ size^p``,
+   and one ``gymnasium.make`` reset at each size against a ``gymnasium.make("CartPole-v1")``
+   reset (interleaved).
 
     .venv/bin/python benchmarks/bench_vector.py --rounds 5 --steps 20     # tables 1-3
     .venv/bin/python benchmarks/bench_vector.py --scaling --json docs/bench/vector_envs.json
@@ -198,9 +200,9 @@ def against_cartpole_vector(ids: list[str], B: int, steps: int, rounds: int) -> 
 class Single:
     """One ``gymnasium.make(env_id)`` env: blocks of random masked steps and of resets."""
 
-    def __init__(self, env_id: str, steps: int, resets: int, seed: int = 0) -> None:
-        self.env = gym.make(env_id)
-        self.steps, self.resets = whole_cycles(steps, cycle(env_id)), resets
+    def __init__(self, env_id: str, steps: int, resets: int, seed: int = 0, **kw: Any) -> None:
+        self.env = gym.make(env_id, **kw)
+        self.steps, self.resets = whole_cycles(steps, cycle(env_id, **kw)), resets
         self.rng = np.random.default_rng(seed)
         self.seed = seed
         self.space = self.env.action_space
@@ -276,11 +278,17 @@ def scaling(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
         cart_by_b[B] = B / statistics.median(t["cart"])
         vs_cart[B] = ratio(t["env"], t["cart"])
     key, sizes, extra = SIZES[env_id]
-    by_size = {}
+    by_size, reset_vs_cart = {}, {}
+    cart = Single(CARTPOLE, 1, 100)
     for size in sizes:
         r = vector(env_id, 64, steps, **{key: size, **extra})
         by_size[size] = statistics.median(interleaved({"n": r.run}, max(3, rounds // 3))["n"]) / 64
         r.close()
+        single = Single(env_id, 1, max(2, steps // 4), **{key: size, **extra})
+        t = interleaved({"env": single.reset_block, "cart": cart.reset_block}, max(3, rounds // 3))
+        reset_vs_cart[size] = ratio(t["env"], t["cart"])
+        single.close()
+    cart.close()
     xs = np.log(np.array(list(by_size), float))
     ys = np.log(np.array(list(by_size.values())))
     return {
@@ -289,6 +297,7 @@ def scaling(env_id: str, steps: int, rounds: int) -> dict[str, Any]:
         "vs_cartpole_vector_by_B": vs_cart,
         "size_key": key,
         "sub_step_s_by_size": by_size,
+        "reset_vs_cartpole_by_size": reset_vs_cart,
         "exponent": float(np.polyfit(xs, ys, 1)[0]),
     }
 
@@ -391,7 +400,9 @@ def main() -> None:
                     [sc["size_key"], *map(str, sc["sub_step_s_by_size"]), "exponent"],
                     [["us per sub-env step (B = 64)",
                       *(f"{v * 1e6:.1f}" for v in sc["sub_step_s_by_size"].values()),
-                      f"{sc['exponent']:.2f}"]],
+                      f"{sc['exponent']:.2f}"],
+                     ["single reset / CartPole reset",
+                      *(f"{v:.0f}x" for v in sc["reset_vs_cartpole_by_size"].values()), ""]],
                 )  # fmt: skip
     out["load_average_end"] = os.getloadavg()[0]
     print(f"\nload average {out['load_average_start']:.1f} -> {out['load_average_end']:.1f}")
