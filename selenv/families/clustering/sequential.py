@@ -33,10 +33,36 @@ __all__ = [
     "SequentialAgent",
     "assignment_keywords",
     "placement_actions",
+    "placement_masks",
+    "placement_reason",
 ]
 
 #: keywords the sequential env fixes on its assignment env
 FIXED = ("action_mode", "obs_mask")
+
+
+def placement_masks(
+    receivers: np.ndarray, new: np.ndarray, sizes: np.ndarray, max_size: int
+) -> np.ndarray:
+    """``(k, n)`` bool: the allowed placements of ``k`` partial clusterings (the exact mask).
+
+    ``receivers`` ``(k,)`` the receiver each places next, ``new`` ``(k, n)`` each placed
+    receiver's cluster by its lowest receiver (``-1``: not placed), ``sizes`` ``(k, n)`` the
+    cluster sizes by lowest receiver. ``j < i`` is allowed iff ``j``'s cluster holds fewer than
+    ``max_size`` receivers, ``j == i`` (open a cluster) always, ``j > i`` never. The single env
+    is the ``k = 1`` case of the vector env's call.
+    """
+    cols = np.arange(new.shape[1])
+    i = np.asarray(receivers)[:, None]
+    room = np.take_along_axis(sizes, np.maximum(new, 0), axis=1) < max_size
+    return ((cols < i) & room) | (cols == i)
+
+
+def placement_reason(i: int, j: int, max_size: int) -> str:
+    """Why placing receiver ``i`` with action ``j`` is masked (the ``"masked: ..."`` reason)."""
+    if j > i:
+        return f"masked: receiver {j} is not placed yet (placing receiver {i})"
+    return f"masked: receiver {j}'s cluster already holds max_size={max_size} receivers"
 
 
 def assignment_keywords(render_mode: str | None, config: dict[str, Any]) -> dict[str, Any]:
@@ -207,11 +233,8 @@ class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.nd
 
     def action_masks(self) -> np.ndarray:
         """``(n,)`` bool: the clusters receiver :attr:`receiver` may join, or open its own."""
-        i, mask = self._receiver, np.zeros(self.n, dtype=np.bool_)
-        if i > 0:
-            mask[:i] = self._sizes[self._new[:i]] < self.max_size
-        mask[i] = True
-        return mask
+        receiver = np.array([self._receiver])
+        return placement_masks(receiver, self._new[None], self._sizes[None], self.max_size)[0]
 
     # -- Gymnasium API -------------------------------------------------------------------------
     def reset(
@@ -231,7 +254,7 @@ class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.nd
             raise RuntimeError("episode is over: call reset()")
         i = self._receiver
         j = check_discrete(action, self.n)
-        reason = None if self.action_masks()[j] else self._why(i, j)
+        reason = None if self.action_masks()[j] else placement_reason(i, j, self.max_size)
         rule = self.invalid_rule
         if rule.check(f"action {j} (placing receiver {i})", reason) and rule.terminates:
             self._done = True
@@ -266,11 +289,6 @@ class ReceiverClusteringSequentialEnv(EpisodeLengthSpec, gym.Env[dict[str, np.nd
         self._receiver, self._void = 0, False
         self._new[:] = -1
         self._sizes[:] = 0
-
-    def _why(self, i: int, j: int) -> str:
-        if j > i:
-            return f"masked: receiver {j} is not placed yet (placing receiver {i})"
-        return f"masked: receiver {j}'s cluster already holds max_size={self.max_size} receivers"
 
     def _obs(self) -> dict[str, np.ndarray]:
         receiver = np.zeros(self.n, dtype=np.int8)

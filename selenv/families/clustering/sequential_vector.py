@@ -23,6 +23,8 @@ from selenv.envs.vector import BatchedVectorEnv, check_discrete_actions, check_n
 from selenv.families.clustering.sequential import (
     ReceiverClusteringSequentialEnv,
     assignment_keywords,
+    placement_masks,
+    placement_reason,
 )
 from selenv.families.clustering.vector import ReceiverClusteringVectorEnv
 
@@ -133,7 +135,7 @@ class ReceiverClusteringSequentialVectorEnv(BatchedVectorEnv):
         i = self.receivers[idx]
         allowed = self._masks(idx)[np.arange(k), actions]
         reasons = [
-            None if ok else self._why(int(r), int(j))
+            None if ok else placement_reason(int(r), int(j), self.max_size)
             for ok, r, j in zip(allowed.tolist(), i.tolist(), actions.tolist(), strict=True)
         ]
         invalid = ~allowed
@@ -189,16 +191,7 @@ class ReceiverClusteringSequentialVectorEnv(BatchedVectorEnv):
 
     def _masks(self, idx: np.ndarray) -> np.ndarray:
         """``(k, n)`` bool masks of sub-envs ``idx`` (as the single env's ``action_masks``)."""
-        cols = np.arange(self.n)
-        i = self.receivers[idx, None]
-        lead = np.maximum(self._new[idx], 0)
-        room = np.take_along_axis(self._sizes[idx], lead, axis=1) < self.max_size
-        return ((cols < i) & room) | (cols == i)
-
-    def _why(self, i: int, j: int) -> str:
-        if j > i:
-            return f"masked: receiver {j} is not placed yet (placing receiver {i})"
-        return f"masked: receiver {j}'s cluster already holds max_size={self.max_size} receivers"
+        return placement_masks(self.receivers[idx], self._new[idx], self._sizes[idx], self.max_size)
 
     def _carry(self, idx: np.ndarray, infos: dict[str, Any]) -> None:
         """Keep the assignment env's info of sub-envs ``idx`` after a reset or filter step."""
