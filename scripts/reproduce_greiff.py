@@ -62,6 +62,7 @@ from selenv.families.clustering.labels import random_feasible_clustering
 from selenv.families.clustering.scenario import ClusteringConfig, make_clustering_problem
 from selenv.learned.config import UsageParser
 from selenv.parallel import Executor, ExecutorError, add_executor_arguments, executor_from_args
+from selenv.parallel.store import ResultStore, resumable_map
 
 ENV_ID = "selenv/ReceiverClustering-v1"
 #: the paper's noise model: ``sigma`` fixed per realisation (the env's default is time-varying)
@@ -119,9 +120,15 @@ def run_episode(task: dict[str, Any]) -> dict[str, np.ndarray]:
     return out
 
 
-def run_all(tasks: list[dict[str, Any]], pool: Executor, desc: str) -> list[dict[str, np.ndarray]]:
-    """Run tasks on ``pool`` (local, process pool or Ray; results in task order) with a bar."""
-    return pool.map(run_episode, tasks, desc=desc, unit="run")
+def run_all(
+    tasks: list[dict[str, Any]], pool: Executor, desc: str, store: ResultStore | None = None
+) -> list[dict[str, np.ndarray]]:
+    """Run tasks on ``pool`` (local, process pool or Ray; results in task order) with a bar.
+
+    With ``store`` (``--store``), runs it already holds are read back instead of run and new
+    runs are written to it as they finish, so an interrupted command resumes where it stopped.
+    """
+    return resumable_map(pool, run_episode, tasks, store, desc=desc, unit="run")
 
 
 # -- experiments ---------------------------------------------------------------------------------
@@ -161,7 +168,7 @@ def fig3_experiment(
             "clustering": np.zeros(30, int),
         }
     )
-    res = run_all(tasks, args.pool, "Fig. 3")
+    res = run_all(tasks, args.pool, "Fig. 3", args.result_store)
     R = args.runs
     stack = lambda rs, key: np.stack([r[key] for r in rs])  # noqa: E731
     out: dict[str, Any] = {}
@@ -233,7 +240,8 @@ def table2_experiment(
         for ops in OPERATOR_SETS
         for r in range(args.table_runs)
     ]
-    res = run_all(tasks, args.pool, "Table II" + ("" if variant == "improved" else f" ({variant})"))
+    label = "Table II" + ("" if variant == "improved" else f" ({variant})")
+    res = run_all(tasks, args.pool, label, args.result_store)
     out = {}
     for i, ops in enumerate(OPERATOR_SETS):
         J = np.stack([r["J"] for r in res[i * args.table_runs : (i + 1) * args.table_runs]])
@@ -452,6 +460,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "(Table II and Fig. 4 for each)",
     )
     p.add_argument(
+        "--store",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="keep every finished run in DIR and skip the runs it already holds: a stopped "
+        "command resumes where it stopped when run again with the same options (the wall time "
+        "printed then covers every run that wrote to DIR)",
+    )
+    p.add_argument(
         "--allow-large",
         action="store_true",
         help="run sizes above the ceilings (--runs, --table-runs, --steps as above; "
@@ -507,6 +524,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         pool = executor_from_args(args)
     except ExecutorError as exc:
         raise UsageError(f"{exc}") from None
+    try:
+        args.result_store = None if args.store is None else ResultStore(args.store)
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--store: {exc}") from None
     _check_out(args.out)
     t0 = time.perf_counter()
     sigma = make_clustering_problem(ClusteringConfig(), np.random.default_rng(args.seed)).sigma
@@ -547,10 +568,18 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
             },
         )
     wall = time.perf_counter() - t0
+    store = args.result_store
+    del args.result_store
     results["figures"] = {k: str(v) for k, v in paths.items()}
-    results["config"] = {**vars(args), "out": str(args.out), "wall_time_s": wall}
+    config = {**vars(args), "out": str(args.out), "wall_time_s": wall}
+    config["store"] = None if args.store is None else str(args.store)
+    results["config"] = config
     print(format_tables(results))
-    print(f"\nruns={args.runs} table_runs={args.table_runs} K={args.steps} wall time {wall:.1f} s")
+    line = f"\nruns={args.runs} table_runs={args.table_runs} K={args.steps} wall time {wall:.1f} s"
+    if store is not None:
+        config["stored_wall_time_s"] = store.compute_seconds()
+        line += f" (the runs held in --store cost {store.compute_seconds():.1f} s of wall time)"
+    print(line)
     return results
 
 

@@ -80,6 +80,7 @@ BAD: list[tuple[str, list[str], str]] = [
         "--runs x --table-runs x --steps",
     ),
     ("reproduce_greiff", ["--seed", "-1"], "--seed"),
+    ("reproduce_greiff", ["--store", str(ROOT / "README.md")], "--store"),
     ("reproduce_greiff", ["--num-workers", HUGE], "--num-workers"),
     ("reproduce_soubaras", ["--runs", HUGE], "--runs"),
     ("reproduce_soubaras", ["--runs", "1"], "--runs"),

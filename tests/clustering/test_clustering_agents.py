@@ -138,7 +138,22 @@ def test_agents_refuse_the_wrong_env_or_mode() -> None:
 def repro(tmp_path_factory):
     module = load_script("reproduce_greiff")
     out = tmp_path_factory.mktemp("greiff")
-    return out, module.main(["--quick", "--out", str(out), "--workers", "1"])
+    argv = ["--quick", "--out", str(out), "--workers", "1", "--store", str(out / "store")]
+    return out, module.main(argv)
+
+
+def test_reproduction_resumes_from_its_store(repro) -> None:
+    """Run again on the same --store, nothing is recomputed and every number is the same."""
+    out, res = repro
+    module = load_script("reproduce_greiff")
+    argv = ["--quick", "--out", str(out / "again"), "--store", str(out / "store")]
+    again = module.main([*argv, "--executor", "local"])
+    for ops, row in res["table2"].items():
+        np.testing.assert_array_equal(again["table2"][ops]["J"], row["J"])
+        assert again["table2"][ops]["k_star"] == row["k_star"]
+    for name, curves in res["fig3"].items():
+        np.testing.assert_array_equal(again["fig3"][name]["J"], curves["J"])
+    assert again["config"]["stored_wall_time_s"] == res["config"]["stored_wall_time_s"] > 0
 
 
 def test_reproduction_writes_figures_and_orders_the_methods(repro) -> None:
