@@ -285,20 +285,24 @@ def pick_directions(problem: FIMProblem, idx: np.ndarray) -> dict[str, Any]:
     }
 
 
-def altitude_sweep(altitudes: Sequence[float], K: int, seed: int) -> dict[str, Any]:
-    """Example 1 (paper reading) with the camera at each altitude: where the ``K`` picks lie.
+def altitude_sweep(
+    altitudes: Sequence[float], K: int, seed: int, preset: str = "example1"
+) -> dict[str, Any]:
+    """Example 1 with the camera at each altitude: where the ``K`` picks lie.
 
-    The greedy selection depends only on the geometry and the prior mean (not on the truth
-    draw), so one problem per altitude gives the exact selection.
+    ``preset``: ``"example1"`` (the paper's reading, stationary target) or
+    ``"example1_moving"`` (the variant: velocity and curvature estimated too). The greedy
+    selection depends only on the geometry and the prior mean (not on the truth draw), so one
+    problem per altitude gives the exact selection.
     """
     rows = []
     for alt in altitudes:
-        cfg = config_from("example1", randomize=False, altitude_m=float(alt))
+        cfg = config_from(preset, randomize=False, altitude_m=float(alt))
         problem = make_problem(cfg, np.random.default_rng(seed))
         rows.append(
             {"altitude_m": float(alt), **pick_directions(problem, greedy_indices(problem, K))}
         )
-    return {"K": K, "rows": rows}
+    return {"K": K, "preset": preset, "rows": rows}
 
 
 # -- example 3 ----------------------------------------------------------------------------------
@@ -738,9 +742,16 @@ def format_tables(results: dict[str, Any]) -> str:
             cells.append(f"{_fmt(d[j], 3)} ± {_fmt(se[j], 3)}")
         lines.append(f"| {K} | {' | '.join(cells)} |")
     lines.append("")
-    sweep = results["altitude_sweep"]
-    lines += [
-        f"### Fig. 2: example1 picks (K = {sweep['K']}) vs camera altitude",
+    for key in ("altitude_sweep", "altitude_sweep_moving"):
+        if key in results:
+            lines += format_sweep(results[key])
+    return "\n".join(lines)
+
+
+def format_sweep(sweep: dict[str, Any]) -> list[str]:
+    """The Fig. 2 altitude sweep of one preset as a Markdown table (one row per altitude)."""
+    lines = [
+        f"### Fig. 2: {sweep['preset']} picks (K = {sweep['K']}) vs camera altitude",
         "",
         "| altitude (m) | pick times (s) | viewing directions | bearing spread (deg) | "
         "picks away from closest approach | horizontal range of the picks (m) |",
@@ -753,7 +764,7 @@ def format_tables(results: dict[str, Any]) -> str:
             f"{row['spread_deg']:.0f} | {row['n_away']} | "
             f"{row['ranges'].min():.0f}-{row['ranges'].max():.0f} |"
         )
-    return "\n".join(lines)
+    return [*lines, ""]
 
 
 # -- entry point --------------------------------------------------------------------------------
@@ -825,6 +836,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     for preset in ("example2", "example2_moving"):
         results[f"{preset}_sensor_mix"] = sensor_mix(preset, max(ks), args.seed)
     results["altitude_sweep"] = altitude_sweep(ALTITUDES_M, GEOMETRY_K, args.seed)
+    results["altitude_sweep_moving"] = altitude_sweep(
+        ALTITUDES_M, GEOMETRY_K, args.seed, preset="example1_moving"
+    )
     paths = {name: out / f"{name}.png" for name in FIGURE_NAMES}
     plot_fig3(results["example1"], results["example1_moving"], n, paths["kirchner_fig3"])
     mixes = {

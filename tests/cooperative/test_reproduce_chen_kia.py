@@ -28,6 +28,16 @@ def test_table_iii_ordering(run) -> None:
     assert r["pecmv"][1] <= r["dmv"][1]  # PECMV is less conservative than DMV (paper)
 
 
+def test_table_iii_rows_have_the_header_columns(run) -> None:
+    """Every printed row has as many cells as the header (no stray empty column)."""
+    _, res = run
+    module = load_script("reproduce_chen_kia")
+    rows = [ln for ln in module.format_tables(res["results"], 4).splitlines() if ln.startswith("|")]
+    cells = {len(ln.strip("|").split("|")) for ln in rows}
+    assert len(rows) == 2 + len(res["results"]) and cells == {9}
+    assert all(c.strip() for c in rows[0].strip("|").split("|"))
+
+
 def test_fig8_consistency(run) -> None:
     _, res = run
     lo, hi = res["band"]

@@ -124,6 +124,22 @@ def test_altitude_sweep_shows_the_fig2_compromise(run, script):
             assert np.all(r["times"] > 59.0)
 
 
+def test_moving_target_sweep_spreads_the_picks_at_every_altitude(run, script):
+    """example1_moving: the picks keep several viewing directions even at the presets' 50 m."""
+    _, results = run
+    sweep = results["altitude_sweep_moving"]
+    assert sweep["preset"] == "example1_moving"
+    assert results["altitude_sweep"]["preset"] == "example1"
+    rows = {r["altitude_m"]: r for r in sweep["rows"]}
+    assert set(rows) == set(script.ALTITUDES_M)
+    for r in rows.values():
+        assert r["times"].size == 10 and np.all(np.diff(r["times"]) >= 0)
+        assert r["n_directions"] >= 3 and r["spread_deg"] > 90
+        near = np.sum(np.abs(r["bearings"]) <= script.DIRECTION_GAP_DEG)
+        assert 1 <= near < 10  # some picks at the closest approach, not all
+    assert "example1_moving picks" in script.format_tables(results)
+
+
 def test_pick_directions_against_hand_geometry(script):
     """Bearings of two hand-picked candidates of a stationary example 1, from positions."""
     problem = make_problem(config_from("example1", randomize=False, n_candidates=360),
