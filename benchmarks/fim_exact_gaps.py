@@ -1,4 +1,4 @@
-"""How far from optimal: every FIMSelection agent against the exact solver's certified bound.
+r"""How far from optimal: every FIMSelection agent against the exact solver's certified bound.
 
 For each seed, the episode's instance of ``selenv/FIMSelection-v1`` (defaults unless
 ``--env-kwargs``) is solved by :func:`~selenv.agents.fim_exact.branch_and_bound_whitened`

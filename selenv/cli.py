@@ -187,6 +187,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="write one PNG per env into DIR: paired differences vs the baseline with 95 %% CIs",
     )
+    bench.add_argument(
+        "--no-bounds",
+        action="store_true",
+        help="skip the certified bound on each episode's return and the agents' gap to it "
+        "(computed where the env family has one, e.g. FIMSelection's relaxation)",
+    )
     bench.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     bench.add_argument(
         "--blas-threads",
@@ -514,6 +520,7 @@ def _run_envs(
                     threads=(args.blas_threads or None, args.torch_threads or None),
                     max_episodes=args.max_episodes,
                     collect=results,
+                    bounds=not args.no_bounds,
                 )
             except EnvKwargsError as exc:
                 return _error(f"--env-kwargs: {exc}")

@@ -258,10 +258,12 @@ class _Problem:
         Every completion (``prod_a C(n_a, r_a) <= _ENUMERATE``) by one batched Cholesky.
         """
         pools = self.pools(status)
+        fixed = np.flatnonzero(status == 1)
+        if not pools:  # every candidate decided: a leaf
+            return self.value(fixed), fixed
         if math.prod(math.comb(f.size, r) for f, r in pools) > _ENUMERATE:
             return None
         d = self.d
-        fixed = np.flatnonzero(status == 1)
         Gin = self.G[fixed].reshape(-1, d)
         B = self.Q0 + Gin.T @ Gin
         parts = [np.array(list(itertools.combinations(f, r)), dtype=np.intp) for f, r in pools]
@@ -488,6 +490,16 @@ class _Search:
         return status, res
 
 
+def _logdet_only(objective: object, interest: object) -> None:
+    """Refuse the objectives the relaxation does not bound (one line, naming the way out)."""
+    if objective != "logdet" or interest is not None:
+        raise ValueError(
+            f"the exact solver bounds objective='logdet' only (got objective={objective!r}"
+            f"{'' if interest is None else ', interest=' + repr(interest)}); use brute_force "
+            "for 'trace' or 'max_eig' on small pools"
+        )
+
+
 def _problem(
     Q0: object,
     G: object,
@@ -550,6 +562,8 @@ def branch_and_bound_whitened(
     node_limit: int = DEFAULT_NODE_LIMIT,
     time_limit: float | None = None,
     rtol: float = 1e-9,
+    objective: str = "logdet",
+    interest: Sequence[int] | np.ndarray | None = None,
 ) -> ExactSelection:
     """The log-det optimum by branch and bound, or the incumbent with a certified gap.
 
@@ -557,16 +571,19 @@ def branch_and_bound_whitened(
     on greedy, within each pool for ``groups``). ``node_limit``: nodes solved before returning
     the incumbent (deterministic); ``time_limit``: seconds, checked between nodes (``None``:
     none). ``rtol``: a node is closed when its bound is within ``rtol * max(1, |incumbent|)``
-    of the incumbent. The returned ``indices`` are sorted.
+    of the incumbent. The returned ``indices`` are sorted. ``objective`` / ``interest`` (the
+    solvers' common signature): log det only.
 
     Raises:
         TypeError: not real numeric; ``budget`` / ``node_limit`` not an int; ``initial`` not
             int indices; ``time_limit`` / ``rtol`` not real numbers.
         ValueError: see :func:`~selenv.core.information.whitened_pool`; ``budget`` outside
             [0, N]; bad pools; ``initial`` infeasible; ``node_limit`` < 1; ``time_limit`` not
-            > 0; ``rtol`` not in [0, 1).
+            > 0; ``rtol`` not in [0, 1); ``objective`` other than ``"logdet"`` (or an
+            ``interest``).
     """
     start_clock = time.perf_counter()
+    _logdet_only(objective, interest)
     prob = _problem(Q0, G, budget, groups, budgets)
     node_limit = check_int(node_limit, "node_limit", 1)
     if time_limit is not None:

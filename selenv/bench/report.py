@@ -128,6 +128,11 @@ def _delta_cell(p: PairedComparison | None, is_baseline: bool, decimals: int) ->
     return f"{mean} {ci}" + ("*" if p.significant else "")
 
 
+def _gap_cell(gap: tuple[float, float, float] | None) -> str:
+    """A gap to the bound as a percentage with 3 decimals (``-`` when there is none)."""
+    return "-" if gap is None else f"{format_fixed(100.0 * gap[0], 3)} %"
+
+
 def format_table(result: EnvBenchResult) -> str:
     """Render one env's results as an aligned text table with a short legend.
 
@@ -136,7 +141,9 @@ def format_table(result: EnvBenchResult) -> str:
     :attr:`EnvBenchResult.objective_direction`), the paired mean difference of the return
     against the baseline with its bootstrap 95 % CI as ``[lo, hi]`` (``*`` when the CI
     excludes 0; the baseline's row reads ``baseline``), wins/ties/losses against the baseline,
-    the normalised score, mean decision time in milliseconds (3 significant digits) and the
+    the normalised score, the gap to the env's certified bound on the return (where the family
+    has one, :mod:`selenv.bench.bounds`), mean decision time in milliseconds (3 significant
+    digits) and the
     number of episodes; for envs that count objective evaluations
     (``info["cost_evaluations"]``) also the evaluations per decision. Skipped agents show the
     reason.
@@ -163,6 +170,7 @@ def format_table(result: EnvBenchResult) -> str:
     base = result.baseline_name
     ran = {n: r for n, r in result.agents.items() if r.skipped is None}
     counted = any(r.cost_evaluations is not None for r in ran.values())
+    bounded = bool(result.bounds)
     header = (
         "agent",
         "return (mean ± std)",
@@ -170,6 +178,7 @@ def format_table(result: EnvBenchResult) -> str:
         f"Δ vs {base} [95 % CI]",
         "W/T/L",
         "norm. score",
+        *(["gap to bound"] if bounded else []),
         "decision ms",
         "episodes",
         *(["cost evals/decision"] if counted else []),
@@ -193,6 +202,7 @@ def format_table(result: EnvBenchResult) -> str:
                 _delta_cell(p, name == base, delta_dec),
                 wtl,
                 format_fixed(result.normalized_score(name), 3),
+                *([_gap_cell(result.gap_to_bound(name))] if bounded else []),
                 format_ms(res.decision_seconds_mean),
                 str(len(res.returns)),
                 *([format_fixed(evals, evals_dec)] if counted else []),
@@ -219,6 +229,12 @@ def format_table(result: EnvBenchResult) -> str:
         f"W/T/L: seeds above / tied (|Δ| <= {TIE_REL_TOL:g}·max(1, |baseline|)) / below; "
         f"norm. score: (mean - {ref}) / (best mean - {ref})",
     ]
+    if bounded:
+        what = "the optimum" if result.bound_kind == "optimum" else "a certified upper bound"
+        out.append(
+            f"gap to bound: mean (bound - return) / |bound| over the seeds, in %; bound: {what} "
+            f"on each episode's return ({result.bound_method})"
+        )
     return "\n".join(out)
 
 

@@ -28,6 +28,7 @@ import numpy as np
 
 import selenv
 from selenv.agents import AGENTS, parse_spec
+from selenv.bench.bounds import gap_to_bound
 from selenv.bench.stats import (
     BOOTSTRAP_RESAMPLES,
     BOOTSTRAP_SEED,
@@ -206,6 +207,8 @@ class EnvBenchResult:
         env_config: the resolved configuration of the env the episodes ran on (every
             constructor keyword with its value, :func:`~selenv.envs.resolved.resolved_env_config`);
             ``None`` if no env was built.
+        bounds: seed -> certified upper bound on that episode's return (empty: none);
+            ``bound_kind`` / ``bound_method`` say what it is (:mod:`selenv.bench.bounds`).
         complete: ``False`` when the run was stopped (interrupted, a worker died) before every
             agent played every episode: the agents hold the episodes that finished, and every
             statistic is computed on the paired seeds (:meth:`statistics_view`).
@@ -223,6 +226,11 @@ class EnvBenchResult:
     )
     env_config: dict[str, Any] | None = None
     complete: bool = True
+    #: a certified upper bound on each seed's return (``FamilySpec.return_bound``), with its
+    #: kind (``"optimum"`` / ``"bound"``) and method; empty when the env has none
+    bounds: dict[int, float] = field(default_factory=dict)
+    bound_kind: str | None = None
+    bound_method: str | None = None
 
     def episodes_done(self) -> dict[str, int]:
         """Agent -> episodes it finished (0 for a skipped agent)."""
@@ -328,6 +336,14 @@ class EnvBenchResult:
             return None
         return 100.0 * (best - res.mean_return) / (abs(best) or 1.0)
 
+    def gap_to_bound(self, name: str) -> tuple[float, float, float] | None:
+        """Agent ``name``'s mean ``(bound - return) / |bound|`` and 95 % CI (``None``: no bound)."""
+        res = self.agents[name]
+        if res.skipped is not None or not self.bounds:
+            return None
+        seeds = res.seeds or [self.seed + e for e in range(len(res.returns))]
+        return gap_to_bound(res.returns, seeds, self.bounds)
+
     def paired(self, name: str) -> PairedComparison | None:
         """Agent ``name`` against the baseline on the same seeds (``None`` if either skipped)."""
         base = self.baseline_name
@@ -375,6 +391,10 @@ class EnvBenchResult:
                 paired = view.paired(name)
                 agents[name]["paired"] = None if paired is None else paired.to_json()
                 agents[name]["normalized_score"] = view.normalized_score(name)
+                gap = view.gap_to_bound(name)
+                agents[name]["gap_to_bound"] = (
+                    None if gap is None else {"mean": gap[0], "ci95": [gap[1], gap[2]]}
+                )
             full = self.agents[name]
             if not self.complete and full.skipped is None:
                 agents[name]["returns"] = [float(r) for r in full.returns]
@@ -397,6 +417,14 @@ class EnvBenchResult:
             "random_reference": view.random_reference,
             "best_agent": view.best_agent,
             "objective_direction": self.objective_direction,
+            "return_bound": None
+            if not self.bounds
+            else {
+                "kind": self.bound_kind,
+                "method": self.bound_method,
+                "seeds": sorted(self.bounds),
+                "values": [self.bounds[k] for k in sorted(self.bounds)],
+            },
             "statistics": {
                 "confidence": CONFIDENCE,
                 "ci95": "percentile bootstrap of the mean paired difference of episode returns",

@@ -48,6 +48,7 @@ from tqdm import tqdm
 
 from selenv.agents import AGENTS, Agent, agents_for, default_agents, make, parse_spec
 from selenv.agents.base import unknown_agent_message
+from selenv.bench.bounds import return_bounds
 from selenv.bench.multiagent import (
     build_parallel_env,
     is_multiagent_module,
@@ -469,6 +470,7 @@ def run_bench(
     threads: tuple[int | None, int | None] = (1, 1),
     max_episodes: int = MAX_EPISODES,
     collect: list[EnvBenchResult] | None = None,
+    bounds: bool = True,
 ) -> EnvBenchResult:
     """Run each agent on ``episodes`` seeded episodes of ``env_id``.
 
@@ -496,6 +498,9 @@ def run_bench(
         collect: a list the result is appended to before any episode runs; if the run is
             interrupted or a worker dies, the result there holds the finished episodes and
             ``complete=False`` (module docstring) while the exception propagates.
+        bounds: after the episodes, compute the family's certified bound on each seed's
+            return (``FamilySpec.return_bound``, :mod:`selenv.bench.bounds`) so every agent
+            gets its gap to it; ``False`` skips it.
 
     Returns:
         The per-agent results, in the order of ``agent_names``.
@@ -550,6 +555,10 @@ def run_bench(
         out.agents[name] = AgentResult(name, skipped=why)
     out.agents = {n: out.agents[n] for n in (agent_names or names) if n in out.agents}
     out.check_baseline()
+    if bounds and kind == "gymnasium" and names:
+        got = return_bounds(env_id, kwargs, seeds)
+        if got is not None:
+            out.bound_kind, out.bound_method, out.bounds = got
     return out
 
 

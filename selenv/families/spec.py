@@ -27,6 +27,7 @@ from selenv.envs.versions import EnvVersion
 __all__ = [
     "FamilySpec",
     "FrozenVersion",
+    "ReturnBound",
     "build_env",
     "build_vector_env",
     "env_factories",
@@ -60,6 +61,26 @@ class FrozenVersion:
     env_class: str
     vector_class: str | None = None
     change: str = ""
+
+
+@dataclass(frozen=True)
+class ReturnBound:
+    """A certified upper bound on the return of one episode (what ``selenv bench`` reports).
+
+    Attributes:
+        value: no policy's return on the episode exceeds it.
+        kind: ``"optimum"`` (the best return, attained) or ``"bound"`` (certified, maybe not
+            attained).
+        method: how it was computed, one line (e.g. ``"continuous relaxation"``).
+    """
+
+    value: float
+    kind: str
+    method: str
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("optimum", "bound"):
+            raise ValueError(f"kind must be 'optimum' or 'bound', got {self.kind!r}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -102,6 +123,10 @@ class FamilySpec:
             as it is). The agent registry registers every agent of ``-vK`` on the current id
             through it, so heuristics and shipped policies keep working when the action space
             changes.
+        return_bound: ``"module:attr"`` of ``bound(env) -> ReturnBound | None``, called on the
+            unwrapped env right after ``reset(seed=s)``: a certified upper bound on the return
+            of that episode, or ``None`` where the configuration has none. ``selenv bench``
+            reports each agent's gap to it (``None``: the family has no bound).
     """
 
     name: str
@@ -120,6 +145,7 @@ class FamilySpec:
     vector_class: str | None = None
     frozen: tuple[FrozenVersion, ...] = ()
     agent_adapter: str | None = None
+    return_bound: str | None = None
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier() or not self.env_name.isidentifier():

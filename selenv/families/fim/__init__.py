@@ -26,6 +26,7 @@ SPEC = FamilySpec(
     ),
     multiagent_module="selenv.multiagent.fim_selection_v0",
     vector_class="selenv.families.fim.vector:FIMSelectionVectorEnv",
+    return_bound="selenv.families.fim.bounds:return_bound",
 )
 make_env, make_env_v0 = env_factories(SPEC)
 make_vector_env, make_vector_env_v0 = vector_factories(SPEC)

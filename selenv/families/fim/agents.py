@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from selenv.agents.base import AgentSpec, PlanAgent, register_agent
+from selenv.agents.fim_exact import DEFAULT_NODE_LIMIT, branch_and_bound_whitened
 from selenv.agents.fim_solvers import (
     MAX_BRUTE_FORCE_SUBSETS,
     Selection,
@@ -146,6 +147,17 @@ register_agent(
         (FIM_ENV_ID,),
         _solver_agent(brute_force_whitened, "brute_force"),
         f"exhaustive optimum (refuses > {MAX_BRUTE_FORCE_SUBSETS:,} subsets)",
+    )
+)
+
+register_agent(
+    AgentSpec(
+        "optimal",
+        (FIM_ENV_ID,),
+        _solver_agent(branch_and_bound_whitened, "optimal"),
+        f"exact optimum by branch and bound (log det), or after {DEFAULT_NODE_LIMIT:,} nodes "
+        "the best subset found with a certified gap",
+        default=False,
     )
 )
 
