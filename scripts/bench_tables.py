@@ -145,6 +145,14 @@ def env_result(env: dict[str, Any]) -> EnvBenchResult:
             cost_evaluations=None if per_decision is None else round(per_decision * decisions),
         )
     given = env.get("baseline_rule") == "given"
+    bound = env.get("return_bound")
+    bounds: dict[int, float] = {}
+    if bound is not None:
+        seeds = _get(bound, "seeds", list, f"{where} return_bound")
+        values = _numbers(bound, "values", f"{where} return_bound")
+        if len(seeds) != len(values) or not all(type(x) is int for x in seeds):
+            raise BenchTablesError(f"{where}: return_bound needs as many int seeds as values")
+        bounds = dict(zip(seeds, values, strict=True))
     result = EnvBenchResult(
         env_id=env_id,
         env_kwargs=_get(env, "env_kwargs", dict, where),
@@ -155,6 +163,9 @@ def env_result(env: dict[str, Any]) -> EnvBenchResult:
         kind=str(env.get("kind", "gymnasium")),
         timestamp=str(env.get("timestamp", "")),
         env_config=env.get("env_config"),
+        bounds=bounds,
+        bound_kind=None if bound is None else str(bound.get("kind")),
+        bound_method=None if bound is None else str(bound.get("method")),
     )
     if result.best_agent != env.get("best_agent"):
         raise BenchTablesError(
@@ -226,11 +237,17 @@ def difference(result: EnvBenchResult, name: str, best: str) -> str:
     return text + ("*" if p.significant else "")
 
 
+def _gap(result: EnvBenchResult, name: str) -> str:
+    """``"gap 0.157 %, "`` to the env's certified bound on the return; ``""`` without one."""
+    gap = result.gap_to_bound(name)
+    return "" if gap is None else f"gap {format_fixed(100.0 * gap[0], 3)} %, "
+
+
 def _cell(result: EnvBenchResult, name: str | None, best: str, *, named: bool) -> str:
     if name is None:
         return ""
     ms = format_ms(result.agents[name].decision_seconds_mean)
-    text = f"{difference(result, name, best)} ({ms} ms)"
+    text = f"{difference(result, name, best)} ({_gap(result, name)}{ms} ms)"
     if name == "learned" and (target := learned_target(result.env_id)):
         return f"`learned` (`{target}`): {text}"
     return f"`{name}`: {text}" if named else text
@@ -249,7 +266,7 @@ def readme_row(result: EnvBenchResult) -> str:
             random += f" (`{p.random}`)"
     cells = [
         f"`{result.env_id.split('/')[-1]}`",
-        f"`{p.best}`: {mean} ({format_ms(best.decision_seconds_mean)} ms)",
+        f"`{p.best}`: {mean} ({_gap(result, p.best)}{format_ms(best.decision_seconds_mean)} ms)",
         _cell(result, p.greedy, p.best, named=False),
         _cell(result, p.learned, p.best, named=True),
         _cell(result, p.reference, p.best, named=False),
@@ -270,7 +287,16 @@ def _date_commit(doc: dict[str, Any]) -> tuple[str, str]:
 def readme_block(doc: dict[str, Any]) -> str:
     """The README's generated block: the table and the run it comes from."""
     date, commit = _date_commit(doc)
-    rows = [readme_row(env_result(env)) for env in doc["results"]]
+    results = [env_result(env) for env in doc["results"]]
+    rows = [readme_row(r) for r in results]
+    bounded = [r for r in results if r.bounds]
+    note = ""
+    if bounded:
+        which = "; ".join(f"{r.env_id.split('/')[-1]}: {r.bound_method}" for r in bounded)
+        note = (
+            " gap: mean `(bound - return) / |bound|` to a certified upper bound on each "
+            f"episode's return ({which}); the gap to the optimum is at most this."
+        )
     return "\n".join(
         [
             "| env | best agent: mean return (decision) | `greedy` | `learned` "
@@ -278,7 +304,7 @@ def readme_block(doc: dict[str, Any]) -> str:
             "|---|---|---|---|---|---|",
             *rows,
             "",
-            f"*`make bench` of {date}, commit {commit}.*",
+            f"*`make bench` of {date}, commit {commit}.{note}*",
         ]
     )
 

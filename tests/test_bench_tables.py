@@ -263,3 +263,24 @@ def test_write_leaves_the_files_unchanged_on_an_error(tmp_path: Path) -> None:
         "bench.json",
         "make_bench.md",
     ]
+
+
+def test_bounds_round_trip_and_show_as_gaps() -> None:
+    """A JSON with a return bound gives back the bounds; rows and tables show each gap."""
+    fim = "selenv/FIMSelection-v1"
+    res = _result({"greedy": [9.0, 18.0], "swap": [9.5, 19.0], "random": [5.0, 6.0]}, fim)
+    for agent in res.agents.values():
+        agent.seeds = [0, 1]
+    res.bounds, res.bound_kind, res.bound_method = {0: 10.0, 1: 20.0}, "bound", "relaxation"
+    doc = json.loads(json.dumps(results_to_json([res], argv=["selenv", "bench"])))
+    back = bt.env_result(doc["results"][0])
+    assert back.bounds == {0: 10.0, 1: 20.0} and back.bound_method == "relaxation"
+    assert back.gap_to_bound("greedy")[0] == pytest.approx(0.1)
+    row = bt.readme_row(back)
+    assert "`swap`: 14.25 (gap 5.000 %" in row and "(gap 10.000 %" in row
+    assert "gap to bound" in format_table(back)
+    assert "FIMSelection-v1: relaxation" in bt.readme_block(doc)
+    bad = json.loads(json.dumps(doc))
+    bad["results"][0]["return_bound"]["seeds"] = [0]
+    with pytest.raises(bt.BenchTablesError, match="return_bound"):
+        bt.env_result(bad["results"][0])
