@@ -15,7 +15,7 @@ over the seeds, the worst seed, the seeds at gap 0, decision ms) and writes ever
 number to ``--json`` (atomically).
 
     .venv/bin/python benchmarks/fim_exact_gaps.py --seed 30000 --episodes 30 --time-limit 60 \\
-        --json docs/bench/fim_exact_gaps.json
+        --json docs/bench/fim_exact_gaps.json --store /tmp/fim_exact_gaps
 
 The time limit makes the bound depend on the machine's speed (the node limit does not).
 """
@@ -37,6 +37,7 @@ from selenv.agents.fim_exact import branch_and_bound_whitened, relaxation_bound_
 from selenv.atomic import write_json
 from selenv.bench.stats import bootstrap_ci
 from selenv.core.information import logdet_objective
+from selenv.parallel.store import ResultStore, task_key
 
 ENV_ID = "selenv/FIMSelection-v1"
 
@@ -57,36 +58,72 @@ def play(agent_name: str, env: gym.Env[Any, Any], seed: int) -> tuple[np.ndarray
     return np.flatnonzero(env.unwrapped.state.selected), spent  # type: ignore[attr-defined]
 
 
+def solve_seed(args: argparse.Namespace, env: gym.Env[Any, Any], seed: int) -> dict[str, Any]:
+    """One seed's record: the exact solver's best and bound, the relaxation, each agent."""
+    env.reset(seed=seed)
+    state = env.unwrapped.state  # type: ignore[attr-defined]
+    Q0, G = state.information.copy(), state.G.copy()
+    budget = int(env.unwrapped.budget_left)  # type: ignore[attr-defined]
+    t0 = time.perf_counter()
+    relax = relaxation_bound_whitened(Q0, G, budget)
+    relax_s = time.perf_counter() - t0
+    exact = branch_and_bound_whitened(
+        Q0, G, budget, node_limit=args.node_limit, time_limit=args.time_limit
+    )
+    row: dict[str, Any] = {
+        "seed": seed,
+        "best": exact.objective,
+        "bound": exact.upper_bound,
+        "optimal": exact.optimal,
+        "nodes": exact.nodes,
+        "exact_seconds": exact.seconds,
+        "relaxation": relax.bound,
+        "relaxation_seconds": relax_s,
+        "agents": {},
+    }
+    for name in args.agents:
+        picks, spent = play(name, env, seed)
+        f = logdet_objective(Q0, G, picks.tolist())
+        row["agents"][name] = {"objective": f, "decision_seconds": spent}
+    return row
+
+
+def _to_arrays(row: dict[str, Any], agents: list[str]) -> dict[str, np.ndarray]:
+    keys = ("best", "bound", "optimal", "nodes", "exact_seconds", "relaxation",
+            "relaxation_seconds")  # fmt: skip
+    out = {k: np.asarray(float(row[k])) for k in keys}
+    out["objectives"] = np.array([row["agents"][a]["objective"] for a in agents])
+    out["decision_seconds"] = np.array([row["agents"][a]["decision_seconds"] for a in agents])
+    return out
+
+
+def _from_arrays(seed: int, arr: dict[str, np.ndarray], agents: list[str]) -> dict[str, Any]:
+    row: dict[str, Any] = {k: float(v) for k, v in arr.items() if v.ndim == 0}
+    row["seed"], row["optimal"], row["nodes"] = seed, bool(row["optimal"]), int(row["nodes"])
+    row["agents"] = {
+        a: {"objective": float(arr["objectives"][i]),
+            "decision_seconds": float(arr["decision_seconds"][i])}
+        for i, a in enumerate(agents)
+    }  # fmt: skip
+    return row
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    """Solve and play every seed; the per-seed records and the summary."""
+    """Solve and play every seed (resuming from ``--store``); the per-seed records."""
     env = gym.make(ENV_ID, **args.env_kwargs)
+    store = None if args.store is None else ResultStore(args.store)
     rows = []
     for seed in tqdm(range(args.seed, args.seed + args.episodes), desc="seeds", unit="seed"):
-        env.reset(seed=seed)
-        state = env.unwrapped.state  # type: ignore[attr-defined]
-        Q0, G = state.information.copy(), state.G.copy()
-        budget = int(env.unwrapped.budget_left)  # type: ignore[attr-defined]
+        task = {"seed": seed, "env_kwargs": args.env_kwargs, "agents": args.agents,
+                "time_limit": args.time_limit, "node_limit": args.node_limit}  # fmt: skip
+        key = task_key(task)
+        if store is not None and key in store:
+            rows.append(_from_arrays(seed, store.get(key), args.agents))
+            continue
         t0 = time.perf_counter()
-        relax = relaxation_bound_whitened(Q0, G, budget)
-        relax_s = time.perf_counter() - t0
-        exact = branch_and_bound_whitened(
-            Q0, G, budget, node_limit=args.node_limit, time_limit=args.time_limit
-        )
-        row: dict[str, Any] = {
-            "seed": seed,
-            "best": exact.objective,
-            "bound": exact.upper_bound,
-            "optimal": exact.optimal,
-            "nodes": exact.nodes,
-            "exact_seconds": exact.seconds,
-            "relaxation": relax.bound,
-            "relaxation_seconds": relax_s,
-            "agents": {},
-        }
-        for name in args.agents:
-            picks, spent = play(name, env, seed)
-            f = logdet_objective(Q0, G, picks.tolist())
-            row["agents"][name] = {"objective": f, "decision_seconds": spent}
+        row = solve_seed(args, env, seed)
+        if store is not None:
+            store.write({key: _to_arrays(row, args.agents)}, time.perf_counter() - t0)
         rows.append(row)
     return {"env_id": ENV_ID, "env_kwargs": args.env_kwargs, "config": vars(args), "rows": rows}
 
@@ -144,6 +181,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--agents", default="greedy,swap,learned", help="comma-separated")
     p.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON object")
     p.add_argument("--json", default=None, help="write the per-seed numbers here")
+    p.add_argument("--store", default=None, help="keep each finished seed here and resume")
     args = p.parse_args(argv)
     args.agents = [a for a in args.agents.split(",") if a]
     if args.episodes < 1:
