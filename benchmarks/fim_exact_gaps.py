@@ -148,7 +148,7 @@ def summarise(result: dict[str, Any]) -> str:
         f"{np.median([r['relaxation_seconds'] for r in rows]) * 1e3:.0f} ms.",
         "",
         "| agent | objective (mean) | gap, certified (mean [95 % CI]) | worst | gap to best known "
-        "(mean) | seeds at the best known | decision ms |",
+        "(mean) | seeds at the best known | ms per episode |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name in result["config"]["agents"]:
