@@ -68,7 +68,7 @@ __all__ = [
     "relaxation_bound_whitened",
 ]
 
-#: default node limit of :func:`branch_and_bound_whitened` (deterministic; about a minute at
+#: default node limit of :func:`branch_and_bound_whitened` (deterministic; 35-40 s at
 #: the FIMSelection-v1 defaults when it is reached)
 DEFAULT_NODE_LIMIT = 5_000
 _T0 = 1.0  #: barrier weight of the first centring
