@@ -56,7 +56,7 @@ from selenv.agents.fim_solvers import (
     swap_whitened,
 )
 from selenv.core.information import logdet_objective, whitened_pool
-from selenv.core.linalg import FloatArray, cholesky_spd
+from selenv.core.linalg import FloatArray, logdet_spd
 from selenv.families.clustering.labels import check_int
 from selenv.threads import small_blas
 
@@ -209,7 +209,7 @@ class _Problem:
     def __init__(self, Q0: FloatArray, G: FloatArray, owner: np.ndarray, budgets: np.ndarray):
         self.Q0, self.G, self.owner, self.budgets = Q0, G, owner, budgets
         self.N, self.m, self.d = G.shape
-        self.logdet0 = 2.0 * float(np.sum(np.log(np.diag(cholesky_spd(Q0, "Q0")))))
+        self.logdet0 = float(logdet_spd(Q0, "Q0"))  # the existing helper: 2 sum log diag L
         self.evaluations = 0
         self.newton_steps = 0
 
