@@ -209,6 +209,8 @@ class EnvBenchResult:
             ``None`` if no env was built.
         bounds: seed -> certified upper bound on that episode's return (empty: none);
             ``bound_kind`` / ``bound_method`` say what it is (:mod:`selenv.bench.bounds`).
+        bound_kind: ``"optimum"`` (the bounds are attained) or ``"bound"``; ``None`` without bounds.
+        bound_method: how the bounds were computed (``FamilySpec.return_bound``); ``None`` without.
         complete: ``False`` when the run was stopped (interrupted, a worker died) before every
             agent played every episode: the agents hold the episodes that finished, and every
             statistic is computed on the paired seeds (:meth:`statistics_view`).
@@ -226,8 +228,6 @@ class EnvBenchResult:
     )
     env_config: dict[str, Any] | None = None
     complete: bool = True
-    #: a certified upper bound on each seed's return (``FamilySpec.return_bound``), with its
-    #: kind (``"optimum"`` / ``"bound"``) and method; empty when the env has none
     bounds: dict[int, float] = field(default_factory=dict)
     bound_kind: str | None = None
     bound_method: str | None = None
