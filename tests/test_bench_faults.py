@@ -268,6 +268,7 @@ def test_sigterm_with_a_process_pool_keeps_episodes_and_leaves_no_worker(tmp_pat
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     lines = _lines(err)
     assert len(lines) == 1 and "terminated (SIGTERM)" in lines[0], err
+    assert out.exists(), err  # the stderr says what the run kept
     doc = json.loads(out.read_text())["results"][0]
     assert doc["complete"] is False
     assert doc["episodes_done"]["greedy"] >= 2
