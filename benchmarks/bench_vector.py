@@ -58,7 +58,7 @@ CARTPOLE = "CartPole-v1"
 #: family id -> (size keyword, sizes for the scaling table, keywords that keep the scan cheap)
 SIZES: dict[str, tuple[str, list[int], dict[str, Any]]] = {
     "selenv/FIMSelection-v1": ("n_candidates", [25, 50, 100, 200, 400], {}),
-    "selenv/LandmarkSelection-v1": ("n_landmarks", [10, 20, 30, 60, 120], {}),
+    "selenv/LandmarkSelection-v1": ("n_landmarks", [10, 20, 30, 60, 120, 200], {}),
     "selenv/CLScheduling-v1": ("n_agents", [3, 4, 6, 8, 12, 16], {}),
     "selenv/ReceiverClustering-v1": ("n_agents", [10, 20, 30, 60], {}),
     "selenv/ReceiverClustering-v2": ("n_agents", [10, 20, 30, 60], {}),

@@ -10,6 +10,7 @@ from scipy.stats import chi2
 from selenv.core.crlb import pcrlb_step_covariance, pcrlb_step_information
 from selenv.core.kalman import kf_update
 from selenv.core.riccati import riccati_step
+from selenv.families.landmarks.flight import body_vectors_along, draw_layout
 from selenv.families.landmarks.models import (
     C_NED_TO_ENU,
     aoa_angles,
@@ -35,6 +36,7 @@ from selenv.families.landmarks.scenario import (
     check_selection,
     crlb_reference,
     make_landmark_problem,
+    scenario_static,
     selection_logdet_gain,
 )
 
@@ -240,6 +242,41 @@ def test_default_trajectory_and_layout():
     off = np.degrees(np.arccos(np.clip(delta[..., 2] / np.linalg.norm(delta, axis=-1), -1, 1)))
     assert off.min() >= 5.0  # never near the body z axis
     assert np.all(p.landmarks[:, 2] <= 100) and np.ptp(p.landmarks[:, 0]) > 5000
+
+
+def _layout_by_body_vectors(cfg, states, rng, dcm):
+    """``draw_layout``'s acceptance test written on the body vectors (eq. 17) themselves."""
+    n, m = cfg.n_landmarks, cfg.landmark_margin
+    low = [*(states[:, 0:2].min(axis=0) - m), cfg.landmark_height[0]]
+    high = [*(states[:, 0:2].max(axis=0) + m), cfg.landmark_height[1]]
+    sin_min = np.sin(np.deg2rad(cfg.min_off_nadir_deg))
+    kept, rejected = [], 0
+    while sum(len(k) for k in kept) < n:
+        cand = rng.uniform(low, high, size=(2 * n, 3))
+        delta = body_vectors_along(states, cand, dcm)
+        rho = np.hypot(delta[..., 0], delta[..., 1])
+        ok = np.all(rho > sin_min * np.linalg.norm(delta, axis=-1), axis=0)
+        kept.append(cand[ok])
+        rejected += int((~ok).sum())
+    return np.concatenate(kept)[:n], rejected
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{}, {"n_landmarks": 200}, {"n_landmarks": 12, "min_off_nadir_deg": 40.0}]
+)
+def test_layout_acceptance_equals_the_body_vector_test(kwargs):
+    """The layout's products-of-columns acceptance keeps exactly the candidates the per-state
+    body vectors keep (same layouts, seed for seed), rejections included."""
+    cfg = LandmarkConfig(**kwargs)
+    st = scenario_static(cfg)
+    rejected = 0
+    for seed in range(40):
+        want, r = _layout_by_body_vectors(cfg, st.states, np.random.default_rng(seed), st.dcm)
+        rejected += r
+        got = draw_layout(cfg, st.states, np.random.default_rng(seed), st.dcm)
+        np.testing.assert_array_equal(got, want)
+    if kwargs.get("min_off_nadir_deg", 0.0) >= 40.0:
+        assert rejected > 100  # the comparison exercised the rejection side
 
 
 def test_user_layout_and_bad_config():

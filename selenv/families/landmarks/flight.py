@@ -97,19 +97,36 @@ def draw_layout(
     """Uniform landmarks (N, 3) around the track, away from the body z axis (module docstring).
 
     ``dcm`` (T + 1, 3, 3): ``C_b^e`` along ``states`` if known (``None``: computed).
+
+    A candidate ``l`` is kept when at every state ``rho > sin(a) |Delta|`` (``a`` =
+    ``min_off_nadir_deg``, ``Delta = C_e^b (l - p)`` eq. 17, ``rho`` its horizontal part), i.e.
+    ``cos^2(a) |l - p|^2 > Delta_z^2`` (``C`` is a rotation, so ``|Delta| = |l - p|`` and
+    ``rho^2 = |Delta|^2 - Delta_z^2``), with ``Delta_z = l . c_3 - p . c_3`` and
+    ``|l - p|^2 = |l|^2 - 2 l . p + |p|^2`` (``c_3`` the third column of ``C_b^e``): two
+    ``(2N, 3) @ (3, T + 1)`` products per round instead of every body vector.
     """
     C = euler_to_dcm(states[:, 6:9]) if dcm is None else dcm
     n, m = int(cfg.n_landmarks), float(cfg.landmark_margin)
     low = [*(states[:, 0:2].min(axis=0) - m), cfg.landmark_height[0]]
     high = [*(states[:, 0:2].max(axis=0) + m), cfg.landmark_height[1]]
     sin_min = np.sin(cfg.min_off_nadir_deg * _DEG)
+    cos2 = 1.0 - sin_min * sin_min
+    p = states[:, 0:3]
+    c3 = C[:, :, 2]  # (S, 3) third column of C_b^e: Delta_z = d . c3
+    pT, c3T = np.ascontiguousarray(p.T), np.ascontiguousarray(c3.T)  # (3, S)
+    p_c3 = np.einsum("sk,sk->s", p, c3)
+    p_sq = np.einsum("sk,sk->s", p, p)
     kept: list[FloatArray] = []
     count = 0
     for _ in range(200):
         cand = rng.uniform(low, high, size=(2 * n, 3))
-        delta = body_vectors_along(states, cand, C)
-        rho = np.hypot(delta[..., 0], delta[..., 1])
-        ok = np.all(rho > sin_min * np.linalg.norm(delta, axis=-1), axis=0)
+        dz = cand @ c3T
+        dz -= p_c3
+        r2 = cand @ pT
+        r2 *= -2.0
+        r2 += p_sq
+        r2 += np.einsum("ik,ik->i", cand, cand)[:, None]
+        ok = np.all(cos2 * r2 > dz * dz, axis=1)
         kept.append(cand[ok])
         count += int(ok.sum())
         if count >= n:
