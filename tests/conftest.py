@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import atexit
 import importlib.util
 import os
+import shutil
 import signal
+import tempfile
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -143,9 +146,25 @@ def _foreground_signals() -> None:
         signal.signal(signal.SIGQUIT, signal.SIG_DFL)
 
 
+def _sb3_log_folder() -> None:
+    """One folder for every SB3 logger of the run, removed when the run ends.
+
+    SB3's ``learn()`` creates ``<tmp>/SB3-<date and time>`` for its logger unless
+    ``SB3_LOGDIR`` names one, so each test that trains would leave a folder in ``/tmp``. The
+    first process of a run (xdist's controller) creates the folder and removes it at exit; its
+    workers and the CLI subprocesses inherit the variable.
+    """
+    if "SB3_LOGDIR" in os.environ:
+        return
+    folder = tempfile.mkdtemp(prefix="selenv-tests-sb3-")
+    os.environ["SB3_LOGDIR"] = folder
+    atexit.register(shutil.rmtree, folder, True)
+
+
 def pytest_configure(config: pytest.Config) -> None:
     global _LONG_BY_MARKER
     _foreground_signals()
+    _sb3_log_folder()
     _LONG_BY_MARKER = "fuzz_long" in (config.getoption("markexpr", "") or "")
 
 
