@@ -103,25 +103,42 @@ def cell(preset: str, budget: int, args: argparse.Namespace) -> dict[str, Any]:
         "greedy_normalized_score": res.normalized_score("greedy"),
         "decision_ms": 1e3 * agent.decision_seconds / max(agent.decisions, 1),
         "greedy_decision_ms": 1e3 * greedy.decision_seconds / max(greedy.decisions, 1),
+        # mean (bound - return) / |bound| over the seeds with its 95 % CI, None without a bound
+        "bound_method": res.bound_method,
+        "gap_to_bound": _gap(res.gap_to_bound(args.agent)),
+        "greedy_gap_to_bound": _gap(res.gap_to_bound("greedy")),
     }
+
+
+def _gap(got: tuple[float, float, float] | None) -> dict[str, Any] | None:
+    return None if got is None else {"mean": got[0], "ci95": [got[1], got[2]]}
+
+
+def _pct(gap: dict[str, Any] | None) -> str:
+    if gap is None:
+        return "-"
+    pct = 100 * gap["mean"]
+    return f"{0.0 if abs(pct) < 5e-4 else pct:.3f} %"  # a rounding-level -1e-16 reads 0.000
 
 
 def table(cells: list[dict[str, Any]], agent: str) -> str:
     """The Markdown table of ``cells``."""
     lines = [
-        f"| preset | budget | {agent} - greedy [95 % CI] | W/T/L | norm. score | time / greedy |",
-        "|---|---|---|---|---|---|",
+        f"| preset | budget | {agent} - greedy [95 % CI] | W/T/L | norm. score | time / greedy "
+        f"| gap to bound: {agent} | greedy |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for c in cells:
         if "refused" in c:
-            lines.append(f"| {c['preset']} | {c['budget']} | refused: {c['refused']} | | | |")
+            lines.append(f"| {c['preset']} | {c['budget']} | refused: {c['refused']} | | | | | |")
             continue
         v = c["vs_greedy"]
         lo, hi = v["ci95"]
         lines.append(
             f"| {c['preset']} | {c['budget']} | {v['mean_diff']:+.4f} [{lo:+.4f}, {hi:+.4f}] "
             f"| {v['wins']}/{v['ties']}/{v['losses']} | {c['normalized_score']:.4f} "
-            f"| {c['decision_ms'] / c['greedy_decision_ms']:.1f}x |"
+            f"| {c['decision_ms'] / c['greedy_decision_ms']:.1f}x "
+            f"| {_pct(c.get('gap_to_bound'))} | {_pct(c.get('greedy_gap_to_bound'))} |"
         )
     return "\n".join(lines)
 
