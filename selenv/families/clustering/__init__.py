@@ -51,6 +51,7 @@ SPEC = FamilySpec(
     ),
     multiagent_module="selenv.multiagent.receiver_clustering_v1",
     multiagent_v0="selenv.multiagent.receiver_clustering_v0",
+    return_bound="selenv.families.clustering.bounds:return_bound",
 )
 make_env, make_env_v0 = env_factories(SPEC)
 make_vector_env, make_vector_env_v0 = vector_factories(SPEC)
