@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         got = bounds_of(env_id, kwargs, seed0 + e, args.candidates)
         if store is not None:
-            store.write({key: got}, time.perf_counter() - t0)
+            store.write({key: {k: np.asarray(v) for k, v in got.items()}}, time.perf_counter() - t0)
         rows.append(got)
     plain = np.array([r["bound"] for r in rows])
     refined = np.array([r["refined"] for r in rows])
