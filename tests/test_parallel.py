@@ -362,6 +362,32 @@ def test_reproduction_script_bad_executor(tmp_path, capsys):
     assert len(err) == 1 and "--address only applies to --executor ray" in err[0]
 
 
+def _signal_parent_twice(x: int) -> str:
+    """Task 0: SIGTERM to the parent, then a second one while the parent collects; finish."""
+    from selenv.parallel.executors import stop_requested
+
+    if x != 0:
+        return f"done {x}"
+    os.kill(os.getppid(), signal.SIGTERM)
+    deadline = time.monotonic() + 10
+    while not stop_requested() and time.monotonic() < deadline:  # the parent's stop request
+        time.sleep(0.01)
+    os.kill(os.getppid(), signal.SIGTERM)  # the second signal, during the parent's collection
+    time.sleep(0.3)
+    return "stopped 0" if stop_requested() else "not stopped"
+
+
+def test_a_second_signal_while_the_workers_hand_back_keeps_their_results():
+    """SIGTERM, then another while the pool's workers hand back what they have: the map still
+    collects them (the second signal waits), then raises ``Terminated``."""
+    from selenv.exits import Terminated, sigterm_raises
+
+    got: dict[int, str] = {}
+    with sigterm_raises(), pytest.raises(Terminated):
+        ProcessExecutor(2).map(_signal_parent_twice, [0, 1], on_result=got.__setitem__)
+    assert got.get(0) == "stopped 0"
+
+
 def _die_on_one(x: int) -> int:
     if x == 1:
         os.kill(os.getpid(), signal.SIGKILL)

@@ -487,8 +487,11 @@ class ProcessExecutor(Executor):
             raise
         except BaseException:  # KeyboardInterrupt, SIGTERM: keep what the workers finish
             # every future not handed over yet: still running, queued, or done but not yet
-            # finished when the signal came (``wait`` had already moved it out of ``pending``)
-            self._stop(futures, set(futures) - handled, finish)
+            # finished when the signal came (``wait`` had already moved it out of ``pending``).
+            # A second signal while the workers hand back (bounded by STOP_GRACE_SECONDS) waits
+            # until they have: raised there it would abandon every result not yet collected
+            with hold_signals():
+                self._stop(futures, set(futures) - handled, finish)
             raise
         return out
 
