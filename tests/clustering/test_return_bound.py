@@ -252,6 +252,18 @@ def _random_policy(rng: np.random.Generator, n: int, max_size: int, stick: float
     return act
 
 
+def _random_start(
+    seed: int, n: int, nmax: int | None, horizon: int, tau: int, preset: str, extra: dict
+) -> ReceiverClusteringEnv:
+    """A reset env of ``n`` receivers from a random feasible clustering."""
+    env = make_env(
+        n_agents=n, n_max_states=nmax, horizon=horizon, tau=tau, preset=preset,
+        initial="random", **extra,
+    )  # fmt: skip
+    env.reset(seed=seed)
+    return env
+
+
 @pytest.mark.parametrize(
     "n, nmax, tau, preset, extra",
     [
@@ -269,16 +281,7 @@ def test_invariants_hold_for_every_matrix_the_filters_hold(
     ``Schur_a(P_C(k)) >= L^{(|C|)}_a(k)`` for every current posterior."""
     horizon = 40
     for seed in (0, 1):
-        env = make_env(
-            n_agents=n,
-            n_max_states=nmax,
-            horizon=horizon,
-            tau=tau,
-            preset=preset,
-            initial="random",
-            **extra,
-        )
-        env.reset(seed=seed)
+        env = _random_start(seed, n, nmax, horizon, tau, preset, extra)
         problem, smax = env.problem, env.max_size
         ref = B.oracle_reference(problem, horizon, smax)
         L = B.windowed_references(problem, horizon, tau, smax, ref)
@@ -393,16 +396,7 @@ def test_random_and_myopic_policies_respect_the_bound(
     horizon = 40
     parts = feasible_partitions(n, (nmax - 2) // 4) if n <= 6 else None
     for seed in (0, 1):
-        env = make_env(
-            n_agents=n,
-            n_max_states=nmax,
-            horizon=horizon,
-            tau=tau,
-            preset=preset,
-            initial="random",
-            **extra,
-        )
-        env.reset(seed=seed)
+        env = _random_start(seed, n, nmax, horizon, tau, preset, extra)
         check = Checker(env)
         root = env.bank
         rng = np.random.default_rng(seed)
