@@ -7,8 +7,8 @@ import importlib.util
 import os
 import shutil
 import signal
-import tempfile
 import sys
+import tempfile
 from pathlib import Path
 from types import ModuleType
 
