@@ -110,6 +110,7 @@ from typing import Any
 import numpy as np
 
 from selenv.core.linalg import FloatArray
+from selenv.families.clustering.batched import axis_model
 from selenv.families.clustering.labels import IntArray
 from selenv.families.spec import ReturnBound
 
@@ -162,12 +163,15 @@ def _oracle_step(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """One 2x2 step (11b), (12c) of ``[[a, b], [b, c]]``, measuring ``p`` with information ``info``.
 
-    Prediction with ``F = [[1, h], [0, 1]]``, ``Q = [[h^3/3, h^2/2], [h^2/2, h]]``, then the
-    scalar update ``P - P e e' P / (e' P e + 1 / info)`` written entrywise (elementwise arrays).
+    Prediction with a receiver's block of the cluster model (:func:`axis_model`, eq. 3a:
+    ``F = [[1, f], [0, 1]]``, ``Q``), then the scalar update ``P - P e e' P / (e' P e + 1 / info)``
+    written entrywise (elementwise arrays).
     """
-    m00 = a + h * (2.0 * b + h * c) + h**3 / 3.0
-    m01 = b + h * c + h * h / 2.0
-    m11 = c + h
+    F, Q, _ = axis_model(h, 1)
+    f = F[0, 1]
+    m00 = a + f * (2.0 * b + f * c) + Q[0, 0]
+    m01 = b + f * c + Q[0, 1]
+    m11 = c + Q[1, 1]
     d = 1.0 + info * m00
     return m00 / d, m01 / d, m11 - info * m01 * m01 / d
 
