@@ -11,7 +11,15 @@ and reports the rounds made (the last round is the one that finds no improving s
 final objective against ``swap``'s (W/T/L, ``|Δ| <= 1e-9`` nats a tie). Greedy's own start is
 the reference line.
 
-    .venv/bin/python benchmarks/fim_swap_warm_starts.py --seed 20000 --episodes 30
+``--policy-steps 0,1,2`` adds the learned starts of the shipped candidate-scoring policy
+(``ppo_swap``'s, :meth:`~selenv.learned.families.fim.FIMPolicySwapAgent.policy_picks`): the
+policy makes the first ``s`` picks (0: all of them) and greedy completes; and the one-shot
+start of the policy's ``K`` highest scores on the first observation. Each is polished the same
+way, so the table says how many of ``swap``'s picks a learned start holds and what its polish
+costs in rounds.
+
+    .venv/bin/python benchmarks/fim_swap_warm_starts.py --seed 20000 --episodes 30 \
+        [--policy-steps 0,1,2,4]
 
 Prints one table; ``--json PATH`` writes the rows (atomically).
 """
@@ -31,18 +39,27 @@ import selenv  # noqa: F401  (registers the envs)
 from selenv.agents.fim_solvers import greedy_whitened
 from selenv.atomic import write_json
 from selenv.core.information import logdet_objective
-from selenv.learned.families.fim import polish
+from selenv.learned.families.fim import FIMPolicySwapAgent, polish
 from selenv.threads import limit_threads
 
 TIE = 1e-9
 
 
 def measure(
-    seeds: list[int], replaced: list[int], env_kwargs: dict[str, Any], perturb_seed: int
+    seeds: list[int],
+    replaced: list[int],
+    env_kwargs: dict[str, Any],
+    perturb_seed: int,
+    policy_steps: list[int] | None = None,
 ) -> list[dict[str, object]]:
-    """One row per start: ``start`` (``"greedy"`` or ``"swap - r"``), mean rounds, W/T/L."""
+    """One row per start: its picks of ``swap``'s result, mean polish rounds, Δ and W/T/L.
+
+    The starts: greedy's, ``swap``'s result with ``r`` picks replaced, and with
+    ``policy_steps`` the shipped policy's (module docstring).
+    """
     rng = np.random.default_rng(perturb_seed)
     rows: dict[str, dict[str, list[float]]] = {}
+    agents = {s: FIMPolicySwapAgent(starts="policy", policy_steps=s) for s in policy_steps or []}
 
     def add(name: str, rounds: int, diff: float, kept: int) -> None:
         row = rows.setdefault(name, {"rounds": [], "diff": [], "kept": []})
@@ -52,7 +69,7 @@ def measure(
 
     for seed in seeds:
         env = gym.make("selenv/FIMSelection-v1", **env_kwargs)
-        env.reset(seed=seed)
+        obs, info = env.reset(seed=seed)
         state = env.unwrapped.state  # type: ignore[attr-defined]
         prior, G = state.information, np.asarray(state.G)
         budget = int(env.unwrapped.budget_left)  # type: ignore[attr-defined]
@@ -68,6 +85,20 @@ def measure(
             sel, n = polish(prior, G, start)
             gap = logdet_objective(prior, G, sel) - value
             add(f"swap's result, {r} replaced", n, gap, budget - r)
+        starts: dict[str, Any] = {}
+        for s, agent in agents.items():
+            agent.reset(env, seed)
+            starts[f"policy start, {s or 'all'} policy picks"] = agent.policy_picks(obs, budget)
+        if agents:  # the one-shot start: the policy's K highest scores on the first observation
+            policy = next(iter(agents.values())).policy
+            assert policy is not None  # built for starts="policy"
+            logits = policy.logits(obs, info, backend="numpy")
+            starts["policy's K highest first scores"] = np.argsort(-logits, kind="stable")[:budget]
+        for name, picks in starts.items():
+            start = np.array(picks, dtype=np.intp)
+            sel, n = polish(prior, G, start.copy())
+            gap = logdet_objective(prior, G, sel) - value
+            add(name, n, gap, len(set(start.tolist()) & set(best.tolist())))
         env.close()
     out = []
     for name, row in rows.items():
@@ -94,6 +125,11 @@ def main(argv: list[str] | None = None) -> int:
         "--replaced", default="0,1,2,3,4", help="comma-separated numbers of picks replaced"
     )
     parser.add_argument("--perturb-seed", type=int, default=0, help="seed of the replacements")
+    parser.add_argument(
+        "--policy-steps",
+        default="",
+        help="comma-separated policy picks of the learned starts (0: every pick; default: none)",
+    )
     parser.add_argument("--env-kwargs", default="{}", help="JSON keywords of the env")
     parser.add_argument("--json", default=None, help="write the rows to this path")
     args = parser.parse_args(argv)
@@ -101,14 +137,17 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     try:
         replaced = [int(x) for x in args.replaced.split(",") if x.strip()]
+        policy_steps = [int(x) for x in args.policy_steps.split(",") if x.strip()]
         env_kwargs = json.loads(args.env_kwargs)
     except ValueError as exc:
         parser.error(f"--replaced / --env-kwargs: {exc}")
     if not isinstance(env_kwargs, dict):
         parser.error("--env-kwargs must be a JSON object")
+    if any(s < 0 for s in policy_steps):
+        parser.error(f"--policy-steps must be ints >= 0, got {args.policy_steps!r}")
     seeds = list(range(args.seed, args.seed + args.episodes))
     with limit_threads(1):
-        rows = measure(seeds, replaced, env_kwargs, args.perturb_seed)
+        rows = measure(seeds, replaced, env_kwargs, args.perturb_seed, policy_steps)
     print(f"{'start':<32} {'swap picks kept':>15} {'rounds':>7} {'mean Δ vs swap':>15}  W/T/L")
     for row in rows:
         print(
